@@ -1,0 +1,197 @@
+"""Velocities and accelerations as derivatives of the position map (seed 000, step i).
+
+``jax.jvp`` of q -> Pose with a unit driving velocity gives the kinematic
+coefficients dx/dq; a second jvp gives d2x/dq2. Then v = dx/dq w and
+a = d2x/dq2 w^2 + dx/dq alpha. There is no second hand-written velocity code path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array
+
+from ._errors import AssemblyError, AssurjaxError
+from ._mechanism import Mechanism, Pose, positions
+
+
+class Kinematics(eqx.Module):
+    """Positions (m, rad), velocities (m/s, rad/s) and accelerations (m/s^2, rad/s^2).
+
+    Dicts are keyed by point name (``points``...) or link name (``coms``...,
+    ``angles``...). Accelerations are None when not asked for (``order=1``).
+    ``ok`` has one flag per group (False: cannot assemble at that q). With a
+    batch of q every array gets the batch shape in front.
+    """
+
+    q: Array
+    omega: Array
+    alpha: Array
+    points: dict[str, Array]
+    velocities: dict[str, Array] | None
+    accelerations: dict[str, Array] | None
+    coms: dict[str, Array]
+    com_velocities: dict[str, Array] | None
+    com_accelerations: dict[str, Array] | None
+    angles: dict[str, Array]
+    angular_velocities: dict[str, Array] | None
+    angular_accelerations: dict[str, Array] | None
+    ok: Array
+
+
+def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None) -> Callable:
+    def coords(q):
+        pose = positions(mechanism, q, points=points)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
+    return coords
+
+
+def _kinematics_single(mechanism: Mechanism, q, omega, alpha, points, order: int) -> Kinematics:
+    coords = _coordinates(mechanism, points)
+    one = jnp.ones_like(q)
+    dx = d2x = None
+    if order == 0:
+        x, ok = coords(q)
+    elif order == 1:
+        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
+    else:
+        x, dx, d2x, ok = _second_order(coords, q, one)
+    vel = (None,) * 3 if dx is None else jax.tree.map(lambda d: d * omega, dx)
+    acc = (None,) * 3 if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
+    return Kinematics(
+        q=q, omega=omega, alpha=alpha,
+        points=x[0], velocities=vel[0], accelerations=acc[0],
+        coms=x[1], com_velocities=vel[1], com_accelerations=acc[1],
+        angles=x[2], angular_velocities=vel[2], angular_accelerations=acc[2],
+        ok=ok,
+    )
+
+
+def _second_order(coords, q, one):
+    """x, dx/dq, d2x/dq2 and the ok flags from one nested jvp."""
+
+    def first(q):
+        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
+        return (x, dx), ok
+
+    (x, dx), (_, d2x), ok = jax.jvp(first, (q,), (one,), has_aux=True)
+    return x, dx, d2x, ok
+
+
+@eqx.filter_jit
+def _kinematics_batch(mechanism, q, omega, alpha, points, order):
+    single = lambda q, w, a: _kinematics_single(mechanism, q, w, a, points, order)  # noqa: E731
+    shape = q.shape
+    flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), alpha.reshape(-1))
+    return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+
+
+def kinematics(
+    mechanism: Mechanism,
+    q,
+    omega=1.0,
+    alpha=0.0,
+    *,
+    points: Iterable[str] | None = None,
+    order: int = 2,
+    check: bool = True,
+) -> Kinematics:
+    """Positions, velocities and accelerations of every named point, centre of mass and link.
+
+    **Arguments:**
+    - ``q``: driving coordinate (rad for a crank, m for a slider); any shape.
+    - ``omega``, ``alpha``: driving velocity and acceleration (broadcast against q).
+      With ``omega=1`` the velocities are the kinematic coefficients dx/dq.
+    - ``points``: only these points (and the groups they need) are computed.
+    - ``order``: 0 positions, 1 adds velocities, 2 adds accelerations.
+    - ``check``: outside jit, raise :class:`AssemblyError` naming the group that
+      cannot assemble; inside jit read ``Kinematics.ok`` instead.
+
+    **Example:**
+    >>> mech = assurjax.load_scene("roberts").mechanism
+    >>> kin = assurjax.kinematics(mech, jnp.linspace(1.0, 2.0, 5))
+    >>> kin.points["P"].shape
+    (5, 2)
+    """
+    if order not in (0, 1, 2):
+        raise AssurjaxError(f"order must be 0, 1 or 2, got {order}")
+    q = jnp.asarray(q, dtype=float)
+    omega, alpha = (jnp.broadcast_to(jnp.asarray(v, dtype=q.dtype), q.shape) for v in (omega, alpha))
+    pts = None if points is None else tuple(points)
+    if pts is not None:
+        unknown = [p for p in pts if p not in dict(mechanism.owner)]
+        if unknown:
+            raise AssurjaxError(f"unknown point(s) {unknown}; the mechanism has {list(mechanism.point_names)}")
+    kin = _kinematics_batch(mechanism, q, omega, alpha, pts, order)
+    if check:
+        raise_if_not_assembled(mechanism, kin.ok, q)
+    return kin
+
+
+def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
+    """Raise :class:`AssemblyError` naming the first group that cannot assemble (no-op under tracing)."""
+    if isinstance(ok, jax.core.Tracer):
+        return
+    ok = np.asarray(ok)
+    if ok.all():
+        return
+    bad = np.argwhere(~ok)[0]
+    group = mechanism.groups[bad[-1]]
+    q_bad = np.asarray(q)[tuple(bad[:-1])] if np.ndim(q) else float(q)
+    raise AssemblyError(
+        f"{group.describe()} cannot assemble at q = {float(q_bad):.6g} ({int((~ok).any(-1).sum()) if ok.ndim > 1 else 1} "
+        f"configuration(s) fail)", group=group.name
+    )
+
+
+def pose_at(mechanism: Mechanism, q) -> Pose:
+    """The Pose at one q, with a clear error if some group cannot assemble."""
+    pose = eqx.filter_jit(positions)(mechanism, jnp.asarray(q, dtype=float))
+    raise_if_not_assembled(mechanism, pose.ok, q)
+    return pose
+
+
+def inverse_kinematics(
+    mechanism: Mechanism,
+    quantity: Callable[[Pose], Array],
+    value,
+    q0,
+    *,
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+    max_steps: int = 64,
+) -> tuple[Array, Pose]:
+    """Turn a driven quantity into the driving one (seed 001's driving dimension).
+
+    Finds q near ``q0`` (on the mechanism's assembly modes) with
+    ``quantity(pose) == value`` by Newton's method (optimistix), e.g.
+    ``quantity=lambda pose: pose.points["P"][0]`` and ``value=0.05`` for
+    x_P = 50 mm. Returns (q, pose); raises :class:`AssemblyError` when the target
+    is out of reach. Differentiable by the implicit function theorem.
+    """
+    value = jnp.asarray(value, dtype=float)
+    q, ok = _inverse_jit(mechanism, quantity, value, jnp.asarray(q0, dtype=float), rtol, atol, max_steps)
+    if not isinstance(ok, jax.core.Tracer) and not bool(ok):
+        raise AssemblyError(
+            f"inverse kinematics: no configuration near q0 = {float(q0):.6g} reaches the target value {float(value):.6g} "
+            "(out of reach on this assembly branch, or a group cannot assemble on the way)"
+        )
+    return q, pose_at(mechanism, q) if not isinstance(q, jax.core.Tracer) else positions(mechanism, q)
+
+
+@eqx.filter_jit
+def _inverse_jit(mechanism, quantity, value, q0, rtol, atol, max_steps):
+    def residual(q, _):
+        pose = positions(mechanism, q)
+        return quantity(pose) - value
+
+    sol = optx.root_find(residual, optx.Newton(rtol=rtol, atol=atol), q0, max_steps=max_steps, throw=False)
+    pose = positions(mechanism, sol.value)
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(pose.ok) & (jnp.abs(residual(sol.value, None)) < 1e-9 * (1 + jnp.abs(value)))
+    return sol.value, ok

@@ -1,0 +1,204 @@
+"""The Mechanism: a formation sequence of groups (static) and its parameters (arrays),
+and the position analysis q -> Pose, group by group in formation order."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from ._errors import MechanismError
+from ._geometry import rotate
+from .groups._base import GROUND, AbstractGroup, Frame, Link, Placement
+
+
+class Pose(eqx.Module):
+    """Result of the position analysis at one driving coordinate q.
+
+    ``points``: global position (m) of every named point; ``coms``: global
+    position of every link's centre of mass; ``angles``: angle (rad) of every
+    link's local x axis, counterclockwise from +x; ``ok``: one flag per group,
+    False where that group cannot assemble (the values are then finite but
+    meaningless).
+    """
+
+    points: dict[str, Array]
+    coms: dict[str, Array]
+    angles: dict[str, Array]
+    ok: Array
+
+
+class Mechanism(eqx.Module):
+    """A one-degree-of-freedom planar mechanism.
+
+    ``ground``: fixed points (m, global frame). ``links``: moving links with their
+    named points in their own frames. ``groups``: the formation sequence, the
+    driver first. Point names are global: a name shared by two links (or a link
+    and the ground) is the revolute joint between them.
+
+    Build-time checks (structure and, when the values are concrete, lengths,
+    masses and inertias) raise :class:`MechanismError` naming the culprit.
+    """
+
+    ground: dict[str, Array]
+    links: dict[str, Link]
+    groups: tuple[AbstractGroup, ...]
+    owner: tuple[tuple[str, str], ...] = eqx.field(static=True)
+    name: str = eqx.field(static=True)
+
+    def __init__(self, ground: Mapping, links: Mapping[str, Link], groups: Iterable[AbstractGroup], *, name: str = "mechanism"):
+        self.ground = {k: jnp.asarray(v, dtype=float) for k, v in ground.items()}
+        self.links = dict(links)
+        self.groups = tuple(groups)
+        self.name = name
+        self.owner = tuple(_check_structure(self.ground, self.links, self.groups).items())
+        _check_values(self)
+
+    @property
+    def driver(self) -> AbstractGroup:
+        return self.groups[0]
+
+    @property
+    def group_names(self) -> tuple[str, ...]:
+        return tuple(g.name for g in self.groups)
+
+    @property
+    def point_names(self) -> tuple[str, ...]:
+        return tuple(p for p, _ in self.owner)
+
+    def all_links(self) -> dict[str, Link]:
+        """The moving links plus the ground as a massless link carrying the fixed points."""
+        zero = jnp.zeros(())
+        ground = Link(points=self.ground, com=jnp.zeros(2), mass=zero, inertia=zero)
+        return {GROUND: ground, **self.links}
+
+    def groups_needed(self, points: Iterable[str] = (), links: Iterable[str] = ()) -> tuple[int, ...]:
+        """Indices of the groups that the given points and links depend on."""
+        owner = dict(self.owner)
+        group_of = {link: i for i, g in enumerate(self.groups) for link in g.links}
+        todo = [group_of[owner[p]] for p in points if owner[p] != GROUND]
+        todo += [group_of[link] for link in links]
+        needed = set()
+        while todo:
+            i = todo.pop()
+            if i in needed:
+                continue
+            needed.add(i)
+            for p in self.groups[i].external_points():
+                if owner[p] != GROUND:
+                    todo.append(group_of[owner[p]])
+        return tuple(sorted(needed))
+
+
+def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None) -> Pose:
+    """Position analysis at the driving coordinate ``q`` (rad for a crank, m for a slider).
+
+    Groups are solved one by one in formation order. With ``points`` given, only
+    the groups those points depend on are solved, and only they are returned.
+    """
+    q = jnp.asarray(q, dtype=float)
+    links = mechanism.all_links()
+    owner = dict(mechanism.owner)
+    frames = {GROUND: Frame(jnp.zeros(2), jnp.array([1.0, 0.0]))}
+    placed = Placement(links, owner, frames)
+    if points is None:
+        wanted_groups = range(len(mechanism.groups))
+        wanted_points = mechanism.point_names
+    else:
+        wanted_points = tuple(points)
+        wanted_groups = mechanism.groups_needed(wanted_points)
+    oks = [jnp.array(True)] * len(mechanism.groups)
+    for i in wanted_groups:
+        new_frames, oks[i] = mechanism.groups[i].solve(links, placed, q)
+        frames.update(new_frames)
+    moving = [name for name in frames if name != GROUND]
+    return Pose(
+        points={p: placed.point(p) for p in wanted_points},
+        coms={k: frames[k].origin + rotate(links[k].com, frames[k].rot) for k in moving},
+        angles={k: frames[k].angle for k in moving},
+        ok=jnp.stack(oks),
+    )
+
+
+def _check_structure(ground, links, groups) -> dict[str, str]:
+    """Names, formation order and the Gruebler count; returns point -> owning link."""
+    if GROUND in links:
+        raise MechanismError(f"link name '{GROUND}' is reserved for the fixed frame")
+    if not groups:
+        raise MechanismError("the formation sequence is empty: it must start with a driver")
+    if not groups[0].is_driver:
+        raise MechanismError(f"{groups[0].describe()} comes first, but the formation sequence must start with a driver (crank or slider)")
+    seen_groups, placed_links = set(), {}
+    owner = {p: GROUND for p in ground}
+    for g in groups:
+        if g.name in seen_groups:
+            raise MechanismError(f"duplicate group name '{g.name}'")
+        seen_groups.add(g.name)
+        if g.is_driver and g is not groups[0]:
+            raise MechanismError(f"{g.describe()}: only one driver is allowed (one degree of freedom)")
+        for p in g.external_points():
+            if p not in owner:
+                raise MechanismError(f"{g.describe()} uses point '{p}', which no earlier group (nor the ground) defines")
+        for link in g.links:
+            if link not in links:
+                raise MechanismError(f"{g.describe()} uses unknown link '{link}'")
+            if link in placed_links:
+                raise MechanismError(f"{g.describe()}: link '{link}' is already placed by group '{placed_links[link]}'")
+            placed_links[link] = g.name
+        for link, needed in g.required_points().items():
+            for p in needed:
+                if p not in links[link].points:
+                    raise MechanismError(f"{g.describe()}: link '{link}' has no point '{p}'")
+        for link in g.links:
+            for p in links[link].points:
+                owner.setdefault(p, link)
+    unused = [name for name in links if name not in placed_links]
+    if unused:
+        raise MechanismError(f"link(s) {unused} belong to no group of the formation sequence")
+    dof, n, pairs = gruebler(ground, links, groups)
+    if dof != 1:
+        raise MechanismError(
+            f"the mechanism has {dof} degrees of freedom by Gruebler's count (3*{n} - 2*{pairs}); expected 1: "
+            "check the point names shared between links (a shared name is a joint)"
+        )
+    return owner
+
+
+def gruebler(ground, links, groups) -> tuple[int, int, int]:
+    """(DOF, moving links, lower pairs): revolutes from shared point names plus declared prismatic pairs."""
+    carriers: dict[str, int] = {p: 1 for p in ground}
+    for link in links.values():
+        for p in link.points:
+            carriers[p] = carriers.get(p, 0) + 1
+    pairs = sum(c - 1 for c in carriers.values()) + sum(g.n_prismatic for g in groups)
+    return 3 * len(links) - 2 * pairs, len(links), pairs
+
+
+def _concrete(x) -> np.ndarray | None:
+    try:
+        return np.asarray(x)
+    except Exception:  # a tracer: values are checked where they are concrete
+        return None
+
+
+def _check_values(mech: Mechanism) -> None:
+    for name, link in mech.links.items():
+        mass, inertia = _concrete(link.mass), _concrete(link.inertia)
+        if mass is not None and np.any(mass < 0):
+            raise MechanismError(f"link '{name}': mass must be non-negative, got {mass}")
+        if inertia is not None and np.any(inertia < 0):
+            raise MechanismError(f"link '{name}': inertia must be non-negative, got {inertia}")
+    links = mech.all_links()
+    for g in mech.groups:
+        for link, needed in g.required_points().items():
+            for a, b in zip(needed, needed[1:]):
+                d = _concrete(links[link].points[a] - links[link].points[b])
+                if d is not None and np.any(np.hypot(d[..., 0], d[..., 1]) <= 0):
+                    raise MechanismError(f"{g.describe()}: link '{link}' has zero length between '{a}' and '{b}'")
+        for field in ("direction", "directions"):
+            v = _concrete(getattr(g, field, None)) if hasattr(g, field) else None
+            if v is not None and np.any(np.hypot(v[..., 0], v[..., 1]) <= 0):
+                raise MechanismError(f"{g.describe()}: guide {field} must be a non-zero vector")

@@ -1,0 +1,118 @@
+"""What every Assur group (and driver) provides.
+
+A group is an equinox Module: its structure (names, assembly mode) is static and
+its own parameters (guide directions, offsets) are arrays. ``solve`` is a pure
+JAX function: it reads the global positions of the group's external joints (and
+the angles of the links carrying its guides) from a :class:`Placement` and
+returns the frames of the group's own links plus an ``ok`` flag that is False
+when the group cannot assemble. Values are kept finite (never NaN) even then.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._geometry import heading, relative_rotation, rotate
+
+
+class Frame(NamedTuple):
+    """Pose of a link: global position of its local origin and its rotation as a
+    unit vector (cos, sin) of the angle of its local x axis (rotations are kept
+    as unit vectors so the position analysis needs no atan2, cos or sin)."""
+
+    origin: Array
+    rot: Array
+
+    @property
+    def angle(self) -> Array:
+        """Angle (rad) of the local x axis, counterclockwise from +x, in (-pi, pi]."""
+        return heading(self.rot)
+
+
+class Link(eqx.Module):
+    """A rigid link. ``points`` are named points in the link's own frame (m);
+    a point name shared by two links is the joint between them. ``inertia`` is
+    the centroidal moment of inertia (kg m^2)."""
+
+    points: dict[str, Array]
+    com: Array
+    mass: Array
+    inertia: Array
+
+
+GROUND = "ground"
+
+
+class Placement:
+    """Links placed so far during the position analysis (a trace-time helper,
+    not a pytree): ``owner`` maps each point name to the link it is read from."""
+
+    def __init__(self, links: dict[str, Link], owner: dict[str, str], frames: dict[str, Frame]):
+        self.links = links
+        self.owner = owner
+        self.frames = frames
+
+    def point(self, name: str) -> Array:
+        link = self.owner[name]
+        frame = self.frames[link]
+        return frame.origin + rotate(self.links[link].points[name], frame.rot)
+
+    def rotation_of_owner(self, name: str) -> Array:
+        """Rotation (cos, sin) of the link that carries point ``name``."""
+        return self.frames[self.owner[name]].rot
+
+    def local(self, link: str, name: str) -> Array:
+        return self.links[link].points[name]
+
+
+def frame_through(local_a, local_b, global_a, global_b) -> Frame:
+    """The frame that maps two local points of a link onto their global positions
+    (the distance between them is assumed to match)."""
+    rot = relative_rotation(local_b - local_a, global_b - global_a)
+    return Frame(global_a - rotate(local_a, rot), rot)
+
+
+def frame_from_rotation(local_a, global_a, rot) -> Frame:
+    """The frame with rotation ``rot`` (cos, sin) that maps a local point onto its global position."""
+    return Frame(global_a - rotate(local_a, rot), rot)
+
+
+def distance(links: dict[str, Link], link: str, a: str, b: str) -> Array:
+    """Distance between two named points of one link (m)."""
+    d = links[link].points[a] - links[link].points[b]
+    return jnp.sqrt(d[0] ** 2 + d[1] ** 2)
+
+
+class AbstractGroup(eqx.Module):
+    """Base of drivers and Assur groups.
+
+    Subclasses declare ``kind`` and ``n_prismatic`` (prismatic pairs that are not
+    visible as shared point names) and implement ``external_points``,
+    ``required_points`` and ``solve``.
+    """
+
+    name: eqx.AbstractVar[str]
+    links: eqx.AbstractVar[tuple[str, ...]]
+    kind: ClassVar[str]
+    n_prismatic: ClassVar[int] = 0
+    is_driver: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def external_points(self) -> tuple[str, ...]:
+        """Points this group reads from earlier groups (joints, guide points)."""
+
+    @abc.abstractmethod
+    def required_points(self) -> dict[str, tuple[str, ...]]:
+        """For each of the group's links, the point names it must carry."""
+
+    @abc.abstractmethod
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array) -> tuple[dict[str, Frame], Array]:
+        """Frames of this group's links and an ``ok`` flag (False: cannot assemble)."""
+
+    def describe(self) -> str:
+        return f"group '{self.name}' ({self.kind})"

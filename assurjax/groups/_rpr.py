@@ -1,0 +1,52 @@
+"""RPR dyad: a block pinned at E1 slides along a guide link pinned at E2 (the
+inverted slider-crank, the Whitworth and Scotch-yoke style guide link)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._geometry import relative_rotation, rotate, safe_norm, unit
+from ._base import AbstractGroup, Link, Placement, frame_from_rotation
+
+
+class RPR(AbstractGroup):
+    """``links`` = (block, guide link); ``joints`` = (E1, E2). The guide is the line
+    of the guide link through E2 along ``direction`` (in the guide link's frame);
+    E1 lies at the signed distance ``offset`` (m, positive to the left) from it.
+    ``mode`` +1: E1 is ahead of E2 along the guide direction; -1: behind. The
+    block's local x axis is along the guide.
+    """
+
+    name: str = eqx.field(static=True)
+    links: tuple[str, ...] = eqx.field(static=True)
+    joints: tuple[str, str] = eqx.field(static=True)
+    mode: int = eqx.field(static=True)
+    direction: Array
+    offset: Array
+    kind = "RPR"
+
+    def external_points(self):
+        return self.joints
+
+    def required_points(self):
+        e1, e2 = self.joints
+        return {self.links[0]: (e1,), self.links[1]: (e2,)}
+
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array):
+        (block, guide), (e1, e2) = self.links, self.joints
+        p1, p2 = placed.point(e1), placed.point(e2)
+        d = p1 - p2
+        r = safe_norm(d)
+        ratio = self.offset / jnp.where(r > 0.0, r, 1.0)
+        ok = (r > 0.0) & (jnp.abs(ratio) <= 1.0)
+        # guide direction u: d turned by -asin(ratio) (mode +1) or by pi + asin(ratio) (mode -1)
+        s = jnp.where(ok, ratio, 0.0)
+        c = jnp.sqrt(1.0 - s**2)
+        u = self.mode * rotate(d / jnp.where(r > 0.0, r, 1.0), jnp.stack([c, -self.mode * s]))
+        frames = {
+            block: frame_from_rotation(links[block].points[e1], p1, u),
+            guide: frame_from_rotation(links[guide].points[e2], p2, relative_rotation(unit(self.direction), u)),
+        }
+        return frames, ok
+
+

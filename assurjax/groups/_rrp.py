@@ -1,0 +1,65 @@
+"""RRP and PRR dyads: a binary link and a slider joined at the internal revolute J;
+the binary link is pinned to an earlier link at E, the slider runs on a guide
+carried by an earlier link. RRP lists the revolute end first, PRR the prismatic
+end first; the geometry is the same."""
+
+import equinox as eqx
+from jaxtyping import Array
+
+from ._base import AbstractGroup, Link, Placement, distance, frame_from_rotation, frame_through
+from ._guides import guide_line, line_circle
+
+
+class RRP(AbstractGroup):
+    """``links`` = (rod, slider); ``joints`` = (E, J); the slider's point J runs on
+    the line through ``guide_point`` (of an earlier link) along ``direction``
+    (in that link's frame), shifted by ``offset`` (m) to the left of it.
+    ``mode`` +1: J is ahead of the foot of the perpendicular from E (along the
+    guide direction); -1: behind it. The slider's local x axis is along the guide.
+    """
+
+    name: str = eqx.field(static=True)
+    links: tuple[str, ...] = eqx.field(static=True)
+    joints: tuple[str, str] = eqx.field(static=True)
+    guide_point: str = eqx.field(static=True)
+    mode: int = eqx.field(static=True)
+    direction: Array
+    offset: Array
+    kind = "RRP"
+    n_prismatic = 1
+
+    def external_points(self):
+        return (self.joints[0], self.guide_point)
+
+    def required_points(self):
+        e, j = self.joints
+        return {self.links[0]: (e, j), self.links[1]: (j,)}
+
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array):
+        (rod, slider), (e, j) = self.links, self.joints
+        base, u, n = guide_line(placed, self.guide_point, self.direction, self.offset)
+        pe = placed.point(e)
+        pj, ok = line_circle(base, u, n, pe, distance(links, rod, e, j), self.mode)
+        frames = {
+            rod: frame_through(links[rod].points[e], links[rod].points[j], pe, pj),
+            slider: frame_from_rotation(links[slider].points[j], pj, u),
+        }
+        return frames, ok
+
+
+class PRR(RRP):
+    """The RRP dyad listed from its prismatic end: ``links`` = (slider, rod),
+    ``joints`` = (J, E); same guide fields and mode convention as :class:`RRP`."""
+
+    kind = "PRR"
+
+    def external_points(self):
+        return (self.joints[1], self.guide_point)
+
+    def required_points(self):
+        j, e = self.joints
+        return {self.links[0]: (j,), self.links[1]: (e, j)}
+
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array):
+        mirrored = RRP(self.name, self.links[::-1], self.joints[::-1], self.guide_point, self.mode, self.direction, self.offset)
+        return mirrored.solve(links, placed, q)

@@ -1,0 +1,50 @@
+"""RRR dyad: two binary links joined at an internal revolute J, each pinned to an
+earlier link at an external revolute (E1 on the first link, E2 on the second)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._geometry import dot, perp
+from ._base import AbstractGroup, Link, Placement, distance, frame_through
+
+
+def circle_circle(c1: Array, r1: Array, c2: Array, r2: Array, mode: int):
+    """Intersection of two circles; ``mode`` = +1 takes the point left of the
+    directed line c1 -> c2, -1 the one on its right. Returns (point, ok)."""
+    d = c2 - c1
+    dd = dot(d, d)
+    dd_safe = jnp.where(dd > 0.0, dd, 1.0)
+    along = (dd + r1**2 - r2**2) / (2.0 * dd_safe)  # as a fraction of |d|
+    h2 = r1**2 / dd_safe - along**2  # squared height, also as a fraction of |d|
+    ok = (h2 >= 0.0) & (dd > 0.0)
+    h = jnp.sqrt(jnp.where(ok, h2, 1.0)) * ok
+    return c1 + along * d + mode * h * perp(d), ok
+
+
+class RRR(AbstractGroup):
+    """Closed form (circle intersection). ``mode`` +1: J lies left of the directed
+    line E1 -> E2 ("left"); -1: right."""
+
+    name: str = eqx.field(static=True)
+    links: tuple[str, ...] = eqx.field(static=True)
+    joints: tuple[str, str, str] = eqx.field(static=True)  # (E1, E2, J)
+    mode: int = eqx.field(static=True)
+    kind = "RRR"
+
+    def external_points(self):
+        return self.joints[:2]
+
+    def required_points(self):
+        e1, e2, j = self.joints
+        return {self.links[0]: (e1, j), self.links[1]: (e2, j)}
+
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array):
+        (a, b), (e1, e2, j) = self.links, self.joints
+        p1, p2 = placed.point(e1), placed.point(e2)
+        pj, ok = circle_circle(p1, distance(links, a, e1, j), p2, distance(links, b, e2, j), self.mode)
+        frames = {
+            a: frame_through(links[a].points[e1], links[a].points[j], p1, pj),
+            b: frame_through(links[b].points[e2], links[b].points[j], p2, pj),
+        }
+        return frames, ok

@@ -1,0 +1,283 @@
+"""Reading and validating TOML scene files. Every error names the file and the field."""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import MechanismError, SceneError
+from .._mechanism import Mechanism
+from ..groups import GROUND, Link
+from ..groups import _drivers, _prp, _rpr, _rrp, _rrr
+from ._scene import Scene, Settings
+
+BUNDLED = "assurjax.scenes"
+MODES = {"left": 1, "right": -1, "forward": 1, "backward": -1, "+": 1, "-": -1, "+1": 1, "-1": -1, 1: 1, -1: -1}
+
+
+def bundled_scenes() -> list[str]:
+    """Names of the scenes shipped with the package."""
+    return sorted(p.name[:-5] for p in resources.files(BUNDLED).iterdir() if p.name.endswith(".toml"))
+
+
+def scene_path(path_or_name: str | Path) -> Path:
+    """A scene file's path: an existing file, or the name of a bundled scene."""
+    path = Path(path_or_name)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise SceneError(f"{path}: no such scene file")
+        return path
+    bundled = resources.files(BUNDLED) / f"{path_or_name}.toml"
+    if not bundled.is_file():
+        raise SceneError(f"'{path_or_name}' is neither a scene file nor a bundled scene (bundled: {', '.join(bundled_scenes())})")
+    return Path(str(bundled))
+
+
+def load_scene(path_or_name: str | Path) -> Scene:
+    """Read a scene from a TOML file or a bundled scene name (e.g. ``"watt_sixbar"``).
+
+    Raises :class:`SceneError` naming the file, table and field at fault.
+    """
+    path = scene_path(path_or_name)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    return scene_from_dict(data, source=str(path))
+
+
+class Fields:
+    """Typed access to one table of a scene, with errors that say where."""
+
+    def __init__(self, table: Any, where: str, source: str):
+        if not isinstance(table, dict):
+            raise SceneError(f"{source}: {where} must be a table, got {type(table).__name__}")
+        self.table, self.where, self.source = table, where, source
+        self.used: set[str] = set()
+
+    def fail(self, key: str, message: str):
+        raise SceneError(f"{self.source}: {self.where}, field '{key}': {message}")
+
+    def has(self, key: str) -> bool:
+        return key in self.table
+
+    def raw(self, key: str, default: Any = ...):
+        self.used.add(key)
+        if key not in self.table:
+            if default is ...:
+                raise SceneError(f"{self.source}: {self.where}: missing field '{key}'")
+            return default
+        return self.table[key]
+
+    def string(self, key: str, default: Any = ...) -> str:
+        v = self.raw(key, default)
+        if not isinstance(v, str):
+            self.fail(key, f"expected a string, got {v!r}")
+        return v
+
+    def names(self, key: str, count: int | None = None) -> tuple[str, ...]:
+        v = self.raw(key)
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v) or (count is not None and len(v) != count):
+            self.fail(key, f"expected a list of {count or 'some'} names, got {v!r}")
+        return tuple(v)
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = False, nonnegative: bool = False) -> float:
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(key, f"expected a number, got {v!r}")
+        if positive and not v > 0:
+            self.fail(key, f"must be positive, got {v}")
+        if nonnegative and not v >= 0:
+            self.fail(key, f"must be non-negative, got {v}")
+        return float(v)
+
+    def vector(self, key: str, default: Any = ..., *, size: int = 2) -> np.ndarray:
+        v = self.raw(key, default)
+        ok = isinstance(v, list) and len(v) == size and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        if not ok:
+            self.fail(key, f"expected a list of {size} numbers, got {v!r}")
+        return np.asarray(v, dtype=float)
+
+    def boolean(self, key: str, default: Any = ...) -> bool:
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            self.fail(key, f"expected true or false, got {v!r}")
+        return v
+
+    def mode(self, key: str = "mode", default: Any = ...) -> int:
+        v = self.raw(key, default)
+        if v not in MODES or isinstance(v, bool):
+            self.fail(key, f"expected 'left'/'right' (or 'forward'/'backward', '+'/'-'), got {v!r}")
+        return MODES[v]
+
+    def reject_unknown(self, allowed: set[str] | None = None):
+        extra = sorted(set(self.table) - (allowed if allowed is not None else self.used))
+        if extra:
+            raise SceneError(f"{self.source}: {self.where}: unknown field(s) {extra}")
+
+
+def _points(fields: Fields, key: str) -> dict[str, np.ndarray]:
+    table = Fields(fields.raw(key), f"{fields.where}.{key}", fields.source)
+    return {name: table.vector(name) for name in table.table}
+
+
+def _link(name: str, table, source: str) -> Link:
+    f = Fields(table, f"[links.{name}]", source)
+    points = _points(f, "points")
+    if not points:
+        f.fail("points", "a link needs at least one named point")
+    centroid = np.mean(list(points.values()), axis=0)
+    link = Link(
+        points={k: jnp.asarray(v) for k, v in points.items()},
+        com=jnp.asarray(f.vector("com", list(centroid))),
+        mass=jnp.asarray(f.number("mass", 0.0, nonnegative=True)),
+        inertia=jnp.asarray(f.number("inertia", 0.0, nonnegative=True)),
+    )
+    f.reject_unknown()
+    return link
+
+
+def _guide(f: Fields, prefix: str = "") -> dict:
+    return dict(
+        guide_point=f.string(prefix + "guide_point"),
+        direction=jnp.asarray(f.vector(prefix + "direction", [1.0, 0.0])),
+        offset=jnp.asarray(f.number(prefix + "offset", 0.0)),
+    )
+
+
+def _crank(f, name):
+    return _drivers.Crank(name, (f.string("link"),), f.string("pivot"))
+
+
+def _slider(f, name):
+    return _drivers.Slider(name, (f.string("link"),), f.string("point"), f.string("guide_point"), jnp.asarray(f.vector("direction", [1.0, 0.0])))
+
+
+def _rrr_group(f, name):
+    return _rrr.RRR(name, f.names("links", 2), f.names("joints", 3), f.mode())
+
+
+def _rrp_group(cls):
+    def parse(f, name):
+        g = _guide(f)
+        return cls(name, f.names("links", 2), f.names("joints", 2), g["guide_point"], f.mode(), g["direction"], g["offset"])
+
+    return parse
+
+
+def _rpr_group(f, name):
+    return _rpr.RPR(name, f.names("links", 2), f.names("joints", 2), f.mode(), jnp.asarray(f.vector("direction", [1.0, 0.0])), jnp.asarray(f.number("offset", 0.0)))
+
+
+def _prp_group(f, name):
+    directions = f.raw("directions", [[1.0, 0.0], [0.0, 1.0]])
+    arr = np.asarray(directions, dtype=float) if isinstance(directions, list) else None
+    if arr is None or arr.shape != (2, 2):
+        f.fail("directions", f"expected two 2-vectors, got {directions!r}")
+    offsets = f.raw("offsets", [0.0, 0.0])
+    if not (isinstance(offsets, list) and len(offsets) == 2):
+        f.fail("offsets", f"expected two numbers, got {offsets!r}")
+    return _prp.PRP(name, f.names("links", 2), f.string("joint"), f.names("guide_points", 2), jnp.asarray(arr), jnp.asarray(offsets, dtype=float))
+
+
+# kind -> parser(fields, group name) -> group. Other modules register their kinds here.
+GROUP_PARSERS: dict[str, Callable] = {
+    "crank": _crank,
+    "slider": _slider,
+    "RRR": _rrr_group,
+    "RRP": _rrp_group(_rrp.RRP),
+    "PRR": _rrp_group(_rrp.PRR),
+    "RPR": _rpr_group,
+    "PRP": _prp_group,
+}
+
+# Scene tables other modules parse: name -> parser(raw value, mechanism, source) -> parsed value.
+LOAD_PARSER: list[Callable] = []
+
+
+def _group(index: int, table, source: str):
+    kind = table.get("group") if isinstance(table, dict) else None
+    where = f"[[formation]] #{index + 1}"
+    if kind not in GROUP_PARSERS:
+        raise SceneError(f"{source}: {where}, field 'group': unknown group kind {kind!r} (known: {', '.join(GROUP_PARSERS)})")
+    name = table.get("name", f"{kind}{index + 1}" if index else "driver")
+    f = Fields(table, f"{where} ({kind} '{name}')", source)
+    f.raw("group")
+    f.string("name", name)
+    group = GROUP_PARSERS[kind](f, name)
+    f.reject_unknown()
+    return group
+
+
+def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
+    """Build a Scene from the parsed TOML tables (see docs/scene-format.md)."""
+    top = Fields(data, "the top level", source)
+    top.reject_unknown({"scene", "ground", "links", "formation", "state", "simulation", "outputs", "loads"})
+    head = Fields(top.raw("scene", {}), "[scene]", source)
+    name = head.string("name", Path(source).stem)
+    description = head.string("description", "")
+    gravity = head.vector("gravity", [0.0, 0.0])
+    head.reject_unknown()
+
+    ground = _points(top, "ground") if top.has("ground") else {}
+    links_table = Fields(top.raw("links"), "[links]", source)
+    if GROUND in links_table.table:
+        links_table.fail(GROUND, "the name 'ground' is reserved; put fixed points in [ground]")
+    links = {name_: _link(name_, t, source) for name_, t in links_table.table.items()}
+    formation = top.raw("formation")
+    if not isinstance(formation, list) or not formation:
+        raise SceneError(f"{source}: [[formation]] must be a non-empty array of tables, the driver first")
+    groups = [_group(i, t, source) for i, t in enumerate(formation)]
+    try:
+        mechanism = Mechanism(ground, links, groups, name=name)
+    except MechanismError as e:
+        raise SceneError(f"{source}: {e}") from None
+
+    state = Fields(top.raw("state", {}), "[state]", source)
+    state_values = dict(
+        q0=state.number("q0", 0.0), omega0=state.number("omega0", 0.0), t0=state.number("t0", 0.0), t1=state.number("t1", 1.0)
+    )
+    state.reject_unknown()
+    simulation = Fields(top.raw("simulation", {}), "[simulation]", source)
+    sim_values = dict(simulation.table)
+    outputs = Fields(top.raw("outputs", {}), "[outputs]", source)
+    out_values = _outputs(outputs, mechanism)
+
+    loads = ()
+    for parse in LOAD_PARSER:
+        loads = parse(top.raw("loads", []), mechanism, source)
+    if top.has("loads") and not LOAD_PARSER:
+        raise SceneError(f"{source}: [[loads]] are not supported by this installation")
+    return Scene(
+        mechanism=mechanism,
+        gravity=jnp.asarray(gravity),
+        loads=tuple(loads),
+        state=Settings(state_values),
+        simulation=Settings(sim_values),
+        outputs=Settings(out_values),
+        name=name,
+        description=description,
+        source=source,
+    )
+
+
+def _outputs(f: Fields, mechanism: Mechanism) -> dict:
+    points = f.names("points") if f.has("points") else ()
+    known_points = set(mechanism.point_names)
+    for p in points:
+        if p not in known_points:
+            f.fail("points", f"unknown point '{p}' (known: {sorted(known_points)})")
+    angles = f.names("angles") if f.has("angles") else ()
+    for a in angles:
+        if a not in mechanism.links:
+            f.fail("angles", f"unknown link '{a}' (known: {sorted(mechanism.links)})")
+    reactions = f.names("reactions") if f.has("reactions") else ()
+    values = dict(points=points, angles=angles, reactions=reactions, energies=f.boolean("energies", True))
+    extra = {k: v for k, v in f.table.items() if k not in values}
+    return {**values, **extra}

@@ -1,0 +1,63 @@
+"""The Scene: what a scene file describes, as Python objects."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+from jaxtyping import Array
+
+from .._mechanism import Mechanism
+
+
+class Settings(dict):
+    """A read-only, hashable dict (static settings must be hashable for jit)."""
+
+    def __hash__(self):
+        return hash(tuple(sorted((k, _freeze(v)) for k, v in self.items())))
+
+    def _readonly(self, *args, **kwargs):
+        raise TypeError("scene settings are read-only; use Scene.with_settings")
+
+    __setitem__ = __delitem__ = update = pop = clear = setdefault = _readonly
+
+
+def _freeze(v):
+    if isinstance(v, dict):
+        return tuple(sorted((k, _freeze(x)) for k, x in v.items()))
+    if isinstance(v, (list, tuple)):
+        return tuple(_freeze(x) for x in v)
+    return v
+
+
+class Scene(eqx.Module):
+    """A mechanism with its loads, initial state, solver settings and wanted outputs.
+
+    ``loads`` is a tuple of load objects (see ``assurjax.loads``); ``gravity`` a
+    2-vector (m/s^2). ``state`` holds ``q0``, ``omega0`` (rad and rad/s for a crank,
+    m and m/s for a slider), ``t0`` and ``t1`` (s). ``simulation`` holds solver
+    settings (``solver``, ``rtol``, ``atol``, ``stop``, ``max_steps``...).
+    ``outputs`` says what to compute: ``points`` (trajectories), ``angles``
+    (links), ``reactions`` (joint names), ``energies`` (bool).
+    """
+
+    mechanism: Mechanism
+    gravity: Array
+    loads: tuple
+    state: Settings = eqx.field(static=True)
+    simulation: Settings = eqx.field(static=True)
+    outputs: Settings = eqx.field(static=True)
+    name: str = eqx.field(static=True)
+    description: str = eqx.field(static=True, default="")
+    source: str = eqx.field(static=True, default="")
+
+    def replace_mechanism(self, mechanism: Mechanism) -> "Scene":
+        return eqx.tree_at(lambda s: s.mechanism, self, mechanism)
+
+    def with_settings(self, *, state: dict | None = None, simulation: dict | None = None, outputs: dict | None = None) -> "Scene":
+        """A copy with some settings updated, e.g. ``scene.with_settings(state={"q0": 1.0})``."""
+        new = {}
+        for field, extra in (("state", state), ("simulation", simulation), ("outputs", outputs)):
+            if extra:
+                new[field] = Settings({**getattr(self, field), **extra})
+        return dataclasses.replace(self, **new)

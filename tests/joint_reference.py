@@ -1,0 +1,699 @@
+"""Independent joint-coordinate reference for planar one-degree-of-freedom linkages.
+
+numpy + scipy only: this module must share no code (and no jax) with ``assurjax``,
+so that the package can be checked against it.
+
+Formulation
+-----------
+Absolute coordinates per moving body.  The user-facing coordinates of a body are
+those of its *frame*: origin (x, y) and angle theta (counterclockwise from +x).
+Internally each body is described by its centre of mass ``r_c = origin + A(theta) com``
+and theta, so that the mass matrix is diagonal ``diag(m, m, J_c)``.
+
+Kinematic constraints ``Phi(z) = 0`` (revolute: 2 rows, prismatic: 2 rows) plus one
+driving relation ``D(z) = q`` fix all body coordinates ``z`` for a given generalized
+coordinate ``q`` (the driver body's angle, or its frame origin's x or y).
+
+Forward dynamics solves the index-1 Lagrange-multiplier system
+
+    [ M      Phi_z^T ] [ zdd ]   [ Q + tau D_z^T ]
+    [ Phi_z  0       ] [ lam ] = [ gamma         ]
+
+with ``gamma = -(Phi_z zd)_z zd``; the driver acceleration is ``wdot = D_z zdd - gamma_D``.
+Time integration uses generalized coordinate partitioning (Wehage-Haug): only
+``(q, w)`` (and a work quadrature) are integrated with ``solve_ivp``; at every
+evaluation ``z`` is recovered by Newton from ``[Phi; D - q] = 0`` starting from the
+previous solution (predicted along dz/dq, which keeps the assembly branch), and
+``zd = (dz/dq) w``.  Constraint drift is therefore at Newton precision (~1e-15).
+
+Sign conventions
+----------------
+* Angles counterclockwise from +x; gravity is a vector (default (0, -9.81)).
+* ``tau`` is the generalized force conjugate to ``q``: a torque on the driver body
+  (angle driver) or a force along +x / +y on its frame origin (translating driver).
+  ``tau_needed`` (inverse dynamics) is the ``tau`` that produces the given motion.
+* Joint reaction of joint ``(name, body_i, body_j)``: the global vector (Fx, Fy) of the
+  force exerted ON body_i BY body_j (body_j receives the opposite).  For a revolute it
+  acts at the joint point.  For a prismatic it acts at the sliding point of body_j
+  (normal to the guide), and ``couples[name]`` is the additional couple on body_i by
+  body_j (body_j receives the opposite).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.special import ellipj, ellipk
+
+GROUND = "ground"
+G = 9.81
+
+
+# ----------------------------------------------------------------------------- elements
+@dataclass(frozen=True)
+class Revolute:
+    """Point s_i (body_i frame) coincides with point s_j (body_j frame).
+    For the ground, points are global."""
+    name: str
+    body_i: str
+    body_j: str
+    s_i: tuple
+    s_j: tuple
+
+
+@dataclass(frozen=True)
+class Prismatic:
+    """Point s_j of body_j stays on the line through s_i with direction axis_i (body_i
+    frame), and theta_j - theta_i = angle0 (relative rotation locked)."""
+    name: str
+    body_i: str
+    body_j: str
+    s_i: tuple = (0.0, 0.0)
+    s_j: tuple = (0.0, 0.0)
+    axis_i: tuple = (1.0, 0.0)
+    angle0: float = 0.0
+
+
+@dataclass(frozen=True)
+class Damper:
+    """Linear translational viscous damper, force c * dL/dt along the line between
+    point s_a of body_a and point s_b of body_b (resisting elongation rate)."""
+    name: str
+    body_a: str
+    s_a: tuple
+    body_b: str
+    s_b: tuple
+    c: float
+
+
+@dataclass
+class Initial:
+    """Assembled initial state: q, w and frame coordinates {body: (x, y, theta)}."""
+    q: float
+    w: float
+    coords: dict
+
+
+def _rot(th):
+    c, s = np.cos(th), np.sin(th)
+    return np.array([[c, -s], [s, c]])
+
+
+def _perp(v):
+    """v rotated by +90 degrees (so d(A s)/dtheta = perp(A s))."""
+    return np.array([-v[1], v[0]])
+
+
+def _cross(a, b):
+    return a[0] * b[1] - a[1] * b[0]
+
+
+# ----------------------------------------------------------------------------- system
+class System:
+    """Planar multibody system with one degree of freedom.
+
+    bodies: {name: dict(mass, inertia, com_local=(x, y))}, inertia about the COM.
+    joints: list of Revolute / Prismatic; "ground" is the fixed body.
+    driver: (body, kind), kind in {"angle", "x", "y"} -- q is that frame coordinate.
+    dampers: list of Damper.
+    """
+
+    def __init__(self, bodies, joints, driver, gravity=(0.0, -G), dampers=(), max_dq=0.05):
+        self.names = list(bodies)
+        self.idx = {b: k for k, b in enumerate(self.names)}
+        self.idx[GROUND] = -1
+        self.n = 3 * len(self.names)
+        self.com = {b: np.asarray(d.get("com_local", (0.0, 0.0)), float) for b, d in bodies.items()}
+        self.com[GROUND] = np.zeros(2)
+        self.mass = np.array([bodies[b]["mass"] for b in self.names], float)
+        self.Mdiag = np.concatenate([[d["mass"], d["mass"], d["inertia"]] for d in bodies.values()])
+        self.gravity = np.asarray(gravity, float)
+        self.joints = list(joints)
+        self.dampers = list(dampers)
+        self.m = 2 * len(self.joints)
+        if self.m != self.n - 1:
+            raise ValueError(f"{self.m} constraint rows for {self.n} coordinates: not 1-DOF")
+        self.driver = driver
+        self.max_dq = max_dq  # continuation step keeping Newton on the same branch
+        self.Qg = np.concatenate([[m * self.gravity[0], m * self.gravity[1], 0.0] for m in self.mass])
+
+    # -- coordinates ------------------------------------------------------------
+    def _rel(self, body, s):
+        """Local point relative to the COM."""
+        return np.asarray(s, float) - self.com[body]
+
+    def to_internal(self, coords):
+        """{body: (x, y, theta) of the frame} -> z (COM coordinates)."""
+        z = np.empty(self.n)
+        for k, b in enumerate(self.names):
+            x, y, th = coords[b]
+            z[3 * k: 3 * k + 2] = np.array([x, y]) + _rot(th) @ self.com[b]
+            z[3 * k + 2] = th
+        return z
+
+    def to_frames(self, z):
+        """z -> {body: array (x, y, theta) of the frame}."""
+        out = {}
+        for k, b in enumerate(self.names):
+            th = z[3 * k + 2]
+            out[b] = np.array([*(z[3 * k: 3 * k + 2] - _rot(th) @ self.com[b]), th])
+        return out
+
+    def _pt(self, z, k, s):
+        """Global point and its arm A s from the COM; s is COM-relative."""
+        if k < 0:
+            return s, np.zeros(2)
+        a = _rot(z[3 * k + 2]) @ s
+        return z[3 * k: 3 * k + 2] + a, a
+
+    @staticmethod
+    def _vel(zd, k, a):
+        return np.zeros(2) if k < 0 else zd[3 * k: 3 * k + 2] + _perp(a) * zd[3 * k + 2]
+
+    @staticmethod
+    def _om(zd, k):
+        return 0.0 if k < 0 else zd[3 * k + 2]
+
+    # -- constraints --------------------------------------------------------------
+    def constraints(self, z, zd=None):
+        """Phi (m,), Phi_z (m, n) and, if zd is given, gamma (m,)."""
+        phi, J, gam = np.empty(self.m), np.zeros((self.m, self.n)), np.zeros(self.m)
+        for r, jt in zip(range(0, self.m, 2), self.joints):
+            i, j = self.idx[jt.body_i], self.idx[jt.body_j]
+            Pi, ai = self._pt(z, i, self._rel(jt.body_i, jt.s_i))
+            Pj, aj = self._pt(z, j, self._rel(jt.body_j, jt.s_j))
+            if isinstance(jt, Revolute):
+                phi[r: r + 2] = Pi - Pj
+                if i >= 0:
+                    J[r: r + 2, 3 * i: 3 * i + 2] = np.eye(2)
+                    J[r: r + 2, 3 * i + 2] = _perp(ai)
+                if j >= 0:
+                    J[r: r + 2, 3 * j: 3 * j + 2] = -np.eye(2)
+                    J[r: r + 2, 3 * j + 2] = -_perp(aj)
+                if zd is not None:
+                    gam[r: r + 2] = ai * self._om(zd, i) ** 2 - aj * self._om(zd, j) ** 2
+            else:
+                thi = 0.0 if i < 0 else z[3 * i + 2]
+                thj = 0.0 if j < 0 else z[3 * j + 2]
+                ax = np.asarray(jt.axis_i, float)
+                nv = _rot(thi) @ _perp(ax / np.linalg.norm(ax))
+                d = Pj - Pi
+                phi[r] = nv @ d
+                phi[r + 1] = thj - thi - jt.angle0
+                if i >= 0:
+                    J[r, 3 * i: 3 * i + 2] = -nv
+                    J[r, 3 * i + 2] = _perp(nv) @ d - nv @ _perp(ai)
+                    J[r + 1, 3 * i + 2] = -1.0
+                if j >= 0:
+                    J[r, 3 * j: 3 * j + 2] = nv
+                    J[r, 3 * j + 2] = nv @ _perp(aj)
+                    J[r + 1, 3 * j + 2] = 1.0
+                if zd is not None:
+                    wi, wj = self._om(zd, i), self._om(zd, j)
+                    dd = self._vel(zd, j, aj) - self._vel(zd, i, ai)
+                    quad = -(nv @ d) * wi**2 + 2 * wi * (_perp(nv) @ dd) + nv @ (ai * wi**2 - aj * wj**2)
+                    gam[r] = -quad
+        return phi, J, gam
+
+    def driver_row(self, z, zd=None):
+        """D(z), D_z (n,), gamma_D (so that qdd = D_z zdd - gamma_D)."""
+        body, kind = self.driver
+        k = self.idx[body]
+        row = np.zeros(self.n)
+        if kind == "angle":
+            row[3 * k + 2] = 1.0
+            return z[3 * k + 2], row, 0.0
+        c = {"x": 0, "y": 1}[kind]
+        P, a = self._pt(z, k, -self.com[body])  # frame origin
+        row[3 * k + c] = 1.0
+        row[3 * k + 2] = _perp(a)[c]
+        gD = 0.0 if zd is None else a[c] * zd[3 * k + 2] ** 2
+        return P[c], row, gD
+
+    def _full_jacobian(self, z):
+        phi, J, _ = self.constraints(z)
+        D, row, _ = self.driver_row(z)
+        return np.append(phi, D), np.vstack([J, row])
+
+    # -- position / velocity level ---------------------------------------------------
+    def newton(self, q, z, tol=1e-13, maxit=30):
+        """Solve Phi(z) = 0, D(z) = q by Newton from z."""
+        z = np.array(z, float)
+        for _ in range(maxit):
+            F, Jf = self._full_jacobian(z)
+            F[-1] -= q
+            dz = np.linalg.solve(Jf, F)
+            z -= dz
+            if np.max(np.abs(dz)) <= tol * (1.0 + np.max(np.abs(z))):
+                return z
+        raise RuntimeError(f"Newton did not converge at q={q} (|dz|={np.max(np.abs(dz)):.3e})")
+
+    def influence(self, z):
+        """dz/dq: zd = influence * w."""
+        _, Jf = self._full_jacobian(z)
+        e = np.zeros(self.n)
+        e[-1] = 1.0
+        return np.linalg.solve(Jf, e)
+
+    def track(self, q, q_prev, z_prev):
+        """Solution at q continued from a solution at q_prev, in steps <= max_dq along
+        the tangent dz/dq, so that Newton cannot jump to another assembly branch."""
+        nsub = max(1, int(np.ceil(abs(q - q_prev) / self.max_dq)))
+        z, qa = z_prev, q_prev
+        for qb in np.linspace(q_prev, q, nsub + 1)[1:]:
+            z = self.newton(qb, z + self.influence(z) * (qb - qa))
+            qa = qb
+        return z
+
+    def assemble(self, q, guess):
+        """Assembled frame coordinates at q, from guess {body: (x, y, theta)}."""
+        return self.to_frames(self.newton(q, self.to_internal(guess)))
+
+    # -- forces and dynamics ---------------------------------------------------------
+    def forces(self, z, zd, tau=0.0):
+        """Generalized forces Q (n,) (gravity, driver tau, dampers) and damper power."""
+        _, row, _ = self.driver_row(z)
+        Q = self.Qg + tau * row
+        power = 0.0
+        for dm in self.dampers:
+            a, b = self.idx[dm.body_a], self.idx[dm.body_b]
+            Pa, aa = self._pt(z, a, self._rel(dm.body_a, dm.s_a))
+            Pb, ab = self._pt(z, b, self._rel(dm.body_b, dm.s_b))
+            d = Pb - Pa
+            e = d / np.linalg.norm(d)
+            Ld = e @ (self._vel(zd, b, ab) - self._vel(zd, a, aa))
+            f = -dm.c * Ld * e  # on body_b; body_a gets -f
+            if b >= 0:
+                Q[3 * b: 3 * b + 2] += f
+                Q[3 * b + 2] += _cross(ab, f)
+            if a >= 0:
+                Q[3 * a: 3 * a + 2] -= f
+                Q[3 * a + 2] -= _cross(aa, f)
+            power -= dm.c * Ld**2
+        return Q, power
+
+    def _kin_state(self, z, w):
+        """zd, Phi_z, gamma, D_z, gamma_D at an assembled z."""
+        _, Jf = self._full_jacobian(z)
+        e = np.zeros(self.n)
+        e[-1] = w
+        zd = np.linalg.solve(Jf, e)
+        _, J, gam = self.constraints(z, zd)
+        _, row, gD = self.driver_row(z, zd)
+        return zd, J, gam, row, gD
+
+    def accelerations(self, z, w, tau=0.0):
+        """Forward dynamics at an assembled z: (wdot, zd, zdd, lam, damper power)."""
+        zd, J, gam, row, gD = self._kin_state(z, w)
+        Q, power = self.forces(z, zd, tau)
+        n, m = self.n, self.m
+        A = np.zeros((n + m, n + m))
+        A[:n, :n] = np.diag(self.Mdiag)
+        A[:n, n:] = J.T
+        A[n:, :n] = J
+        sol = np.linalg.solve(A, np.concatenate([Q, gam]))
+        zdd, lam = sol[:n], sol[n:]
+        return row @ zdd - gD, zd, zdd, lam, power
+
+    def inverse_dynamics(self, z, w, wdot):
+        """Driver generalized force and multipliers producing (w, wdot) at assembled z.
+        Returns (tau_needed, lam, zd, zdd)."""
+        zd, J, gam, row, gD = self._kin_state(z, w)
+        Jf = np.vstack([J, row])
+        zdd = np.linalg.solve(Jf, np.append(gam, wdot + gD))
+        Q0, _ = self.forces(z, zd, 0.0)
+        # M zdd + J^T lam = Q0 + tau row^T  <=>  Jf^T [lam; -tau] = Q0 - M zdd
+        mu = np.linalg.solve(Jf.T, Q0 - self.Mdiag * zdd)
+        return -mu[-1], mu[:-1], zd, zdd
+
+    def reactions(self, z, lam):
+        """{joint: (Fx, Fy) on body_i by body_j}, {prismatic joint: couple on body_i}."""
+        F, C = {}, {}
+        _, J, _ = self.constraints(z)
+        for r, jt in zip(range(0, self.m, 2), self.joints):
+            if isinstance(jt, Revolute):
+                F[jt.name] = -lam[r: r + 2]  # constraint force on body_i = -Phi_ri^T lam
+            else:
+                i = self.idx[jt.body_i]
+                thi = 0.0 if i < 0 else z[3 * i + 2]
+                ax = np.asarray(jt.axis_i, float)
+                nv = _rot(thi) @ _perp(ax / np.linalg.norm(ax))
+                F[jt.name] = lam[r] * nv
+                C[jt.name] = lam[r + 1]
+        return F, C
+
+    def energies(self, z, zd):
+        T = 0.5 * np.sum(self.Mdiag * zd**2)
+        V = -np.sum(self.mass * (z[0::3] * self.gravity[0] + z[1::3] * self.gravity[1]))
+        return T, V
+
+    # -- simulation ------------------------------------------------------------------
+    def simulate(self, init: Initial, t1, tau: Callable | None = None, t_eval=None,
+                 rtol=1e-12, atol=1e-13, method="DOP853", standstill=None, max_step=np.inf):
+        """Integrate from init to t1.
+
+        tau(t, q, w): applied generalized force on the driver (None = 0).
+        standstill: None, or direction (+1, -1, 0) of w crossing zero; integration stops
+        at the first such crossing (located by solve_ivp's event root finding).
+        """
+        tau = tau or (lambda t, q, w: 0.0)
+        z0 = self.newton(init.q, self.to_internal(init.coords))
+        cache = {"q": init.q, "z": z0}
+
+        def z_at(q):
+            z = self.track(q, cache["q"], cache["z"])
+            cache["q"], cache["z"] = q, z
+            return z
+
+        def rhs(t, y):
+            q, w = y[0], y[1]
+            ta = tau(t, q, w)
+            wdot, *_, power = self.accelerations(z_at(q), w, ta)
+            return [w, wdot, ta * w + power]
+
+        events = None
+        if standstill is not None:
+            wdot0 = self.accelerations(z0, init.w, tau(0.0, init.q, init.w))[0]
+
+            def stop(t, y):
+                # A start from rest would register as a crossing at t=0: use the sign
+                # the velocity is about to take instead.
+                if t == 0.0 and y[1] == 0.0:
+                    return np.sign(wdot0) * 1e-300
+                return y[1]
+
+            stop.terminal, stop.direction = True, standstill
+            events = [stop]
+
+        sol = solve_ivp(rhs, (0.0, t1), [init.q, init.w, 0.0], method=method, t_eval=t_eval,
+                        rtol=rtol, atol=atol, events=events, max_step=max_step)
+        if not sol.success:
+            raise RuntimeError(sol.message)
+        t, Y = sol.t, sol.y
+        if standstill is not None and len(sol.t_events[0]) and (t_eval is not None):
+            t, Y = np.append(t, sol.t_events[0]), np.hstack([Y, sol.y_events[0].T])
+        return self._postprocess(t, Y, z0, init.q, tau, sol)
+
+    def _postprocess(self, t, Y, z0, q0, tau, sol):
+        nt = len(t)
+        res = Result(t=t, q=Y[0], w=Y[1], work=Y[2], wdot=np.empty(nt), T=np.empty(nt),
+                     V=np.empty(nt), tau_applied=np.empty(nt), tau_needed=np.empty(nt),
+                     residual=np.empty(nt), z=np.empty((nt, self.n)),
+                     zd=np.empty((nt, self.n)), zdd=np.empty((nt, self.n)),
+                     t_events=(sol.t_events[0] if sol.t_events else np.array([])), system=self)
+        qa, z = q0, z0
+        for k in range(nt):
+            q, w = Y[0, k], Y[1, k]
+            z = self.track(q, qa, z)
+            qa = q
+            ta = tau(t[k], q, w)
+            wdot, zd, zdd, lam, _ = self.accelerations(z, w, ta)
+            tau_n, lam_n, _, _ = self.inverse_dynamics(z, w, wdot)
+            F, C = self.reactions(z, lam)
+            for name, v in F.items():
+                res.reactions.setdefault(name, np.empty((nt, 2)))[k] = v
+            for name, v in C.items():
+                res.couples.setdefault(name, np.empty(nt))[k] = v
+            res.T[k], res.V[k] = self.energies(z, zd)
+            res.wdot[k], res.tau_applied[k], res.tau_needed[k] = wdot, ta, tau_n
+            res.residual[k] = np.max(np.abs(self.constraints(z)[0]))
+            res.z[k], res.zd[k], res.zdd[k] = z, zd, zdd
+        res.coords = {b: np.array([self.to_frames(zk)[b] for zk in res.z]) for b in self.names}
+        return res
+
+
+@dataclass
+class Result:
+    """Simulation output.  coords[body]: (nt, 3) frame (x, y, theta); reactions[joint]:
+    (nt, 2) force on body_i by body_j; couples[prismatic]: couple on body_i by body_j;
+    work: integral of tau*w + damper power (so T + V - work is conserved)."""
+    t: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    wdot: np.ndarray
+    T: np.ndarray
+    V: np.ndarray
+    work: np.ndarray
+    tau_applied: np.ndarray
+    tau_needed: np.ndarray
+    residual: np.ndarray
+    z: np.ndarray
+    zd: np.ndarray
+    zdd: np.ndarray
+    t_events: np.ndarray
+    system: System
+    coords: dict = field(default_factory=dict)
+    reactions: dict = field(default_factory=dict)
+    couples: dict = field(default_factory=dict)
+
+    @property
+    def E(self):
+        return self.T + self.V
+
+
+@dataclass
+class Model:
+    """A concrete mechanism: system, consistent initial state, applied driver force."""
+    system: System
+    initial: Initial
+    tau: Callable | None = None
+    data: dict = field(default_factory=dict)
+
+    def simulate(self, t1, **kw):
+        kw.setdefault("tau", self.tau)
+        return self.system.simulate(self.initial, t1, **kw)
+
+
+# ----------------------------------------------------------------------------- geometry
+def circle_intersection(P, rP, Q, rQ, left=True):
+    """Point X with |X-P| = rP, |X-Q| = rQ, on the left (or right) of the line P -> Q."""
+    P, Q = np.asarray(P, float), np.asarray(Q, float)
+    d = np.linalg.norm(Q - P)
+    a = (rP**2 - rQ**2 + d**2) / (2 * d)
+    h = np.sqrt(rP**2 - a**2)
+    u = (Q - P) / d
+    return P + a * u + (h if left else -h) * _perp(u)
+
+
+def _angle(P, Q):
+    return np.arctan2(Q[1] - P[1], Q[0] - P[0])
+
+
+def _link(m, L, J=None):
+    """Uniform bar along its frame x axis, frame at its proximal joint."""
+    return dict(mass=m, inertia=m * L**2 / 12 if J is None else J, com_local=(L / 2, 0.0))
+
+
+# ----------------------------------------------------------------------------- Watt six-bar
+WATT = dict(O2=(0.0, 0.0), O4=(1.6, 0.0), L2=1.0, L3=1.5, L4=1.5, L5=1.0, L6=1.0,
+            m=dict(crank=1.0, coupler=1.5, rocker=1.5, link5=1.0, link6=1.0),
+            J=dict(crank=0.0833, coupler=0.2813, rocker=0.2813, link5=0.0833, link6=0.0833))
+
+
+def watt_sixbar_points(theta2):
+    """Closed-form assembly: points and link angles.  B left of A -> O4, E left of C -> D."""
+    d = WATT
+    O2, O4 = np.array(d["O2"]), np.array(d["O4"])
+    A = O2 + d["L2"] * np.array([np.cos(theta2), np.sin(theta2)])
+    B = circle_intersection(A, d["L3"], O4, d["L4"], left=True)
+    C, D = (A + B) / 2, (O4 + B) / 2
+    E = circle_intersection(C, d["L5"], D, d["L6"], left=True)
+    pts = dict(O2=O2, O4=O4, A=A, B=B, C=C, D=D, E=E)
+    ang = dict(crank=theta2, coupler=_angle(A, B), rocker=_angle(O4, B),
+               link5=_angle(C, E), link6=_angle(D, E))
+    return pts, ang
+
+
+def watt_sixbar(theta2=0.0, omega2=0.0):
+    """Watt six-bar (SI).  Bodies crank (O2->A), coupler (A->B), rocker (O4->B),
+    link5 (C->E), link6 (D->E); each frame at the first point, x along the link.
+    Joints (body_i, body_j): O2 (ground, crank), A (crank, coupler), B (coupler, rocker),
+    O4 (rocker, ground), C (coupler, link5), D (rocker, link6), E (link5, link6)."""
+    d = WATT
+    L = dict(crank=d["L2"], coupler=d["L3"], rocker=d["L4"], link5=d["L5"], link6=d["L6"])
+    bodies = {b: _link(d["m"][b], L[b], d["J"][b]) for b in L}
+    joints = [
+        Revolute("O2", GROUND, "crank", d["O2"], (0, 0)),
+        Revolute("A", "crank", "coupler", (d["L2"], 0), (0, 0)),
+        Revolute("B", "coupler", "rocker", (d["L3"], 0), (d["L4"], 0)),
+        Revolute("O4", "rocker", GROUND, (0, 0), d["O4"]),
+        Revolute("C", "coupler", "link5", (d["L3"] / 2, 0), (0, 0)),
+        Revolute("D", "rocker", "link6", (d["L4"] / 2, 0), (0, 0)),
+        Revolute("E", "link5", "link6", (d["L5"], 0), (d["L6"], 0)),
+    ]
+    pts, ang = watt_sixbar_points(theta2)
+    origin = dict(crank="O2", coupler="A", rocker="O4", link5="C", link6="D")
+    coords = {b: (*pts[origin[b]], ang[b]) for b in L}
+    return Model(System(bodies, joints, ("crank", "angle")), Initial(theta2, omega2, coords), data=d)
+
+
+# ----------------------------------------------------------------------------- slider-crank
+SLIDER_CRANK = dict(r=0.1, l=0.3, m_crank=0.5, J_crank=0.001, m_rod=1.0, J_rod=0.0075,
+                    m_slider=0.8, J_slider=0.0)
+
+
+def slider_crank(theta0=0.0, omega0=0.0, tau=None):
+    """Centred slider-crank (SI), gravity (0, -9.81).  Crank O->A: r = 0.1, m = 0.5,
+    J_c = 0.001 (about its COM at the midpoint of OA); rod A->B: l = 0.3, m = 1.0,
+    J_c = 0.0075 (COM at midpoint); slider: m = 0.8, J = 0 (rotation locked), COM at the
+    pin B on the x axis.  Assembly: B at x > 0 (x_B = r cos + sqrt(l^2 - r^2 sin^2)).
+    Joints: O (ground, crank), A (crank, rod), B (rod, slider),
+    P prismatic (ground, slider) along the global x axis."""
+    d = SLIDER_CRANK
+    r, l = d["r"], d["l"]
+    bodies = dict(crank=_link(d["m_crank"], r, d["J_crank"]), rod=_link(d["m_rod"], l, d["J_rod"]),
+                  slider=dict(mass=d["m_slider"], inertia=d["J_slider"], com_local=(0.0, 0.0)))
+    joints = [Revolute("O", GROUND, "crank", (0, 0), (0, 0)),
+              Revolute("A", "crank", "rod", (r, 0), (0, 0)),
+              Revolute("B", "rod", "slider", (l, 0), (0, 0)),
+              Prismatic("P", GROUND, "slider", (0, 0), (0, 0), (1, 0))]
+    A = r * np.array([np.cos(theta0), np.sin(theta0)])
+    B = np.array([A[0] + np.sqrt(l**2 - A[1] ** 2), 0.0])
+    coords = dict(crank=(0, 0, theta0), rod=(*A, _angle(A, B)), slider=(*B, 0.0))
+    return Model(System(bodies, joints, ("crank", "angle")), Initial(theta0, omega0, coords), tau, d)
+
+
+def slider_crank_lagrange(theta, omega, tau=0.0, g=G):
+    """Hand-derived Lagrange equation of the slider-crank above, in closed form:
+    m(th) thdd + c(th) thd^2 + dV/dth = tau.  Returns (thdd, m, c, dV)."""
+    d = SLIDER_CRANK
+    r, l = d["r"], d["l"]
+    s, co = np.sin(theta), np.cos(theta)
+    lam = r / l
+    sphi = -lam * s                       # rod angle phi: A_y + l sin(phi) = 0
+    cphi = np.sqrt(1 - sphi**2)
+    p1 = -lam * co / cphi                 # dphi/dth
+    p2 = lam * s / cphi - lam * co * sphi * p1 / cphi**2   # d2phi/dth2
+    kA, kA2 = r * np.array([-s, co]), -r * np.array([co, s])
+    xb1 = -r * s - l * sphi * p1
+    xb2 = -r * co - l * cphi * p1**2 - l * sphi * p2
+    kG, kG2 = (kA + [xb1, 0.0]) / 2, (kA2 + [xb2, 0.0]) / 2
+    mc, mr, ms = d["m_crank"], d["m_rod"], d["m_slider"]
+    mass = d["J_crank"] + mc * kA @ kA / 4 + mr * kG @ kG + d["J_rod"] * p1**2 + ms * xb1**2
+    cor = mc * kA @ kA2 / 4 + mr * kG @ kG2 + d["J_rod"] * p1 * p2 + ms * xb1 * xb2
+    dV = g * (mc * kA[1] / 2 + mr * kG[1])
+    return (tau - cor * omega**2 - dV) / mass, mass, cor, dV
+
+
+# ----------------------------------------------------------------------------- four-bar + motor
+FOUR_BAR = dict(O2=(0.0, 0.0), O4=(0.4, 0.0), L2=0.1, L3=0.35, L4=0.3,
+                m2=0.2, m3=0.5, m4=0.4, T_stall=1.5, w_noload=30.0,
+                damper_anchor=(0.2, -0.3), damper_c=1.0)
+
+
+def four_bar_motor(theta0=0.0, omega0=0.0, **overrides):
+    """Crank-rocker four-bar (SI) driven by a DC-motor line on the crank,
+    tau = T_stall (1 - w / w_noload), T_stall = 1.5 N m, w_noload = 30 rad/s.
+    O2 = (0, 0), O4 = (0.4, 0); crank O2->A 0.1 m 0.2 kg, coupler A->B 0.35 m 0.5 kg,
+    rocker O4->B 0.3 m 0.4 kg; uniform bars (COM at midpoint, J = m L^2 / 12).
+    B left of A -> O4.  Viscous damper c = 1.0 N s/m between the ground point
+    (0.2, -0.3) and the coupler midpoint.  Joints: O2 (ground, crank), A (crank, coupler),
+    B (coupler, rocker), O4 (rocker, ground); damper "damper" (ground, coupler)."""
+    d = {**FOUR_BAR, **overrides}
+    bodies = dict(crank=_link(d["m2"], d["L2"]), coupler=_link(d["m3"], d["L3"]),
+                  rocker=_link(d["m4"], d["L4"]))
+    joints = [Revolute("O2", GROUND, "crank", d["O2"], (0, 0)),
+              Revolute("A", "crank", "coupler", (d["L2"], 0), (0, 0)),
+              Revolute("B", "coupler", "rocker", (d["L3"], 0), (d["L4"], 0)),
+              Revolute("O4", "rocker", GROUND, (0, 0), d["O4"])]
+    dampers = [Damper("damper", GROUND, d["damper_anchor"], "coupler", (d["L3"] / 2, 0), d["damper_c"])]
+    O2, O4 = np.array(d["O2"]), np.array(d["O4"])
+    A = O2 + d["L2"] * np.array([np.cos(theta0), np.sin(theta0)])
+    B = circle_intersection(A, d["L3"], O4, d["L4"], left=True)
+    coords = dict(crank=(*O2, theta0), coupler=(*A, _angle(A, B)), rocker=(*O4, _angle(O4, B)))
+
+    def motor(t, q, w):
+        return d["T_stall"] * (1.0 - w / d["w_noload"])
+
+    sys_ = System(bodies, joints, ("crank", "angle"), dampers=dampers)
+    return Model(sys_, Initial(theta0, omega0, coords), motor, d)
+
+
+# ----------------------------------------------------------------------------- slider-driven
+SLIDER_DRIVEN = dict(O3=(0.0, 0.3), L_rod=0.25, L_rocker=0.2, m_slider=0.5, m_rod=0.3,
+                     m_rocker=0.4)
+
+
+def slider_driven(x0=0.2, v0=0.0, tau=None):
+    """Slider-driven rocker (SI), gravity (0, -9.81).  The driver is the slider, its
+    coordinate q = x of the pin B on the global x axis (force tau along +x).
+    Slider: m = 0.5, J = 0 (rotation locked), COM at B.  Rod B->C: 0.25 m, 0.3 kg;
+    rocker O3->C with O3 = (0, 0.3): 0.2 m, 0.4 kg; uniform bars (COM at midpoint,
+    J = m L^2 / 12).  Assembly: C right of the directed line B -> O3 (rocker hanging
+    on the side away from the origin).  Joints: P prismatic (ground, slider) along x,
+    B (slider, rod), C (rod, rocker), O3 (rocker, ground)."""
+    d = SLIDER_DRIVEN
+    bodies = dict(slider=dict(mass=d["m_slider"], inertia=0.0, com_local=(0.0, 0.0)),
+                  rod=_link(d["m_rod"], d["L_rod"]), rocker=_link(d["m_rocker"], d["L_rocker"]))
+    joints = [Prismatic("P", GROUND, "slider", (0, 0), (0, 0), (1, 0)),
+              Revolute("B", "slider", "rod", (0, 0), (0, 0)),
+              Revolute("C", "rod", "rocker", (d["L_rod"], 0), (d["L_rocker"], 0)),
+              Revolute("O3", "rocker", GROUND, (0, 0), d["O3"])]
+    B, O3 = np.array([x0, 0.0]), np.array(d["O3"])
+    C = circle_intersection(B, d["L_rod"], O3, d["L_rocker"], left=False)
+    coords = dict(slider=(x0, 0.0, 0.0), rod=(*B, _angle(B, C)), rocker=(*O3, _angle(O3, C)))
+    return Model(System(bodies, joints, ("slider", "x")), Initial(x0, v0, coords), tau, d)
+
+
+# ----------------------------------------------------------------------------- N four-bar
+def n_four_bar(N):
+    """IFToMM A02 N-four-bar: 2N+1 bars of 1 m, 1 kg, J = 1/12 about the centre.
+    rocker{i}: O_i = (i, 0) -> B_i, i = 0..N (rocker0 drives, q = its angle);
+    coupler{i}: B_i -> B_{i+1}, i = 0..N-1.  Joints O{i} (ground, rocker{i}),
+    B{i}R (rocker{i}, coupler{i}) and B{i+1}L (coupler{i}, rocker{i+1}).
+    Initial: rockers vertical up (q = pi/2), Bx velocity of B_0 = +1 (w = -1 rad/s).
+    The partitioned integrator is singular when the rockers are horizontal; use
+    n_four_bar_exact for the motion."""
+    bodies, joints, coords = {}, [], {}
+    for i in range(N + 1):
+        bodies[f"rocker{i}"] = _link(1.0, 1.0)
+        joints.append(Revolute(f"O{i}", GROUND, f"rocker{i}", (i, 0.0), (0, 0)))
+        coords[f"rocker{i}"] = (i, 0.0, np.pi / 2)
+    for i in range(N):
+        bodies[f"coupler{i}"] = _link(1.0, 1.0)
+        joints.append(Revolute(f"B{i}R", f"rocker{i}", f"coupler{i}", (1, 0), (0, 0)))
+        joints.append(Revolute(f"B{i + 1}L", f"coupler{i}", f"rocker{i + 1}", (1, 0), (1, 0)))
+        coords[f"coupler{i}"] = (i, 1.0, 0.0)
+    return Model(System(bodies, joints, ("rocker0", "angle")), Initial(np.pi / 2, -1.0, coords))
+
+
+def n_four_bar_alpha(N, g=G):
+    """theta'' = -alpha cos(theta) for the parallelogram motion: N+1 rockers
+    (J_O = 1/3) and N translating couplers (T = theta'^2 / 2 each) give
+    I = (N+1)/3 + N and V = g sin(theta) ((N+1)/2 + N)."""
+    return g * ((N + 1) / 2 + N) / ((N + 1) / 3 + N)
+
+
+def n_four_bar_exact(N, t):
+    """Exact rocker angle and rate (theta, omega) of the N-four-bar at times t.
+
+    With beta = theta + pi/2 the equation is the pendulum beta'' = -alpha sin(beta),
+    started inverted (beta = pi) with beta' = -1: a rotating pendulum with
+    beta'^2 = (1 + 4 alpha) (1 - k^2 sin^2(beta/2)), k^2 = 4 alpha / (1 + 4 alpha), so
+    beta / 2 = am(K(k) - Omega t | k^2), Omega = sqrt(1 + 4 alpha) / 2."""
+    t = np.asarray(t, float)
+    a = n_four_bar_alpha(N)
+    m = 4 * a / (1 + 4 * a)
+    Om = np.sqrt(1 + 4 * a) / 2
+    sn, cn, dn, ph = ellipj(ellipk(m) - Om * t, m)
+    return 2 * ph - np.pi / 2, -2 * Om * dn
+
+
+def n_four_bar_ode(N, t, rtol=1e-13, atol=1e-14):
+    """The same motion by integrating theta'' = -alpha cos(theta) (cross-check)."""
+    a = n_four_bar_alpha(N)
+    t = np.asarray(t, float)
+    sol = solve_ivp(lambda _, y: [y[1], -a * np.cos(y[0])], (0.0, t[-1]), [np.pi / 2, -1.0],
+                    method="DOP853", t_eval=t, rtol=rtol, atol=atol)
+    return sol.y[0], sol.y[1]
+
+
+def n_four_bar_coords(N, theta):
+    """Frame coordinates of the parallelogram configuration at rocker angle theta."""
+    c, s = np.cos(theta), np.sin(theta)
+    coords = {f"rocker{i}": (i, 0.0, theta) for i in range(N + 1)}
+    coords.update({f"coupler{i}": (i + c, s, 0.0) for i in range(N)})
+    return coords
