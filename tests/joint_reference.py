@@ -425,6 +425,53 @@ class System:
         return res
 
 
+def newton_euler_residuals(system, z, zd, zdd, reactions, couples, tau=0.0):
+    """Per-body residuals (nb, 3) of m a_c = sum F and J alpha = sum M_c, built from
+    joint reactions given in this module's convention ({joint: force on body_i by body_j},
+    {prismatic: couple on body_i}), gravity, the driver force tau and the dampers.
+    Works without the multiplier machinery, so it checks the reaction convention."""
+    nb = len(system.names)
+    F = np.zeros((nb, 2))
+    Mc = np.zeros(nb)
+
+    def apply(body, point, force, couple=0.0):
+        k = system.idx[body]
+        if k >= 0:
+            F[k] += force
+            Mc[k] += _cross(point - z[3 * k: 3 * k + 2], force) + couple
+
+    for jt in system.joints:
+        if isinstance(jt, Revolute):
+            P, _ = system._pt(z, system.idx[jt.body_i], system._rel(jt.body_i, jt.s_i))
+            cpl = 0.0
+        else:  # force acts at the sliding point of body_j
+            P, _ = system._pt(z, system.idx[jt.body_j], system._rel(jt.body_j, jt.s_j))
+            cpl = couples[jt.name]
+        f = np.asarray(reactions[jt.name])
+        apply(jt.body_i, P, f, cpl)
+        apply(jt.body_j, P, -f, -cpl)
+    body, kind = system.driver
+    k = system.idx[body]
+    origin, _ = system._pt(z, k, -system.com[body])
+    if kind == "angle":
+        apply(body, origin, np.zeros(2), tau)
+    else:
+        apply(body, origin, tau * np.eye(2)[{"x": 0, "y": 1}[kind]])
+    for dm in system.dampers:
+        a, b = system.idx[dm.body_a], system.idx[dm.body_b]
+        Pa, aa = system._pt(z, a, system._rel(dm.body_a, dm.s_a))
+        Pb, ab = system._pt(z, b, system._rel(dm.body_b, dm.s_b))
+        e = (Pb - Pa) / np.linalg.norm(Pb - Pa)
+        f = -dm.c * (e @ (system._vel(zd, b, ab) - system._vel(zd, a, aa))) * e
+        apply(dm.body_b, Pb, f)
+        apply(dm.body_a, Pa, -f)
+    res = np.empty((nb, 3))
+    for k, m in enumerate(system.mass):
+        res[k, :2] = m * zdd[3 * k: 3 * k + 2] - m * system.gravity - F[k]
+        res[k, 2] = system.Mdiag[3 * k + 2] * zdd[3 * k + 2] - Mc[k]
+    return res
+
+
 @dataclass
 class Result:
     """Simulation output.  coords[body]: (nt, 3) frame (x, y, theta); reactions[joint]:
@@ -580,13 +627,13 @@ def slider_crank_lagrange(theta, omega, tau=0.0, g=G):
 
 # ----------------------------------------------------------------------------- four-bar + motor
 FOUR_BAR = dict(O2=(0.0, 0.0), O4=(0.4, 0.0), L2=0.1, L3=0.35, L4=0.3,
-                m2=0.2, m3=0.5, m4=0.4, T_stall=1.5, w_noload=30.0,
+                m2=0.2, m3=0.5, m4=0.4, T_stall=1.5, w_noload=10.0,
                 damper_anchor=(0.2, -0.3), damper_c=1.0)
 
 
 def four_bar_motor(theta0=0.0, omega0=0.0, **overrides):
     """Crank-rocker four-bar (SI) driven by a DC-motor line on the crank,
-    tau = T_stall (1 - w / w_noload), T_stall = 1.5 N m, w_noload = 30 rad/s.
+    tau = T_stall (1 - w / w_noload), T_stall = 1.5 N m, w_noload = 10 rad/s.
     O2 = (0, 0), O4 = (0.4, 0); crank O2->A 0.1 m 0.2 kg, coupler A->B 0.35 m 0.5 kg,
     rocker O4->B 0.3 m 0.4 kg; uniform bars (COM at midpoint, J = m L^2 / 12).
     B left of A -> O4.  Viscous damper c = 1.0 N s/m between the ground point
@@ -617,13 +664,14 @@ SLIDER_DRIVEN = dict(O3=(0.0, 0.3), L_rod=0.25, L_rocker=0.2, m_slider=0.5, m_ro
                      m_rocker=0.4)
 
 
-def slider_driven(x0=0.2, v0=0.0, tau=None):
+def slider_driven(x0=0.17, v0=0.0, tau=None):
     """Slider-driven rocker (SI), gravity (0, -9.81).  The driver is the slider, its
     coordinate q = x of the pin B on the global x axis (force tau along +x).
     Slider: m = 0.5, J = 0 (rotation locked), COM at B.  Rod B->C: 0.25 m, 0.3 kg;
     rocker O3->C with O3 = (0, 0.3): 0.2 m, 0.4 kg; uniform bars (COM at midpoint,
-    J = m L^2 / 12).  Assembly: C right of the directed line B -> O3 (rocker hanging
-    on the side away from the origin).  Joints: P prismatic (ground, slider) along x,
+    J = m L^2 / 12).  Assembly: C left of the directed line B -> O3 (rocker hanging
+    down; stable equilibrium near x = 0.23; singular at |O3 B| = 0.45, x = 0.335).
+    From rest at x0 = 0.17 it oscillates between x = 0.17 and about 0.28.  Joints: P prismatic (ground, slider) along x,
     B (slider, rod), C (rod, rocker), O3 (rocker, ground)."""
     d = SLIDER_DRIVEN
     bodies = dict(slider=dict(mass=d["m_slider"], inertia=0.0, com_local=(0.0, 0.0)),
@@ -633,9 +681,35 @@ def slider_driven(x0=0.2, v0=0.0, tau=None):
               Revolute("C", "rod", "rocker", (d["L_rod"], 0), (d["L_rocker"], 0)),
               Revolute("O3", "rocker", GROUND, (0, 0), d["O3"])]
     B, O3 = np.array([x0, 0.0]), np.array(d["O3"])
-    C = circle_intersection(B, d["L_rod"], O3, d["L_rocker"], left=False)
+    C = circle_intersection(B, d["L_rod"], O3, d["L_rocker"], left=True)
     coords = dict(slider=(x0, 0.0, 0.0), rod=(*B, _angle(B, C)), rocker=(*O3, _angle(O3, C)))
     return Model(System(bodies, joints, ("slider", "x")), Initial(x0, v0, coords), tau, d)
+
+
+# ----------------------------------------------------------------------------- quick-return
+QUICK_RETURN = dict(O4=(0.0, -0.2), r=0.1, L_rocker=0.5, m_crank=0.3, m_block=0.2,
+                    J_block=1e-4, m_rocker=1.0)
+
+
+def quick_return(theta0=0.0, omega0=0.0, tau=None):
+    """Crank and slotted rocker (inverted slider-crank, RPR dyad; SI, gravity (0, -9.81)).
+    Crank O->A about O = (0, 0): r = 0.1, m = 0.3, uniform bar (J = m r^2 / 12).
+    Block: frame and COM at the pin A, m = 0.2, J = 1e-4, turns with the rocker.
+    Rocker O4->tip about O4 = (0, -0.2): 0.5 m, 1.0 kg, uniform bar; the block slides on
+    the rocker's axis.  Joints: O (ground, crank), A (crank, block),
+    P prismatic (rocker, block) along the rocker x axis through O4, O4 (ground, rocker)."""
+    d = QUICK_RETURN
+    bodies = dict(crank=_link(d["m_crank"], d["r"]),
+                  block=dict(mass=d["m_block"], inertia=d["J_block"], com_local=(0.0, 0.0)),
+                  rocker=_link(d["m_rocker"], d["L_rocker"]))
+    joints = [Revolute("O", GROUND, "crank", (0, 0), (0, 0)),
+              Revolute("A", "crank", "block", (d["r"], 0), (0, 0)),
+              Prismatic("P", "rocker", "block", (0, 0), (0, 0), (1, 0)),
+              Revolute("O4", GROUND, "rocker", d["O4"], (0, 0))]
+    A = d["r"] * np.array([np.cos(theta0), np.sin(theta0)])
+    phi = _angle(np.array(d["O4"]), A)
+    coords = dict(crank=(0, 0, theta0), block=(*A, phi), rocker=(*d["O4"], phi))
+    return Model(System(bodies, joints, ("crank", "angle")), Initial(theta0, omega0, coords), tau, d)
 
 
 # ----------------------------------------------------------------------------- N four-bar
