@@ -13,6 +13,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._geometry import rotate
 from .groups._base import GROUND, AbstractGroup, Frame, Link, Placement
+from .groups._branch import solve_near
 
 
 class Pose(eqx.Module):
@@ -93,17 +94,23 @@ class Mechanism(eqx.Module):
         return tuple(sorted(needed))
 
 
-def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None) -> Pose:
+def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None, near: Mapping | None = None) -> Pose:
     """Position analysis at the driving coordinate ``q`` (rad for a crank, m for a slider).
 
     Groups are solved one by one in formation order. With ``points`` given, only
     the groups those points depend on are solved, and only they are returned.
+    ``near`` (link name -> angle, rad, e.g. a previous ``Pose.angles``) gives the
+    iterative groups (triad, class IV) their starting angles instead of
+    continuation from their reference; no gradient flows through it. It also
+    makes every closed-form group take the root nearest to those angles instead
+    of its fixed mode (branch continuity through singular configurations, see
+    ``assurjax.groups._branch``).
     """
     q = jnp.asarray(q, dtype=float)
     links = mechanism.all_links()
     owner = dict(mechanism.owner)
     frames = {GROUND: Frame(jnp.zeros(2), jnp.array([1.0, 0.0]))}
-    placed = Placement(links, owner, frames)
+    placed = Placement(links, owner, frames, mechanism=mechanism, near=near)
     if points is None:
         wanted_groups = range(len(mechanism.groups))
         wanted_points = mechanism.point_names
@@ -112,7 +119,7 @@ def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None) -
         wanted_groups = mechanism.groups_needed(wanted_points)
     oks = [jnp.array(True)] * len(mechanism.groups)
     for i in wanted_groups:
-        new_frames, oks[i] = mechanism.groups[i].solve(links, placed, q)
+        new_frames, oks[i] = solve_near(mechanism.groups[i], links, placed, q)  # fixed mode unless near is given
         frames.update(new_frames)
     moving = [name for name in frames if name != GROUND]
     return Pose(

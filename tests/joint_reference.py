@@ -123,8 +123,9 @@ class System:
 
     def __init__(self, bodies, joints, driver, gravity=(0.0, -G), dampers=(), max_dq=0.05):
         self.names = list(bodies)
+        self.body_data = {b: dict(d) for b, d in bodies.items()}
         self.idx = {b: k for k, b in enumerate(self.names)}
-        self.idx[GROUND] = -1
+        self.idx[GROUND] = -1  # index -1 = the ground slot appended in _full
         self.n = 3 * len(self.names)
         self.com = {b: np.asarray(d.get("com_local", (0.0, 0.0)), float) for b, d in bodies.items()}
         self.com[GROUND] = np.zeros(2)
@@ -139,6 +140,16 @@ class System:
         self.driver = driver
         self.max_dq = max_dq  # continuation step keeping Newton on the same branch
         self.Qg = np.concatenate([[m * self.gravity[0], m * self.gravity[1], 0.0] for m in self.mass])
+        # joint data with points relative to the COM, as plain floats (speed)
+        self._jd = []
+        for jt in self.joints:
+            nl = None
+            if isinstance(jt, Prismatic):
+                ax = np.asarray(jt.axis_i, float)
+                nl = tuple(_perp(ax / np.linalg.norm(ax)))
+            self._jd.append((self.idx[jt.body_i], self.idx[jt.body_j],
+                             tuple(self._rel(jt.body_i, jt.s_i)), tuple(self._rel(jt.body_j, jt.s_j)),
+                             nl, getattr(jt, "angle0", 0.0)))
 
     # -- coordinates ------------------------------------------------------------
     def _rel(self, body, s):
@@ -173,109 +184,123 @@ class System:
     def _vel(zd, k, a):
         return np.zeros(2) if k < 0 else zd[3 * k: 3 * k + 2] + _perp(a) * zd[3 * k + 2]
 
-    @staticmethod
-    def _om(zd, k):
-        return 0.0 if k < 0 else zd[3 * k + 2]
-
     # -- constraints --------------------------------------------------------------
-    def constraints(self, z, zd=None):
-        """Phi (m,), Phi_z (m, n) and, if zd is given, gamma (m,)."""
-        phi, J, gam = np.empty(self.m), np.zeros((self.m, self.n)), np.zeros(self.m)
-        for r, jt in zip(range(0, self.m, 2), self.joints):
-            i, j = self.idx[jt.body_i], self.idx[jt.body_j]
-            Pi, ai = self._pt(z, i, self._rel(jt.body_i, jt.s_i))
-            Pj, aj = self._pt(z, j, self._rel(jt.body_j, jt.s_j))
-            if isinstance(jt, Revolute):
-                phi[r: r + 2] = Pi - Pj
-                if i >= 0:
-                    J[r: r + 2, 3 * i: 3 * i + 2] = np.eye(2)
-                    J[r: r + 2, 3 * i + 2] = _perp(ai)
-                if j >= 0:
-                    J[r: r + 2, 3 * j: 3 * j + 2] = -np.eye(2)
-                    J[r: r + 2, 3 * j + 2] = -_perp(aj)
-                if zd is not None:
-                    gam[r: r + 2] = ai * self._om(zd, i) ** 2 - aj * self._om(zd, j) ** 2
-            else:
-                thi = 0.0 if i < 0 else z[3 * i + 2]
-                thj = 0.0 if j < 0 else z[3 * j + 2]
-                ax = np.asarray(jt.axis_i, float)
-                nv = _rot(thi) @ _perp(ax / np.linalg.norm(ax))
-                d = Pj - Pi
-                phi[r] = nv @ d
-                phi[r + 1] = thj - thi - jt.angle0
-                if i >= 0:
-                    J[r, 3 * i: 3 * i + 2] = -nv
-                    J[r, 3 * i + 2] = _perp(nv) @ d - nv @ _perp(ai)
-                    J[r + 1, 3 * i + 2] = -1.0
-                if j >= 0:
-                    J[r, 3 * j: 3 * j + 2] = nv
-                    J[r, 3 * j + 2] = nv @ _perp(aj)
-                    J[r + 1, 3 * j + 2] = 1.0
-                if zd is not None:
-                    wi, wj = self._om(zd, i), self._om(zd, j)
-                    dd = self._vel(zd, j, aj) - self._vel(zd, i, ai)
-                    quad = -(nv @ d) * wi**2 + 2 * wi * (_perp(nv) @ dd) + nv @ (ai * wi**2 - aj * wj**2)
-                    gam[r] = -quad
-        return phi, J, gam
+    def _full(self, z, zd=None):
+        """Kinematic constraints with the driving relation as last row:
+        F = [Phi; D] (n,), Jf = [Phi_z; D_z] (n, n), gam = [gamma; gamma_D] (n,) where
+        gamma = -(Phi_z zd)_z zd (zero if zd is None).  Scalar code: the blocks are tiny."""
+        n = self.n
+        F, Jf, gam = np.empty(n), np.zeros((n, n)), np.zeros(n)
+        # per-body lists with the ground appended at index -1
+        X, Y, th = (list(z[0::3]) + [0.0], list(z[1::3]) + [0.0], list(z[2::3]) + [0.0])
+        c, s = [np.cos(t) for t in th], [np.sin(t) for t in th]
+        if zd is None:
+            VX = VY = W = [0.0] * (len(th))
+        else:
+            VX, VY, W = list(zd[0::3]) + [0.0], list(zd[1::3]) + [0.0], list(zd[2::3]) + [0.0]
 
-    def driver_row(self, z, zd=None):
-        """D(z), D_z (n,), gamma_D (so that qdd = D_z zdd - gamma_D)."""
+        def arm(k, p):
+            return c[k] * p[0] - s[k] * p[1], s[k] * p[0] + c[k] * p[1]
+
+        for r, (i, j, si, sj, nl, a0) in zip(range(0, self.m, 2), self._jd):
+            aix, aiy = arm(i, si)
+            ajx, ajy = arm(j, sj)
+            wi2, wj2 = W[i] ** 2, W[j] ** 2
+            if nl is None:  # revolute: P_i - P_j = 0
+                F[r], F[r + 1] = X[i] + aix - X[j] - ajx, Y[i] + aiy - Y[j] - ajy
+                if i >= 0:
+                    Jf[r, 3 * i], Jf[r + 1, 3 * i + 1] = 1.0, 1.0
+                    Jf[r, 3 * i + 2], Jf[r + 1, 3 * i + 2] = -aiy, aix
+                if j >= 0:
+                    Jf[r, 3 * j], Jf[r + 1, 3 * j + 1] = -1.0, -1.0
+                    Jf[r, 3 * j + 2], Jf[r + 1, 3 * j + 2] = ajy, -ajx
+                gam[r], gam[r + 1] = aix * wi2 - ajx * wj2, aiy * wi2 - ajy * wj2
+            else:  # prismatic: n_i . (P_j - P_i) = 0, theta_j - theta_i = angle0
+                nx, ny = arm(i, nl)
+                dx, dy = X[j] + ajx - X[i] - aix, Y[j] + ajy - Y[i] - aiy
+                F[r], F[r + 1] = nx * dx + ny * dy, th[j] - th[i] - a0
+                if i >= 0:
+                    Jf[r, 3 * i], Jf[r, 3 * i + 1] = -nx, -ny
+                    Jf[r, 3 * i + 2] = (nx * dy - ny * dx) + (nx * aiy - ny * aix)
+                    Jf[r + 1, 3 * i + 2] = -1.0
+                if j >= 0:
+                    Jf[r, 3 * j], Jf[r, 3 * j + 1] = nx, ny
+                    Jf[r, 3 * j + 2] = ny * ajx - nx * ajy
+                    Jf[r + 1, 3 * j + 2] = 1.0
+                ddx = VX[j] - ajy * W[j] - VX[i] + aiy * W[i]
+                ddy = VY[j] + ajx * W[j] - VY[i] - aix * W[i]
+                gam[r] = ((nx * dx + ny * dy) * wi2 - 2 * W[i] * (nx * ddy - ny * ddx)
+                          - nx * (aix * wi2 - ajx * wj2) - ny * (aiy * wi2 - ajy * wj2))
         body, kind = self.driver
         k = self.idx[body]
-        row = np.zeros(self.n)
         if kind == "angle":
-            row[3 * k + 2] = 1.0
-            return z[3 * k + 2], row, 0.0
-        c = {"x": 0, "y": 1}[kind]
-        P, a = self._pt(z, k, -self.com[body])  # frame origin
-        row[3 * k + c] = 1.0
-        row[3 * k + 2] = _perp(a)[c]
-        gD = 0.0 if zd is None else a[c] * zd[3 * k + 2] ** 2
-        return P[c], row, gD
+            F[-1], Jf[-1, 3 * k + 2] = th[k], 1.0
+        else:  # x or y of the frame origin, arm -A com from the COM
+            ax, ay = arm(k, -self.com[body])
+            col = {"x": 0, "y": 1}[kind]
+            F[-1] = (X[k] + ax, Y[k] + ay)[col]
+            Jf[-1, 3 * k + col], Jf[-1, 3 * k + 2] = 1.0, (-ay, ax)[col]
+            gam[-1] = (ax, ay)[col] * W[k] ** 2
+        return F, Jf, gam
 
-    def _full_jacobian(self, z):
-        phi, J, _ = self.constraints(z)
-        D, row, _ = self.driver_row(z)
-        return np.append(phi, D), np.vstack([J, row])
+    def constraints(self, z, zd=None):
+        """Phi (m,), Phi_z (m, n), gamma (m,) of the joints (driver excluded)."""
+        F, Jf, gam = self._full(z, zd)
+        return F[:-1], Jf[:-1], gam[:-1]
+
+    def driver_row(self, z, zd=None):
+        """D(z), D_z (n,), gamma_D, so that qdd = D_z zdd - gamma_D."""
+        F, Jf, gam = self._full(z, zd)
+        return F[-1], Jf[-1], gam[-1]
 
     # -- position / velocity level ---------------------------------------------------
-    def newton(self, q, z, tol=1e-13, maxit=30):
-        """Solve Phi(z) = 0, D(z) = q by Newton from z."""
+    def newton(self, q, z, maxit=30):
+        """Solve Phi(z) = 0, D(z) = q by Newton from z.  Returns z and Jf at z."""
         z = np.array(z, float)
+        done = False
         for _ in range(maxit):
-            F, Jf = self._full_jacobian(z)
+            F, Jf, _ = self._full(z)
             F[-1] -= q
+            if done:
+                if np.max(np.abs(F)) > 1e-10 * (1.0 + np.max(np.abs(z))):
+                    break
+                return z, Jf
             dz = np.linalg.solve(Jf, F)
             z -= dz
-            if np.max(np.abs(dz)) <= tol * (1.0 + np.max(np.abs(z))):
-                return z
-        raise RuntimeError(f"Newton did not converge at q={q} (|dz|={np.max(np.abs(dz)):.3e})")
+            # quadratic convergence: once |dz| < 1e-10 the updated z is exact to rounding
+            done = np.max(np.abs(dz)) <= 1e-10 * (1.0 + np.max(np.abs(z)))
+        raise RuntimeError(f"Newton did not converge at q={q}")
 
-    def influence(self, z):
-        """dz/dq: zd = influence * w."""
-        _, Jf = self._full_jacobian(z)
+    def _unit(self):
         e = np.zeros(self.n)
         e[-1] = 1.0
-        return np.linalg.solve(Jf, e)
+        return e
 
-    def track(self, q, q_prev, z_prev):
-        """Solution at q continued from a solution at q_prev, in steps <= max_dq along
-        the tangent dz/dq, so that Newton cannot jump to another assembly branch."""
+    def influence(self, z):
+        """dz/dq at an assembled z: zd = influence * w."""
+        return np.linalg.solve(self._full(z)[1], self._unit())
+
+    def track(self, q, q_prev, z_prev, zq_prev=None):
+        """Solution at q continued from one at q_prev, in steps <= max_dq along the
+        tangent dz/dq, so that Newton cannot jump to another assembly branch.
+        Returns z, Jf and dz/dq at q."""
         nsub = max(1, int(np.ceil(abs(q - q_prev) / self.max_dq)))
         z, qa = z_prev, q_prev
+        zq = self.influence(z) if zq_prev is None else zq_prev
         for qb in np.linspace(q_prev, q, nsub + 1)[1:]:
-            z = self.newton(qb, z + self.influence(z) * (qb - qa))
+            z, Jf = self.newton(qb, z + zq * (qb - qa))
+            zq = np.linalg.solve(Jf, self._unit())
             qa = qb
-        return z
+        return z, Jf, zq
 
     def assemble(self, q, guess):
         """Assembled frame coordinates at q, from guess {body: (x, y, theta)}."""
-        return self.to_frames(self.newton(q, self.to_internal(guess)))
+        return self.to_frames(self.newton(q, self.to_internal(guess))[0])
 
     # -- forces and dynamics ---------------------------------------------------------
-    def forces(self, z, zd, tau=0.0):
+    def forces(self, z, zd, tau=0.0, row=None):
         """Generalized forces Q (n,) (gravity, driver tau, dampers) and damper power."""
-        _, row, _ = self.driver_row(z)
+        row = self._full(z)[1][-1] if row is None else row
         Q = self.Qg + tau * row
         power = 0.0
         for dm in self.dampers:
@@ -295,53 +320,54 @@ class System:
             power -= dm.c * Ld**2
         return Q, power
 
-    def _kin_state(self, z, w):
-        """zd, Phi_z, gamma, D_z, gamma_D at an assembled z."""
-        _, Jf = self._full_jacobian(z)
-        e = np.zeros(self.n)
-        e[-1] = w
-        zd = np.linalg.solve(Jf, e)
-        _, J, gam = self.constraints(z, zd)
-        _, row, gD = self.driver_row(z, zd)
-        return zd, J, gam, row, gD
-
-    def accelerations(self, z, w, tau=0.0):
+    def accelerations(self, z, w, tau=0.0, zq=None):
         """Forward dynamics at an assembled z: (wdot, zd, zdd, lam, damper power)."""
-        zd, J, gam, row, gD = self._kin_state(z, w)
-        Q, power = self.forces(z, zd, tau)
+        zq = self.influence(z) if zq is None else zq
+        zd = zq * w
+        _, Jf, gam = self._full(z, zd)
+        Q, power = self.forces(z, zd, tau, Jf[-1])
         n, m = self.n, self.m
         A = np.zeros((n + m, n + m))
-        A[:n, :n] = np.diag(self.Mdiag)
-        A[:n, n:] = J.T
-        A[n:, :n] = J
-        sol = np.linalg.solve(A, np.concatenate([Q, gam]))
+        A[np.arange(n), np.arange(n)] = self.Mdiag
+        A[:n, n:] = Jf[:-1].T
+        A[n:, :n] = Jf[:-1]
+        sol = np.linalg.solve(A, np.concatenate([Q, gam[:-1]]))
         zdd, lam = sol[:n], sol[n:]
-        return row @ zdd - gD, zd, zdd, lam, power
+        return Jf[-1] @ zdd - gam[-1], zd, zdd, lam, power
 
     def inverse_dynamics(self, z, w, wdot):
         """Driver generalized force and multipliers producing (w, wdot) at assembled z.
         Returns (tau_needed, lam, zd, zdd)."""
-        zd, J, gam, row, gD = self._kin_state(z, w)
-        Jf = np.vstack([J, row])
-        zdd = np.linalg.solve(Jf, np.append(gam, wdot + gD))
-        Q0, _ = self.forces(z, zd, 0.0)
-        # M zdd + J^T lam = Q0 + tau row^T  <=>  Jf^T [lam; -tau] = Q0 - M zdd
+        zd = self.influence(z) * w
+        _, Jf, gam = self._full(z, zd)
+        zdd = np.linalg.solve(Jf, gam + wdot * self._unit())
+        Q0, _ = self.forces(z, zd, 0.0, Jf[-1])
+        # M zdd + Phi_z^T lam = Q0 + tau D_z^T  <=>  Jf^T [lam; -tau] = Q0 - M zdd
         mu = np.linalg.solve(Jf.T, Q0 - self.Mdiag * zdd)
         return -mu[-1], mu[:-1], zd, zdd
+
+    def state(self, q, w, guess, wdot=None, tau=0.0):
+        """Everything at one state, assembled by Newton from guess {body: (x, y, theta)}
+        (which selects the branch).  Forward dynamics under driver force tau or, if wdot
+        is given, inverse dynamics (tau := the force needed).
+        Returns dict(coords, wdot, tau, reactions, couples, T, V)."""
+        z, _ = self.newton(q, self.to_internal(guess))
+        if wdot is None:
+            wdot, zd, zdd, lam, _ = self.accelerations(z, w, tau)
+        else:
+            tau, lam, zd, zdd = self.inverse_dynamics(z, w, wdot)
+        F, C = self.reactions(z, lam)
+        T, V = self.energies(z, zd)
+        return dict(coords=self.to_frames(z), wdot=wdot, tau=tau, reactions=F, couples=C, T=T, V=V)
 
     def reactions(self, z, lam):
         """{joint: (Fx, Fy) on body_i by body_j}, {prismatic joint: couple on body_i}."""
         F, C = {}, {}
-        _, J, _ = self.constraints(z)
-        for r, jt in zip(range(0, self.m, 2), self.joints):
-            if isinstance(jt, Revolute):
+        for r, jt, (i, _, _, _, nl, _) in zip(range(0, self.m, 2), self.joints, self._jd):
+            if nl is None:
                 F[jt.name] = -lam[r: r + 2]  # constraint force on body_i = -Phi_ri^T lam
             else:
-                i = self.idx[jt.body_i]
-                thi = 0.0 if i < 0 else z[3 * i + 2]
-                ax = np.asarray(jt.axis_i, float)
-                nv = _rot(thi) @ _perp(ax / np.linalg.norm(ax))
-                F[jt.name] = lam[r] * nv
+                F[jt.name] = lam[r] * (_rot(0.0 if i < 0 else z[3 * i + 2]) @ nl)
                 C[jt.name] = lam[r + 1]
         return F, C
 
@@ -360,18 +386,15 @@ class System:
         at the first such crossing (located by solve_ivp's event root finding).
         """
         tau = tau or (lambda t, q, w: 0.0)
-        z0 = self.newton(init.q, self.to_internal(init.coords))
-        cache = {"q": init.q, "z": z0}
-
-        def z_at(q):
-            z = self.track(q, cache["q"], cache["z"])
-            cache["q"], cache["z"] = q, z
-            return z
+        z0 = self.newton(init.q, self.to_internal(init.coords))[0]
+        cache = [init.q, z0, None]  # last (q, z, dz/dq): Newton start and predictor
 
         def rhs(t, y):
             q, w = y[0], y[1]
+            z, _, zq = self.track(q, *cache)
+            cache[:] = q, z, zq
             ta = tau(t, q, w)
-            wdot, *_, power = self.accelerations(z_at(q), w, ta)
+            wdot, *_, power = self.accelerations(z, w, ta, zq)
             return [w, wdot, ta * w + power]
 
         events = None
@@ -404,24 +427,25 @@ class System:
                      residual=np.empty(nt), z=np.empty((nt, self.n)),
                      zd=np.empty((nt, self.n)), zdd=np.empty((nt, self.n)),
                      t_events=(sol.t_events[0] if sol.t_events else np.array([])), system=self)
-        qa, z = q0, z0
+        qa, z, zq = q0, z0, None
         for k in range(nt):
             q, w = Y[0, k], Y[1, k]
-            z = self.track(q, qa, z)
+            z, _, zq = self.track(q, qa, z, zq)
             qa = q
             ta = tau(t[k], q, w)
-            wdot, zd, zdd, lam, _ = self.accelerations(z, w, ta)
-            tau_n, lam_n, _, _ = self.inverse_dynamics(z, w, wdot)
+            wdot, zd, zdd, lam, _ = self.accelerations(z, w, ta, zq)
             F, C = self.reactions(z, lam)
             for name, v in F.items():
                 res.reactions.setdefault(name, np.empty((nt, 2)))[k] = v
             for name, v in C.items():
                 res.couples.setdefault(name, np.empty(nt))[k] = v
             res.T[k], res.V[k] = self.energies(z, zd)
-            res.wdot[k], res.tau_applied[k], res.tau_needed[k] = wdot, ta, tau_n
+            res.wdot[k], res.tau_applied[k] = wdot, ta
+            res.tau_needed[k] = self.inverse_dynamics(z, w, wdot)[0]
             res.residual[k] = np.max(np.abs(self.constraints(z)[0]))
             res.z[k], res.zd[k], res.zdd[k] = z, zd, zdd
-        res.coords = {b: np.array([self.to_frames(zk)[b] for zk in res.z]) for b in self.names}
+        frames = [self.to_frames(zk) for zk in res.z]
+        res.coords = {b: np.array([f[b] for f in frames]) for b in self.names}
         return res
 
 
@@ -476,7 +500,10 @@ def newton_euler_residuals(system, z, zd, zdd, reactions, couples, tau=0.0):
 class Result:
     """Simulation output.  coords[body]: (nt, 3) frame (x, y, theta); reactions[joint]:
     (nt, 2) force on body_i by body_j; couples[prismatic]: couple on body_i by body_j;
-    work: integral of tau*w + damper power (so T + V - work is conserved)."""
+    work: integral of tau*w + damper power (so T + V - work is conserved);
+    tau_needed: inverse dynamics at (q, w, wdot), equal to tau_applied;
+    residual: max |Phi|; z, zd, zdd: internal COM coordinates (x_c, y_c, theta) per
+    body in system.names order."""
     t: np.ndarray
     q: np.ndarray
     w: np.ndarray

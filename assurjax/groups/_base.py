@@ -50,12 +50,16 @@ GROUND = "ground"
 
 class Placement:
     """Links placed so far during the position analysis (a trace-time helper,
-    not a pytree): ``owner`` maps each point name to the link it is read from."""
+    not a pytree): ``owner`` maps each point name to the link it is read from.
+    ``mechanism`` (the whole mechanism) and ``near`` (link angles to start from)
+    serve the iterative groups, which re-evaluate earlier groups for continuation."""
 
-    def __init__(self, links: dict[str, Link], owner: dict[str, str], frames: dict[str, Frame]):
+    def __init__(self, links: dict[str, Link], owner: dict[str, str], frames: dict[str, Frame], *, mechanism=None, near=None):
         self.links = links
         self.owner = owner
         self.frames = frames
+        self.mechanism = mechanism
+        self.near = near
 
     def point(self, name: str) -> Array:
         link = self.owner[name]

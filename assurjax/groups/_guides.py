@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import perp, rotate, unit
+from .._geometry import perp, rotate, safe_sqrt, unit
 from ._base import Placement
 
 
@@ -27,7 +27,9 @@ def line_circle(base: Array, u: Array, n: Array, centre: Array, radius: Array, m
     p = base - centre
     along, across = jnp.dot(p, u), jnp.dot(p, n)
     disc = radius**2 - across**2
-    ok = disc >= 0.0
-    root = jnp.sqrt(jnp.where(ok, disc, 1.0)) * ok
+    # tangent line: disc = 0 up to rounding is a singular configuration, not a failure
+    tol = 16.0 * jnp.finfo(disc.dtype).eps * (radius**2 + across**2)
+    ok = disc >= -tol
+    root = safe_sqrt(disc, disc > tol)
     s = -along + mode * root
     return base + s * u, ok

@@ -5,7 +5,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import relative_rotation, rotate, safe_norm, unit
+from .._geometry import relative_rotation, rotate, safe_norm, safe_sqrt, unit
 from ._base import AbstractGroup, Link, Placement, frame_from_rotation
 
 
@@ -24,6 +24,7 @@ class RPR(AbstractGroup):
     direction: Array
     offset: Array
     kind = "RPR"
+    n_prismatic = 1  # block on the guide link
 
     def external_points(self):
         return self.joints
@@ -38,10 +39,11 @@ class RPR(AbstractGroup):
         d = p1 - p2
         r = safe_norm(d)
         ratio = self.offset / jnp.where(r > 0.0, r, 1.0)
-        ok = (r > 0.0) & (jnp.abs(ratio) <= 1.0)
+        eps = jnp.finfo(ratio.dtype).eps
+        ok = (r > 0.0) & (jnp.abs(ratio) <= 1.0 + 16.0 * eps)  # |ratio| = 1 up to rounding: singular, not a failure
         # guide direction u: d turned by -asin(ratio) (mode +1) or by pi + asin(ratio) (mode -1)
-        s = jnp.where(ok, ratio, 0.0)
-        c = jnp.sqrt(1.0 - s**2)
+        s = jnp.clip(jnp.where(ok, ratio, 0.0), -1.0, 1.0)
+        c = safe_sqrt(1.0 - s**2, 1.0 - s**2 > 16.0 * eps)  # finite derivative at |ratio| = 1
         u = self.mode * rotate(d / jnp.where(r > 0.0, r, 1.0), jnp.stack([c, -self.mode * s]))
         frames = {
             block: frame_from_rotation(links[block].points[e1], p1, u),

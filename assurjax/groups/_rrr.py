@@ -5,7 +5,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import dot, perp
+from .._geometry import dot, perp, safe_sqrt
 from ._base import AbstractGroup, Link, Placement, distance, frame_through
 
 
@@ -17,8 +17,11 @@ def circle_circle(c1: Array, r1: Array, c2: Array, r2: Array, mode: int):
     dd_safe = jnp.where(dd > 0.0, dd, 1.0)
     along = (dd + r1**2 - r2**2) / (2.0 * dd_safe)  # as a fraction of |d|
     h2 = r1**2 / dd_safe - along**2  # squared height, also as a fraction of |d|
-    ok = (h2 >= 0.0) & (dd > 0.0)
-    h = jnp.sqrt(jnp.where(ok, h2, 1.0)) * ok
+    # at a stretched or folded dyad h2 = 0 up to rounding: accept it (a singular
+    # configuration, not a failure) and keep the sqrt's derivative finite there
+    tol = 16.0 * jnp.finfo(h2.dtype).eps * (r1**2 + r2**2) / dd_safe
+    ok = (h2 >= -tol) & (dd > 0.0)
+    h = safe_sqrt(h2, h2 > tol)
     return c1 + along * d + mode * h * perp(d), ok
 
 

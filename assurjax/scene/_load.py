@@ -15,6 +15,7 @@ from .._errors import MechanismError, SceneError
 from .._mechanism import Mechanism
 from ..groups import GROUND, Link
 from ..groups import _drivers, _prp, _rpr, _rrp, _rrr
+from ..groups import _class4, _newton, _triad
 from ._scene import Scene, Settings
 
 BUNDLED = "assurjax.scenes"
@@ -123,7 +124,8 @@ class Fields:
 
 
 def _points(fields: Fields, key: str) -> dict[str, np.ndarray]:
-    table = Fields(fields.raw(key), f"{fields.where}.{key}", fields.source)
+    where = f"[{key}]" if fields.where == "the top level" else f"{fields.where}.{key}"
+    table = Fields(fields.raw(key), where, fields.source)
     return {name: table.vector(name) for name in table.table}
 
 
@@ -195,6 +197,8 @@ GROUP_PARSERS: dict[str, Callable] = {
     "PRR": _rrp_group(_rrp.PRR),
     "RPR": _rpr_group,
     "PRP": _prp_group,
+    "triad": _triad.parse_triad,
+    "class4": _class4.parse_class4,
 }
 
 # Scene tables other modules parse: name -> parser(raw value, mechanism, source) -> parsed value.
@@ -244,6 +248,7 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         q0=state.number("q0", 0.0), omega0=state.number("omega0", 0.0), t0=state.number("t0", 0.0), t1=state.number("t1", 1.0)
     )
     state.reject_unknown()
+    mechanism = _newton.resolve_guess_q(mechanism, state_values["q0"])  # iterative groups' guesses refer to q0
     simulation = Fields(top.raw("simulation", {}), "[simulation]", source)
     sim_values = dict(simulation.table)
     outputs = Fields(top.raw("outputs", {}), "[outputs]", source)

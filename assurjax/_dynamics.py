@@ -1,0 +1,513 @@
+"""Forward dynamics of the reduced link (seed 000, steps ii-v), integrated with diffrax.
+
+The state is y = (q, w) (plus the dissipated work when energies are asked for
+and some load dissipates):
+
+    dq/dt = w,
+    dw/dt = (tau + tau_red - 0.5 dJ_red/dq w^2) / J_red,
+
+the time form of seed 000 eq. 1, d/dq (J_red w^2 / 2) = tau + tau_red. Every
+right-hand-side evaluation redoes the reduction at (q, w, t), so velocity-dependent
+loads are updated at every stage (the seed's step v); when no load depends on
+velocity the velocity part is never built.
+
+Events (diffrax.Event, located by an optimistix root finder on the dense output):
+standstill (w crosses 0 against the direction of motion), a group that can no
+longer assemble, and user conditions ``cond(t, q, omega)`` (stop when they change sign).
+
+The seed's own scheme (Euler in q, eq. 2) is :func:`simulate_seed_euler`, a labelled
+baseline for benchmarks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array
+
+from ._errors import AssurjaxError
+from ._loads import Damper, RotaryDamper, any_velocity_dependent, check_loads, dissipated_power, potential_energy
+from ._mechanism import Mechanism, positions
+from ._reduction import coefficients, kinematics_from_coefficients, reduce_single
+from ._tracking import branch_angles, branch_rates, branch_state
+
+SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
+    "tsit5": diffrax.Tsit5,
+    "dopri5": diffrax.Dopri5,
+    "dopri8": diffrax.Dopri8,
+    "bosh3": diffrax.Bosh3,
+    "heun": diffrax.Heun,
+    "midpoint": diffrax.Midpoint,
+    "ralston": diffrax.Ralston,
+    "euler": diffrax.Euler,
+}
+BASELINES = ("seed_euler",)
+DEFAULT_SOLVER = "dopri8"
+DEFAULT_RTOL = 1e-8
+DEFAULT_ATOL = 1e-8
+DEFAULT_SAMPLES = 201
+DEFAULT_MAX_STEPS = 4096
+
+# Event codes in Solution.event.
+NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
+
+
+class Settings(NamedTuple):
+    """Static settings of :func:`simulate_core` (hashable: one compile per distinct value)."""
+
+    solver: str = DEFAULT_SOLVER
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
+    dt: float | None = None  # fixed step (s); None: adaptive (PID controller)
+    max_steps: int = DEFAULT_MAX_STEPS
+    standstill: bool = False
+    check_assembly: bool = True
+    events: tuple = ()  # user conditions cond(t, q, omega) -> real
+    samples: int = DEFAULT_SAMPLES  # saved times when no saveat is given
+    points: tuple[str, ...] = ()
+    angles: tuple[str, ...] = ()
+    energies: bool = False
+    domega: bool = True
+    branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
+
+
+class Solution(eqx.Module):
+    """A simulated motion of the reduced link and what the outputs asked for.
+
+    ``t`` (s), ``q`` (rad or m), ``omega`` (rad/s or m/s), ``domega`` (dw/dt) at the
+    saved times. ``kinetic``, ``potential``, ``total`` (J): energies (None unless
+    asked); ``dissipated`` (J): work removed by dampers since t0 (None without
+    dampers). ``points``: name -> (n, 2) trajectories (m); ``angles``: link -> (n,) (rad).
+    ``t_stop``: time (s) at which a stop event fired (None when none did; an array
+    under jit/vmap, read with ``event``). ``event``: -1 none, 0 standstill, 1 a group
+    can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
+    ``valid``: saved times actually reached (the others repeat the final state,
+    under jit/vmap only; :func:`simulate` trims them). ``result``: diffrax result code
+    (0 successful); ``status`` a readable summary.
+    """
+
+    t: Array
+    q: Array
+    omega: Array
+    domega: Array | None
+    kinetic: Array | None
+    potential: Array | None
+    total: Array | None
+    dissipated: Array | None
+    points: dict[str, Array]
+    angles: dict[str, Array]
+    valid: Array
+    t_final: Array
+    q_final: Array
+    omega_final: Array
+    t_stop: Any
+    event: Array
+    failed_group_index: Array
+    result: Array
+    num_steps: Array
+    failed_group: str | None = eqx.field(static=True, default=None)
+    status: str = eqx.field(static=True, default="")
+
+
+# ---------------------------------------------------------------------------- right-hand side
+
+
+def _dissipative(loads) -> bool:
+    return any(isinstance(load, (Damper, RotaryDamper)) for load in loads)
+
+
+def _rhs(t, y, args):
+    """(dq/dt, dw/dt[, dW_diss/dt]) at (t, y): the reduced equation of motion."""
+    mechanism, gravity, loads, track_work = args
+    q, w = y[0], y[1]
+    near = branch_state(y)
+    red = reduce_single(mechanism, gravity, loads, q, w, t, near=near)
+    dw = (red.effort + red.torque - 0.5 * red.dinertia * w**2) / red.inertia
+    out = (w, dw) + ((_dissipation(mechanism, loads, q, w, near),) if track_work else ())
+    return out if near is None else out + (branch_rates(red, near, w),)
+
+
+def _dissipation(mechanism, loads, q, w, near=None):
+    x, dx, _, ok = coefficients(mechanism, q, near=near)
+    return dissipated_power(mechanism, loads, kinematics_from_coefficients(q, w, x, dx, ok))
+
+
+def _acceleration(mechanism, gravity, loads, t, q, w, near=None):
+    return _rhs(t, (q, w) + (() if near is None else (near,)), (mechanism, gravity, loads, False))[1]
+
+
+# ---------------------------------------------------------------------------- events
+
+
+def _margins(settings: Settings, t, y, args) -> list:
+    """One margin per enabled stop condition, positive until that condition fires.
+
+    standstill: direction of motion * w (0 at a start from rest, then > 0 while
+    moving); assembly: +1 while every group assembles, -1 once one cannot; user
+    events: cond(t, q, w) times its sign at t0.
+    """
+    mechanism, direction, user_signs = args[0], args[4], args[5]
+    out = []
+    if settings.standstill:
+        out.append(direction * y[1])
+    if settings.check_assembly:
+        out.append(jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -1.0))
+    for k, cond in enumerate(settings.events):
+        out.append(user_signs[k] * jnp.asarray(cond(t, y[0], y[1]), dtype=float))
+    return out
+
+
+def _event_codes(settings: Settings) -> tuple[int, ...]:
+    codes = [STANDSTILL] if settings.standstill else []
+    codes += [LOCKUP] if settings.check_assembly else []
+    return tuple(codes + [USER + k for k in range(len(settings.events))])
+
+
+def _event(settings: Settings):
+    """One diffrax.Event on the smallest margin (down-crossing), located by bisection
+    on the dense output: the assembly margin is a step, and bisection needs no
+    right-hand-side evaluations."""
+    if not _event_codes(settings):
+        return None
+
+    def cond_fn(t, y, args, **kwargs):
+        return jnp.min(jnp.stack(_margins(settings, t, y, args)))
+
+    tol = min(1e-3 * settings.rtol, 1e-12)
+    return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
+
+
+# ---------------------------------------------------------------------------- core
+
+
+def _solver(settings: Settings):
+    if settings.solver not in SOLVERS:
+        raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
+    return SOLVERS[settings.solver]()
+
+
+def _controller(settings: Settings):
+    if settings.dt is not None:
+        return diffrax.ConstantStepSize()
+    return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol)
+
+
+def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, *, settings: Settings = Settings()) -> Solution:
+    """The pure, jittable simulation (no Python-side checks or trimming).
+
+    ``q0``, ``omega0``, ``t0``, ``t1`` and the arrays inside ``mechanism`` and
+    ``loads`` may be traced (vmap over them with ``eqx.filter_vmap``); ``settings``
+    is static. ``ts``: save times (default ``settings.samples`` times from t0 to t1).
+    """
+    q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    if ts is None:
+        ts = jnp.linspace(t0, t1, settings.samples)
+    ts = jnp.asarray(ts, dtype=float)
+    track_work = settings.energies and _dissipative(loads)
+    y0 = (q0, omega0, jnp.zeros(())) if track_work else (q0, omega0)
+    if settings.branch == "tracked":  # the branch travels with the state, starting on the fixed modes
+        y0 = y0 + (branch_angles(mechanism, positions(mechanism, q0)),)
+    # Initial direction of motion: of the velocity, or from rest of the acceleration.
+    a0 = _acceleration(mechanism, gravity, loads, t0, q0, omega0)
+    direction = jnp.where(omega0 != 0, jnp.sign(omega0), jnp.sign(a0))
+    user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
+    args = (mechanism, gravity, loads, track_work, direction, user_signs)
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(lambda t, y, a: _rhs(t, y, a[:4])),
+        _solver(settings),
+        t0=t0,
+        t1=t1,
+        dt0=settings.dt,
+        y0=y0,
+        args=args,
+        saveat=diffrax.SaveAt(ts=ts, t1=True),
+        stepsize_controller=_controller(settings),
+        event=_event(settings),
+        max_steps=settings.max_steps,
+        throw=False,
+    )
+    return _package(mechanism, gravity, loads, sol, ts, args, settings, track_work)
+
+
+def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> Solution:
+    # diffrax writes the final state right after the saved times reached (an event
+    # deletes those past it) and pads with inf.
+    last = jnp.sum(jnp.isfinite(sol.ts)) - 1
+    t_final, q_final, w_final = sol.ts[last], sol.ys[0][last], sol.ys[1][last]
+    valid = jnp.arange(ts.shape[0]) < last
+    # Times not reached hold the final state, so every output stays finite.
+    q = jnp.where(valid, sol.ys[0][:-1], q_final)
+    w = jnp.where(valid, sol.ys[1][:-1], w_final)
+    t = jnp.where(valid, ts, t_final)
+    event = _which_event(sol, settings, args)
+    near = branch_state(sol.ys)  # saved link angles (tracked branch) or None
+    near_final = None if near is None else jax.tree.map(lambda z: z[-1], near)
+    near = None if near is None else jax.tree.map(lambda z: jnp.where(valid, z[:-1], z[-1]), near)
+    outputs = _outputs(mechanism, gravity, loads, t, q, w, settings, near)
+    dissipated = None
+    if track_work:
+        work = sol.ys[2]
+        dissipated = jnp.where(valid, work[:-1], work[last])
+    failed = _failed_group(mechanism, q_final, w_final, event, near_final)
+    return Solution(
+        t=t, q=q, omega=w, **outputs, dissipated=dissipated, valid=valid,
+        t_final=t_final, q_final=q_final, omega_final=w_final,
+        t_stop=jnp.where(event >= 0, t_final, jnp.inf), event=event, failed_group_index=failed,
+        result=jnp.asarray(sol.result._value), num_steps=sol.stats["num_steps"],
+    )
+
+
+def _which_event(sol, settings, args):
+    """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
+    codes = _event_codes(settings)
+    if not codes:
+        return jnp.asarray(NO_EVENT)
+    fired = sol.event_mask
+    margins = jnp.stack(_margins(settings, sol.ts[-1], jax.tree.map(lambda y: y[-1], sol.ys), args))
+    return jnp.where(fired, jnp.asarray(codes)[jnp.argmin(margins)], NO_EVENT)
+
+
+def _failed_group(mechanism, q_final, w_final, event, near=None):
+    """Index of the first group that cannot assemble just past the final state (-1: none)."""
+    nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
+    ok = positions(mechanism, q_final + nudge, near=near).ok & positions(mechanism, q_final, near=near).ok
+    first_bad = jnp.argmin(ok)
+    return jnp.where((event == LOCKUP) & ~jnp.all(ok), first_bad, -1)
+
+
+def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:
+    """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
+    ``near``: saved link angles of a tracked branch (None: the fixed modes)."""
+    out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
+    if settings.domega:
+        out["domega"] = jax.vmap(lambda t, q, w, z: _acceleration(mechanism, gravity, loads, t, q, w, z))(t, q, w, near)
+    if settings.angles:  # angles of any link: the full position analysis
+        pose = jax.vmap(lambda q, z: positions(mechanism, q, near=z))(q, near)
+    elif settings.points:  # only the groups the points need
+        pose = jax.vmap(lambda q, z: positions(mechanism, q, points=settings.points, near=z))(q, near)
+    if settings.points:
+        out["points"] = {p: pose.points[p] for p in settings.points}
+    if settings.angles:
+        out["angles"] = {a: pose.angles[a] for a in settings.angles}
+    if settings.energies:
+        red = jax.vmap(lambda q, z: reduce_single(mechanism, gravity, (), q, 0.0, 0.0, velocities=False, near=z))(q, near)
+        kinetic = 0.5 * red.inertia * w**2
+        potential = jax.vmap(lambda q, z: potential_energy(mechanism, gravity, loads, positions(mechanism, q, near=z)))(q, near)
+        out.update(kinetic=kinetic, potential=potential, total=kinetic + potential)
+    return out
+
+
+_simulate_jit = eqx.filter_jit(simulate_core)
+
+
+# ---------------------------------------------------------------------------- user-facing
+
+
+def simulate(
+    scene,
+    *,
+    q0=None,
+    omega0=None,
+    t0=None,
+    t1=None,
+    saveat=None,
+    stop: str | None | type(...) = ...,
+    solver: str | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    dt: float | None = None,
+    max_steps: int | None = None,
+    samples: int | None = None,
+    events: Sequence[Callable] = (),
+    check_assembly: bool = True,
+    mechanism: Mechanism | None = None,
+    loads=None,
+    gravity=None,
+    points: Sequence[str] | None = None,
+    angles: Sequence[str] | None = None,
+    energies: bool | None = None,
+    branch: str | None = None,
+) -> Solution:
+    """Simulate a scene's motion from its initial state (seed 000's forward dynamics).
+
+    Keyword arguments override the scene: ``q0`` (rad or m), ``omega0`` (rad/s or
+    m/s), ``t0``, ``t1`` (s) from ``[state]``; ``stop`` (``"standstill"`` or None),
+    ``solver`` (``"dopri8"`` default, ``"tsit5"``, ``"dopri5"``, ..., or the baseline
+    ``"seed_euler"``), ``rtol``, ``atol``, ``dt`` (a fixed step, s), ``max_steps``,
+    ``samples`` from ``[simulation]``; ``points``, ``angles``, ``energies`` from
+    ``[outputs]``. ``branch``: ``"fixed"`` (default: the scene's assembly modes) or
+    ``"tracked"``: the link angles travel in the ODE state (d theta/dt = d theta/dq w,
+    from the same jvp) and every group takes the root nearest to them, which keeps
+    the motion on one continuous branch through singular configurations (e.g. the
+    N-four-bar's). ``saveat``: an array of times (s). ``events``: functions
+    ``cond(t, q, omega)``; the motion stops where one changes sign. ``mechanism``,
+    ``loads``, ``gravity`` replace the scene's.
+
+    Returns a :class:`Solution` trimmed to the times reached.
+
+    **Example:**
+    >>> sol = assurjax.simulate(assurjax.load_scene("watt_sixbar"))
+    >>> float(sol.t_stop)   # first standstill after falling from rest
+    """
+    mechanism = scene.mechanism if mechanism is None else mechanism
+    loads = tuple(scene.loads if loads is None else loads)
+    gravity = jnp.asarray(scene.gravity if gravity is None else gravity, dtype=float)
+    check_loads(mechanism, loads)
+    state, sim, outs = scene.state, scene.simulation, scene.outputs
+    pick = lambda given, table, key, default: given if given is not None else table.get(key, default)  # noqa: E731
+    stop = sim.get("stop", None) if stop is ... else stop
+    if stop not in (None, "standstill", "none"):
+        raise AssurjaxError(f"stop must be 'standstill' or None, got {stop!r}")
+    settings = Settings(
+        solver=str(pick(solver, sim, "solver", DEFAULT_SOLVER)),
+        rtol=float(pick(rtol, sim, "rtol", DEFAULT_RTOL)),
+        atol=float(pick(atol, sim, "atol", DEFAULT_ATOL)),
+        dt=None if pick(dt, sim, "dt", None) is None else float(pick(dt, sim, "dt", None)),
+        max_steps=int(pick(max_steps, sim, "max_steps", DEFAULT_MAX_STEPS)),
+        standstill=stop == "standstill",
+        check_assembly=bool(check_assembly),
+        events=tuple(events),
+        samples=int(pick(samples, sim, "samples", DEFAULT_SAMPLES)),
+        points=tuple(pick(points, outs, "points", ())),
+        angles=tuple(pick(angles, outs, "angles", ())),
+        energies=bool(pick(energies, outs, "energies", False)),
+        branch=str(pick(branch, sim, "branch", "fixed")),
+    )
+    if settings.branch not in ("fixed", "tracked"):
+        raise AssurjaxError(f"branch must be 'fixed' (the scene's assembly modes) or 'tracked' (continuous through singular configurations), got {settings.branch!r}")
+    _check_outputs(mechanism, settings)
+    q0, omega0, t0, t1 = (pick(v, state, k, d) for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
+    if settings.solver in BASELINES:
+        return simulate_seed_euler(mechanism, gravity, loads, q0, omega0, t0=t0, t1=t1, dq=settings.dt or 1e-3,
+                                   standstill=settings.standstill)
+    _solver(settings)  # unknown names fail here, not inside jit
+    if saveat is not None:
+        saveat = jnp.asarray(saveat, dtype=float)
+        if saveat.ndim != 1:
+            raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
+    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, settings=settings)
+    return _trim(sol, mechanism)
+
+
+def _check_outputs(mechanism, settings):
+    for p in settings.points:
+        if p not in mechanism.point_names:
+            raise AssurjaxError(f"outputs: unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    for a in settings.angles:
+        if a not in mechanism.links:
+            raise AssurjaxError(f"outputs: unknown link '{a}' (known: {sorted(mechanism.links)})")
+
+
+RESULT_MESSAGES = {0: "successful", 1: "max_steps_reached"}
+
+
+def _trim(sol: Solution, mechanism: Mechanism) -> Solution:
+    """Keep only the saved times reached, and turn codes into readable fields."""
+    n_saved = sol.valid.shape[0]
+    n = int(np.sum(np.asarray(sol.valid)))
+    cut = lambda x: x[:n] if isinstance(x, jax.Array) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
+    fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
+    event, failed = int(sol.event), int(sol.failed_group_index)
+    group = mechanism.groups[failed].name if failed >= 0 else None
+    t_stop = float(sol.t_final) if event >= 0 else None
+    status = _status(int(sol.result), event, group, float(sol.t_final))
+    return dataclasses.replace(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+
+
+_SAVED = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "points", "angles", "valid")
+
+
+def _status(result: int, event: int, group: str | None, t_final: float) -> str:
+    if event == STANDSTILL:
+        return f"standstill at t = {t_final:.9g} s"
+    if event == LOCKUP:
+        return f"group '{group}' can no longer assemble at t = {t_final:.9g} s (lock-up / limit position)"
+    if event >= USER:
+        return f"user event #{event - USER} at t = {t_final:.9g} s"
+    if result == 0:
+        return f"reached t1 = {t_final:.9g} s"
+    return f"solver stopped at t = {t_final:.9g} s: {_result_name(result)}"
+
+
+def _result_name(code: int) -> str:
+    for name in dir(diffrax.RESULTS):
+        item = getattr(diffrax.RESULTS, name)
+        if not name.startswith("_") and getattr(item, "_value", None) == code:
+            return f"{name} ({diffrax.RESULTS[item]})"
+    return f"result code {code}"
+
+
+# ---------------------------------------------------------------------------- seed baseline
+
+
+class SeedEulerSolution(NamedTuple):
+    """The seed's Euler-in-q baseline: samples every ``dq`` of travel. ``t`` (s), ``q``,
+    ``omega`` (rad/s), ``t_stop`` (s, None if no standstill within ``t1`` or the
+    step budget). ``valid`` marks the steps taken."""
+
+    t: Array
+    q: Array
+    omega: Array
+    valid: Array
+    t_stop: Any
+    status: str
+
+
+@functools.partial(eqx.filter_jit)
+def _seed_euler_core(mechanism, gravity, loads, q0, omega0, t0, t1, dq, n_steps: int, standstill: bool):
+    """Seed 000 eq. 2 by jax.lax.scan: w_{i+1}^2 = (J_i w_i^2 + 2 (tau + tau_red)_i dq) / J_{i+1},
+    with q stepping by dq in the direction of motion and dt = dq / mean(|w_i|, |w_{i+1}|)."""
+    red = lambda q, w, t: reduce_single(mechanism, gravity, loads, q, w, t)  # noqa: E731
+    r0 = red(q0, omega0, t0)
+    a0 = (r0.effort + r0.torque - 0.5 * r0.dinertia * omega0**2) / r0.inertia
+    s = jnp.where(omega0 != 0, jnp.sign(omega0), jnp.sign(a0))
+    step = s * dq
+
+    def body(carry, _):
+        q, w2, t, j, moving = carry
+        r = red(q, s * jnp.sqrt(w2), t)
+        q_next = q + step
+        j_next = red(q_next, s * jnp.sqrt(w2), t).inertia
+        w2_next = (j * w2 + 2.0 * (r.effort + r.torque) * step) / j_next
+        stops = w2_next <= 0.0
+        dt = dq / (0.5 * (jnp.sqrt(w2) + jnp.sqrt(jnp.maximum(w2_next, 0.0))))
+        dt = jnp.where(stops, 2.0 * dq / jnp.maximum(jnp.sqrt(w2), 1e-300), dt)  # decelerate to rest within the step
+        t_next = t + dt
+        go = moving & (t_next <= t1) & ~(stops & standstill)
+        new = (jnp.where(go, q_next, q), jnp.where(go, jnp.maximum(w2_next, 0.0), w2), jnp.where(go, t_next, t),
+               jnp.where(go, j_next, j), go)
+        stopped_here = moving & stops & standstill & (t_next <= t1)
+        return new, (new[0], s * jnp.sqrt(new[1]), new[2], go, stopped_here, t_next)
+
+    init = (q0, omega0**2, t0, r0.inertia, jnp.asarray(True))
+    _, (q, w, t, go, stopped, t_hit) = jax.lax.scan(body, init, None, length=n_steps)
+    t_stop = jnp.where(jnp.any(stopped), t_hit[jnp.argmax(stopped)], jnp.inf)
+    return q, w, t, go, t_stop
+
+
+def simulate_seed_euler(mechanism, gravity, loads, q0, omega0, *, t0=0.0, t1=1.0, dq=1e-3, standstill=True, max_steps=None) -> SeedEulerSolution:
+    """The seed's scheme (Euler in q with a fixed step ``dq`` rad, seed 000 eq. 2) — a
+    labelled baseline for benchmarks, first order in ``dq``. Integrates until ``t1``,
+    the first standstill (``standstill=True``) or ``max_steps`` steps of ``dq``
+    (default: 20 000)."""
+    n = int(max_steps or 20000)
+    loads = tuple(loads)
+    q, w, t, go, t_stop = _seed_euler_core(mechanism, jnp.asarray(gravity, dtype=float), loads, jnp.asarray(q0, dtype=float),
+                                          jnp.asarray(omega0, dtype=float), jnp.asarray(t0, dtype=float),
+                                          jnp.asarray(t1, dtype=float), jnp.asarray(dq, dtype=float), n, bool(standstill))
+    k = int(np.sum(np.asarray(go)))
+    q = jnp.concatenate([jnp.asarray(q0, dtype=float)[None], q[:k]])
+    w = jnp.concatenate([jnp.asarray(omega0, dtype=float)[None], w[:k]])
+    t = jnp.concatenate([jnp.asarray(t0, dtype=float)[None], t[:k]])
+    ts = float(t_stop) if np.isfinite(float(t_stop)) else None
+    status = f"standstill at t = {ts:.9g} s" if ts is not None else f"stopped at t = {float(t[-1]):.9g} s after {k} steps"
+    return SeedEulerSolution(t=t, q=q, omega=w, valid=jnp.ones(k + 1, dtype=bool), t_stop=ts, status=status)

@@ -1,0 +1,11 @@
+"""Kinetostatics: joint reactions and the driving effort, group by group in reverse
+formation order (seed 000 section 3.3; class-IV group with special Assur points, seed 003)."""
+
+from ._api import (
+    Reactions as Reactions,
+    SingularConfigurationError as SingularConfigurationError,
+    reactions as reactions,
+    static_reactions as static_reactions,
+    static_torque as static_torque,
+)
+from ._layout import Pair as Pair, joint_names as joint_names

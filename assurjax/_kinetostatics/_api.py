@@ -1,0 +1,300 @@
+"""Joint reactions and driving effort, group by group in reverse formation order."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._errors import AssurjaxError
+from .._geometry import rotation
+from .._kinematics import Kinematics, _kinematics_single
+from .._loads import applied_wrenches
+from .._mechanism import Mechanism
+from ..groups._base import GROUND
+from ._class4 import class4_topology, solve_class4_special
+from ._drivers import solve_crank, solve_slider
+from ._dyads import solve_dyad_dense, solve_rrr
+from ._layout import Pair, group_pairs, groups_for
+from ._system import Geometry, Reaction, driver_column, hand_back, known_vector, pair_columns, solve_dense, solve_flagged, unpack
+from ._triad import solve_triad
+
+
+class SingularConfigurationError(AssurjaxError):
+    """A group's equilibrium equations are singular (e.g. an RRR dyad with its links
+    collinear): its reactions are not determined by statics alone."""
+
+    def __init__(self, message: str, group: str | None = None):
+        super().__init__(message)
+        self.group = group
+
+
+# group kind -> solver(group, pairs, geometry, known wrenches) -> (reactions, driving or None, ok)
+SOLVERS = {
+    "crank": solve_crank,
+    "slider": solve_slider,
+    "RRR": solve_rrr,
+    "RRP": solve_dyad_dense,
+    "PRR": solve_dyad_dense,
+    "RPR": solve_dyad_dense,
+    "PRP": solve_dyad_dense,
+    "triad": solve_triad,
+}
+
+METHODS = ("modular", "dense", "global")
+
+TRACE_COUNT = [0]
+"""How many times the kinetostatic analysis has been traced (tests check that scenes
+that ask for no reaction never trace it)."""
+
+
+class Reactions(eqx.Module):
+    """Joint reactions and the driving effort at one state or along a trajectory.
+
+    ``forces[name]``: (..., 2) force (N, global x, y) of every pair. A revolute
+    (named by its point, e.g. "A") gives the force ON the link placed later in the
+    formation sequence BY the earlier one; a point carried by k > 2 links gives one
+    reaction per later carrier, "<point>[<link>]", the force on it by the first
+    carrier. A prismatic pair "<slider>/<guide link>" gives the force on the slider
+    by the guide link, normal to the guide, acting at the slider's sliding point,
+    and ``couples[name]`` (N m, counterclockwise) the couple on the slider.
+    ``driving``: the driving torque (N m, crank, counterclockwise) or force (N,
+    slider, along the guide) the driver must supply: the generalized force
+    conjugate to q. ``ok``: (..., n_groups), False where a group cannot assemble
+    or its equilibrium equations are singular (values are then 0, not NaN).
+    ``pairs``: who acts on whom, for every name.
+    """
+
+    forces: dict[str, Array]
+    couples: dict[str, Array]
+    driving: Array
+    ok: Array
+    pairs: tuple[Pair, ...] = eqx.field(static=True)
+
+    def __getitem__(self, name: str) -> Array:
+        if name not in self.forces:
+            raise AssurjaxError(f"no reaction at joint '{name}' was computed (available: {sorted(self.forces)})")
+        return self.forces[name]
+
+    def keys(self):
+        return self.forces.keys()
+
+
+def _solver(group, pairs, method: str):
+    if method == "dense":
+        return None
+    if group.kind in SOLVERS:
+        return SOLVERS[group.kind]
+    if class4_topology(group, pairs) is not None:
+        return solve_class4_special
+    return None  # any other group: its own dense system
+
+
+def _geometry(kin: Kinematics) -> Geometry:
+    return Geometry(kin.points, kin.coms, {k: rotation(a) for k, a in kin.angles.items()})
+
+
+def _known_wrenches(mechanism: Mechanism, kin: Kinematics, wrenches) -> dict:
+    """Applied force and moment about the COM plus d'Alembert's -m a_G and -J alpha."""
+    known = {}
+    for name, link in mechanism.links.items():
+        f, m = wrenches[name]
+        if kin.com_accelerations is not None:
+            f = f - link.mass * kin.com_accelerations[name]
+            m = m - link.inertia * kin.angular_accelerations[name]
+        known[name] = (f, m)
+    return known
+
+
+def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: str = "modular", groups=None):
+    """The kinetostatic analysis proper: groups in reverse formation order, each
+    solving only its own equations with the loads handed back by the groups built
+    on it; the driver last. Returns (reactions by name, driving effort, ok per group)."""
+    pairs = group_pairs(mechanism)
+    wanted = range(len(mechanism.groups)) if groups is None else groups
+    known = dict(known)
+    out, driving = {}, jnp.zeros(())
+    oks = [jnp.array(True)] * len(mechanism.groups)
+    for i in sorted(wanted, reverse=True):
+        group = mechanism.groups[i]
+        solver = _solver(group, pairs[i], method)
+        if solver is None:
+            found, effort, oks[i] = solve_dense(group.links, pairs[i], geom, known, group if group.is_driver else None)
+        else:
+            found, effort, oks[i] = solver(group, pairs[i], geom, known)
+        if effort is not None:
+            driving = effort
+        for pair in pairs[i]:
+            hand_back(geom, known, pair, found[pair.name])
+        out.update(found)
+    return out, driving, jnp.stack(oks)
+
+
+def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
+    """Reference: every equilibrium equation of the mechanism in one linear system
+    (3 n x 3 n: 15 x 15 for the Watt six-bar)."""
+    pairs = [p for ps in group_pairs(mechanism) for p in ps]
+    links = list(mechanism.links)
+    index = {link: k for k, link in enumerate(links)}
+    size = 3 * len(links)
+    cols = [c for pair in pairs for c in pair_columns(geom, index, pair, size)]
+    cols.append(driver_column(geom, index, mechanism.driver, size))
+    x, ok = solve_flagged(jnp.stack(cols, axis=-1), -known_vector(known, links))
+    return unpack(geom, pairs, x), x[-1], jnp.broadcast_to(ok, (len(mechanism.groups),))
+
+
+def _static_kinematics(mechanism, q, t):
+    """Positions only, zero velocities and no inertia (the mechanism at rest)."""
+    kin = _kinematics_single(mechanism, q, jnp.zeros_like(q), jnp.zeros_like(q), None, 0)
+    zeros = lambda d: jax.tree.map(jnp.zeros_like, d)  # noqa: E731
+    return eqx.tree_at(
+        lambda k: (k.velocities, k.com_velocities, k.angular_velocities),
+        kin,
+        (zeros(kin.points), zeros(kin.coms), zeros(kin.angles)),
+        is_leaf=lambda x: x is None,
+    )
+
+
+def _single(scene, q, omega, alpha, t, method: str, groups, static: bool):
+    TRACE_COUNT[0] += 1
+    mechanism = scene.mechanism
+    if static:
+        kin = _static_kinematics(mechanism, q, t)
+    else:
+        kin = _kinematics_single(mechanism, q, omega, alpha, None, 2)
+    known = _known_wrenches(mechanism, kin, applied_wrenches(mechanism, scene.gravity, scene.loads, kin, t))
+    geom = _geometry(kin)
+    if method == "global":
+        found, driving, ok = solve_global(mechanism, geom, known)
+    else:
+        found, driving, ok = solve_groups(mechanism, geom, known, method=method, groups=groups)
+    forces = {k: r.force for k, r in found.items()}
+    couples = {k: r.couple for k, r in found.items() if k in _prismatic_names(mechanism)}
+    return forces, couples, driving, ok & kin.ok
+
+
+def _prismatic_names(mechanism):
+    return {p.name for ps in group_pairs(mechanism) for p in ps if p.kind == "P"}
+
+
+@eqx.filter_jit
+def _batch(scene, q, omega, alpha, t, method, groups, static):
+    shape = q.shape
+    single = lambda q, w, a, t: _single(scene, q, w, a, t, method, groups, static)  # noqa: E731
+    flat = jax.vmap(single)(*(v.reshape(-1) for v in (q, omega, alpha, t)))
+    return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+
+
+def _state(state):
+    """(q, omega, alpha, t) from a Solution-like object, a mapping or a tuple."""
+    if isinstance(state, dict):
+        get = state.get
+    elif isinstance(state, (tuple, list)):
+        if len(state) not in (3, 4):
+            raise AssurjaxError(f"a state is (q, omega, domega/dt[, t]); got a sequence of {len(state)}")
+        return tuple(state) + ((0.0,) if len(state) == 3 else ())
+    else:
+        get = lambda k, d=None: getattr(state, k, d)  # noqa: E731
+    q, omega = get("q"), get("omega")
+    alpha = next((v for v in (get("domega"), get("alpha"), get("wdot")) if v is not None), None)
+    if q is None or omega is None or alpha is None:
+        raise AssurjaxError("a state needs q, omega and domega (dw/dt); pass a Solution, a dict or a tuple (q, omega, domega[, t])")
+    t = get("t")
+    return q, omega, alpha, 0.0 if t is None else t
+
+
+def _wanted_groups(mechanism: Mechanism, joints) -> tuple[int, ...] | None:
+    if joints is None:
+        return None
+    pairs = group_pairs(mechanism)
+    where = {p.name: p.group for ps in pairs for p in ps}
+    joints = (joints,) if isinstance(joints, str) else tuple(joints)
+    unknown = [j for j in joints if j not in where]
+    if unknown:
+        raise AssurjaxError(f"unknown joint(s) {unknown} in mechanism '{mechanism.name}' (joints: {list(where)})")
+    return groups_for(mechanism, pairs, {where[j] for j in joints} | {0})
+
+
+def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method: str = "modular", check: bool = True) -> Reactions:
+    """Joint reactions and driving effort (kinetostatics, seed 000 section 3.3 and seed 003).
+
+    **Arguments:**
+    - ``scene``: a :class:`assurjax.Scene` (mechanism, gravity, loads).
+    - ``state``: a Solution (its ``t``, ``q``, ``omega``, ``domega``), a dict with
+      those keys, or a tuple ``(q, omega, domega[, t])``; arrays of any (common)
+      shape give results with that shape in front.
+    - ``joints``: only these joints (names as in :attr:`Reactions.forces`); only the
+      groups they need are solved, plus the driver. Default: all.
+    - ``method``: ``"modular"`` (group by group, closed forms and special Assur
+      points where implemented), ``"dense"`` (group by group, each group's full
+      3 n x 3 n system), ``"global"`` (one linear system for the whole mechanism;
+      a reference).
+    - ``check``: raise :class:`SingularConfigurationError` or
+      :class:`assurjax.AssemblyError` naming the group at fault (outside jit).
+
+    Loads: gravity and the scene's loads (:func:`assurjax.applied_wrenches`) plus
+    the inertia force -m a_G and couple -J alpha of every link (d'Alembert), with
+    accelerations from :func:`assurjax.kinematics`. The driving effort is what the
+    driver must supply; it is not taken from the scene's drive loads.
+
+    **Example:**
+    >>> scene = assurjax.load_scene("watt_sixbar")
+    >>> r = assurjax.reactions(scene, (0.3, 1.0, 0.0))
+    >>> r["A"].shape, r.driving.shape
+    ((2,), ())
+    """
+    return _run(scene, _state(state), joints, method, check, static=False)
+
+
+def static_torque(scene, q, *, t=0.0, check: bool = True) -> Array:
+    """The driving torque (N m; N for a slider) that holds the mechanism at rest at
+    ``q`` (w = dw/dt = 0) against gravity and the scene's loads: the balancing
+    torque of gravity-balancing studies. Any shape of ``q``."""
+    return static_reactions(scene, q, t=t, check=check).driving
+
+
+def static_reactions(scene, q, *, t=0.0, joints=None, check: bool = True) -> Reactions:
+    """All reactions of the mechanism held at rest at ``q`` (see :func:`static_torque`)."""
+    return _run(scene, (q, 0.0, 0.0, t), joints, "modular", check, static=True)
+
+
+def _run(scene, state, joints, method, check, *, static):
+    if method not in METHODS:
+        raise AssurjaxError(f"method must be one of {METHODS}, got {method!r}")
+    mechanism = scene.mechanism
+    groups = _wanted_groups(mechanism, joints)
+    q = jnp.asarray(state[0], dtype=float)
+    shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
+    q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
+    forces, couples, driving, ok = _batch(scene, q, omega, alpha, t, method, groups, static)
+    if joints is not None:
+        names = (joints,) if isinstance(joints, str) else tuple(joints)
+        forces = {k: forces[k] for k in names}
+        couples = {k: v for k, v in couples.items() if k in names}
+    pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
+    result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs)
+    if check:
+        raise_if_singular(mechanism, ok, q)
+    return result
+
+
+def raise_if_singular(mechanism: Mechanism, ok, q) -> None:
+    """Raise naming the first group whose equations are singular (no-op under tracing)."""
+    if isinstance(ok, jax.core.Tracer):
+        return
+    ok = np.asarray(ok)
+    if ok.all():
+        return
+    bad = np.argwhere(~ok)[0]
+    group = mechanism.groups[bad[-1]]
+    q_bad = float(np.asarray(q)[tuple(bad[:-1])])
+    raise SingularConfigurationError(
+        f"{group.describe()}: its equilibrium equations are singular (or it cannot assemble) at q = {q_bad:.6g}; "
+        f"{int((~ok).any(-1).sum()) if ok.ndim > 1 else 1} state(s) affected. A singular group (e.g. a dyad with "
+        "its links collinear) cannot carry a general load: its reactions are not determined by statics",
+        group=group.name,
+    )

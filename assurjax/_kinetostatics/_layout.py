@@ -1,0 +1,105 @@
+"""Which pairs (joints) a mechanism has, who acts on whom, and which group solves for each.
+
+Conventions (see docs/kinetostatics.md):
+
+- A **revolute** is a point name carried by two links (or a link and the ground).
+  Its reaction is the force (N, global x, y) exerted ON the link placed later in
+  the formation sequence (within a group: later in the group's ``links``) BY the
+  link placed earlier (the ground is earliest). It is named by the point, e.g. "A".
+- A point carried by more than two links is split as if every later carrier were
+  pinned to the first carrier (the point's owner): one reaction per later link,
+  named "<point>[<link>]", the force on that link by the owner. The owner receives
+  minus their sum.
+- A **prismatic** pair is named "<slider>/<guide link>". Its reaction is the force
+  ON the slider (or block) BY the link carrying the guide, normal to the guide and
+  acting at the slider's sliding point (the joint point it carries on the guide),
+  plus a couple (N m, counterclockwise positive) on the slider by the guide link.
+- Each pair is solved by the group that placed its ``on`` link.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+from .._errors import MechanismError
+from .._mechanism import Mechanism
+from ..groups._base import GROUND, AbstractGroup
+
+
+class Pair(NamedTuple):
+    """One kinematic pair. ``kind`` "R" (revolute) or "P" (prismatic); the reaction
+    acts ON ``on`` BY ``by`` at ``point``; ``group`` is the index of the group that
+    solves it."""
+
+    name: str
+    kind: str
+    on: str
+    by: str
+    point: str
+    group: int
+
+
+# kind -> (group, owner) -> [(slider link, guide link, sliding point)]
+PRISMATIC: dict[str, Callable[[AbstractGroup, dict], list[tuple[str, str, str]]]] = {
+    "slider": lambda g, o: [(g.links[0], GROUND, g.point)],
+    "RRP": lambda g, o: [(g.links[1], o[g.guide_point], g.joints[1])],
+    "PRR": lambda g, o: [(g.links[0], o[g.guide_point], g.joints[0])],
+    "RPR": lambda g, o: [(g.links[0], g.links[1], g.joints[0])],
+    "PRP": lambda g, o: [(g.links[k], o[g.guide_points[k]], g.joint) for k in (0, 1)],
+}
+
+
+def _carriers(mechanism: Mechanism) -> dict[str, int]:
+    count = {p: 1 for p in mechanism.ground}
+    for link in mechanism.links.values():
+        for p in link.points:
+            count[p] = count.get(p, 0) + 1
+    return count
+
+
+def group_pairs(mechanism: Mechanism) -> tuple[tuple[Pair, ...], ...]:
+    """The pairs each group solves for, in formation order (a trace-time helper)."""
+    owner = dict(mechanism.owner)
+    carriers = _carriers(mechanism)
+    out = []
+    for i, group in enumerate(mechanism.groups):
+        pairs = []
+        for link in group.links:
+            for p in mechanism.links[link].points:
+                if owner[p] != link:
+                    name = p if carriers[p] == 2 else f"{p}[{link}]"
+                    pairs.append(Pair(name, "R", link, owner[p], p, i))
+        if group.n_prismatic:
+            if group.kind not in PRISMATIC:
+                raise MechanismError(
+                    f"{group.describe()}: kinetostatics does not know where its {group.n_prismatic} prismatic pair(s) are"
+                )
+            for slider, guide, point in PRISMATIC[group.kind](group, owner):
+                pairs.append(Pair(f"{slider}/{guide}", "P", slider, guide, point, i))
+        unknowns = sum(2 for _ in pairs) + (1 if group.is_driver else 0)
+        if unknowns != 3 * len(group.links):
+            raise MechanismError(
+                f"{group.describe()}: {unknowns} reaction unknowns for {3 * len(group.links)} equilibrium equations; "
+                "the group is not statically determinate (check the point names shared between links)"
+            )
+        out.append(tuple(pairs))
+    return tuple(out)
+
+
+def joint_names(mechanism: Mechanism) -> tuple[str, ...]:
+    """Names of every pair whose reaction :func:`assurjax.reactions` returns."""
+    return tuple(p.name for pairs in group_pairs(mechanism) for p in pairs)
+
+
+def groups_for(mechanism: Mechanism, pairs, wanted_groups: set[int]) -> tuple[int, ...]:
+    """Groups to solve so that ``wanted_groups`` get their reactions: those groups and
+    every later group that hands loads back to them, directly or through others."""
+    group_of = {link: i for i, g in enumerate(mechanism.groups) for link in g.links}
+    needed = set()
+    # j hands loads to i < j when one of j's pairs acts BY a link of i.
+    feeds = {j: {group_of[p.by] for p in pairs[j] if p.by != GROUND and group_of[p.by] != j} for j in range(len(pairs))}
+    for j in range(len(pairs)):
+        if j in wanted_groups or feeds[j] & needed:
+            needed.add(j)
+    return tuple(sorted(needed))

@@ -1,0 +1,434 @@
+"""Applied loads: gravity, point forces, couples, springs, dampers, driving efforts.
+
+Sign conventions (all in the global frame, SI units):
+
+- Angles, angular velocities and moments are counterclockwise positive.
+- A link's applied wrench is its resultant force F (N) and the moment M (N m)
+  of all its applied loads about the link's centre of mass.
+- A spring or damper between points a and b pulls a towards b (and b towards a)
+  when stretched (spring) or lengthening (damper).
+- A rotational damper on a joint puts c (w_b - w_a) on link a and the opposite
+  on link b (it resists relative rotation).
+- The driving effort is the generalized force conjugate to q: a torque (N m,
+  counterclockwise positive) on a crank, a force (N) along the guide direction
+  on a slider. It is not part of :func:`applied_wrenches`.
+
+A load value may be a number (or array), one of the documented forms
+(:class:`Polynomial`, :class:`Table`), or any JAX function ``f(q, omega, t)``.
+User functions are assumed to depend on velocity unless the load is given
+``velocity_dependent=False``; this only decides what the integrator can skip.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._errors import MechanismError
+from ._geometry import cross, dot, safe_norm
+from ._mechanism import Mechanism, Pose
+from .groups._base import GROUND
+
+# ---------------------------------------------------------------------------- value forms
+
+VARIABLES = ("q", "omega", "t")
+
+
+class Polynomial(eqx.Module):
+    """c0 + c1 x + c2 x^2 + ... with x one of ``"q"``, ``"omega"``, ``"t"``."""
+
+    coefficients: Array
+    variable: str = eqx.field(static=True, default="q")
+
+    def __init__(self, coefficients, variable: str = "q"):
+        if variable not in VARIABLES:
+            raise MechanismError(f"Polynomial: variable must be one of {VARIABLES}, got {variable!r}")
+        self.coefficients = jnp.asarray(coefficients, dtype=float)
+        self.variable = variable
+
+    def __call__(self, q, omega, t):
+        x = {"q": q, "omega": omega, "t": t}[self.variable]
+        return jnp.polyval(self.coefficients[::-1], x)
+
+
+class Table(eqx.Module):
+    """Piecewise-linear interpolation of ``values`` at increasing ``x`` (of ``variable``);
+    constant beyond the ends, or wrapped with ``period`` (e.g. 2 pi for a crank angle)."""
+
+    x: Array
+    values: Array
+    variable: str = eqx.field(static=True, default="q")
+    period: float | None = eqx.field(static=True, default=None)
+
+    def __init__(self, x, values, variable: str = "q", period: float | None = None):
+        if variable not in VARIABLES:
+            raise MechanismError(f"Table: variable must be one of {VARIABLES}, got {variable!r}")
+        self.x, self.values = jnp.asarray(x, dtype=float), jnp.asarray(values, dtype=float)
+        if self.x.ndim != 1 or self.x.shape != self.values.shape or self.x.shape[0] < 2:
+            raise MechanismError(f"Table: x and values must be two 1-D arrays of the same length >= 2, got shapes {self.x.shape} and {self.values.shape}")
+        self.variable, self.period = variable, period
+
+    def __call__(self, q, omega, t):
+        x = {"q": q, "omega": omega, "t": t}[self.variable]
+        if self.period is not None:
+            x = self.x[0] + jnp.mod(x - self.x[0], self.period)
+        return jnp.interp(x, self.x, self.values)
+
+
+def evaluate(value, q, omega, t) -> Array:
+    """A load value at (q, omega, t): numbers as they are, forms and functions called."""
+    if callable(value):
+        return jnp.asarray(value(q, omega, t), dtype=float)
+    return jnp.asarray(value, dtype=float)
+
+
+def _velocity_dependent(*values, flag: bool | None = None) -> bool:
+    if flag is not None:
+        return flag
+    for v in values:
+        if isinstance(v, (Polynomial, Table)):
+            if v.variable == "omega":
+                return True
+        elif callable(v):
+            return True
+    return False
+
+
+def _as_value(v):
+    return v if callable(v) else jnp.asarray(v, dtype=float)
+
+
+# ---------------------------------------------------------------------------- base class
+
+
+class AbstractLoad(eqx.Module):
+    """Every load says which links it acts on (``wrenches``), what it puts on the
+    driver (``effort``), its potential energy and its dissipated power."""
+
+    velocity_dependent: eqx.AbstractVar[bool]
+
+    def check(self, mechanism: Mechanism) -> None:
+        """Raise :class:`MechanismError` naming an unknown point or link."""
+
+    def wrenches(self, mechanism: Mechanism, kin, t) -> list[tuple[str, Array, Array]]:
+        """(link, force (2,), moment about the link's COM) for each link loaded."""
+        return []
+
+    def effort(self, mechanism: Mechanism, q, omega, t) -> Array:
+        """Generalized force on the driver (N m or N)."""
+        return jnp.zeros(())
+
+    def potential(self, mechanism: Mechanism, pose: Pose) -> Array:
+        """Potential energy (J)."""
+        return jnp.zeros(())
+
+    def dissipation(self, mechanism: Mechanism, kin) -> Array:
+        """Power dissipated (W, >= 0): what the load removes from the mechanism."""
+        return jnp.zeros(())
+
+
+def _carriers(mechanism: Mechanism, point: str) -> list[str]:
+    """Links carrying ``point`` (the ground first when it is a fixed point)."""
+    found = [GROUND] if point in mechanism.ground else []
+    return found + [name for name, link in mechanism.links.items() if point in link.points]
+
+
+def _check_point(mechanism: Mechanism, point: str, link: str | None, what: str) -> None:
+    carriers = _carriers(mechanism, point)
+    if not carriers:
+        raise MechanismError(f"{what}: unknown point '{point}' (known: {sorted(mechanism.point_names)})")
+    if link is not None and link not in carriers:
+        raise MechanismError(f"{what}: link '{link}' does not carry point '{point}' (carried by {carriers})")
+
+
+def _link_of(mechanism: Mechanism, point: str, link: str | None) -> str:
+    return link if link is not None else dict(mechanism.owner)[point]
+
+
+def _moment_about_com(kin, link: str, at: Array, force: Array) -> Array:
+    return cross(at - kin.coms[link], force)
+
+
+def _point_velocity(kin, point: str) -> Array:
+    return kin.velocities[point] if point in kin.velocities else jnp.zeros(2)
+
+
+def _point_position(mechanism: Mechanism, kin, point: str) -> Array:
+    return kin.points[point] if point in kin.points else mechanism.ground[point]
+
+
+# ---------------------------------------------------------------------------- loads
+
+
+class PointForce(AbstractLoad):
+    """A force (N, global frame) on a named point. ``force``: a 2-vector, or a
+    function ``f(q, omega, t) -> (2,)``. ``link`` picks the carrier when the point
+    is a joint (the power, hence the motion, is the same either way)."""
+
+    point: str = eqx.field(static=True)
+    force: Any
+    link: str | None = eqx.field(static=True, default=None)
+    velocity_dependent: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, point: str, force, *, link: str | None = None, velocity_dependent: bool | None = None):
+        self.point, self.link = point, link
+        self.force = _as_value(force)
+        self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
+
+    def check(self, mechanism):
+        _check_point(mechanism, self.point, self.link, f"force on point '{self.point}'")
+
+    def wrenches(self, mechanism, kin, t):
+        link = _link_of(mechanism, self.point, self.link)
+        if link == GROUND:
+            return []
+        f = evaluate(self.force, kin.q, kin.omega, t)
+        return [(link, f, _moment_about_com(kin, link, kin.points[self.point], f))]
+
+
+class Couple(AbstractLoad):
+    """A couple (N m, counterclockwise positive) on a link: a number or ``f(q, omega, t)``."""
+
+    link: str = eqx.field(static=True)
+    moment: Any
+    velocity_dependent: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, link: str, moment, *, velocity_dependent: bool | None = None):
+        self.link = link
+        self.moment = _as_value(moment)
+        self.velocity_dependent = _velocity_dependent(moment, flag=velocity_dependent)
+
+    def check(self, mechanism):
+        if self.link not in mechanism.links:
+            raise MechanismError(f"couple: unknown link '{self.link}' (known: {sorted(mechanism.links)})")
+
+    def wrenches(self, mechanism, kin, t):
+        return [(self.link, jnp.zeros(2), evaluate(self.moment, kin.q, kin.omega, t))]
+
+
+class _TwoPoint(AbstractLoad):
+    """Shared geometry of springs and dampers between points a and b."""
+
+    points: tuple[str, str] = eqx.field(static=True)
+    links: tuple[str | None, str | None] = eqx.field(static=True)
+
+    def check(self, mechanism):
+        for p, link in zip(self.points, self.links):
+            _check_point(mechanism, p, link, f"{type(self).__name__.lower()} {self.points[0]}-{self.points[1]}")
+        if self.points[0] == self.points[1]:
+            raise MechanismError(f"{type(self).__name__.lower()}: both ends are point '{self.points[0]}'")
+
+    def _ends(self, mechanism, kin):
+        (a, b), (la, lb) = self.points, self.links
+        pa, pb = _point_position(mechanism, kin, a), _point_position(mechanism, kin, b)
+        return pa, pb, _link_of(mechanism, a, la), _link_of(mechanism, b, lb)
+
+    def _pull(self, mechanism, kin, tension):
+        """Wrenches of a tension (N, > 0 pulls the ends together) along the line a-b."""
+        pa, pb, la, lb = self._ends(mechanism, kin)
+        d = pb - pa
+        u = d / jnp.where(safe_norm(d) > 0, safe_norm(d), 1.0)
+        out = []
+        for link, at, f in ((la, pa, tension * u), (lb, pb, -tension * u)):
+            if link != GROUND:
+                out.append((link, f, _moment_about_com(kin, link, at, f)))
+        return out
+
+    def _rate(self, mechanism, kin):
+        """Length (m) and lengthening rate (m/s) of the line a-b."""
+        pa, pb, _, _ = self._ends(mechanism, kin)
+        d = pb - pa
+        length = safe_norm(d)
+        dv = _point_velocity(kin, self.points[1]) - _point_velocity(kin, self.points[0])
+        return length, dot(d, dv) / jnp.where(length > 0, length, 1.0)
+
+
+class Spring(_TwoPoint):
+    """Linear spring between points a and b: tension k (L - L0) (N), potential
+    k (L - L0)^2 / 2 (J). ``stiffness`` k in N/m, ``free_length`` L0 in m."""
+
+    stiffness: Array
+    free_length: Array
+    velocity_dependent: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, a: str, b: str, stiffness, free_length=0.0, *, links: tuple[str | None, str | None] = (None, None)):
+        self.points, self.links = (a, b), tuple(links)
+        self.stiffness, self.free_length = jnp.asarray(stiffness, dtype=float), jnp.asarray(free_length, dtype=float)
+        self.velocity_dependent = False
+
+    def _length(self, mechanism, positions_of):
+        a, b = self.points
+        return safe_norm(positions_of(b) - positions_of(a))
+
+    def wrenches(self, mechanism, kin, t):
+        length = self._length(mechanism, lambda p: _point_position(mechanism, kin, p))
+        return self._pull(mechanism, kin, self.stiffness * (length - self.free_length))
+
+    def potential(self, mechanism, pose):
+        length = self._length(mechanism, lambda p: pose.points[p] if p in pose.points else mechanism.ground[p])
+        return 0.5 * self.stiffness * (length - self.free_length) ** 2
+
+
+class Damper(_TwoPoint):
+    """Linear viscous damper between points a and b: tension c dL/dt (N),
+    ``coefficient`` c in N s/m; dissipates c (dL/dt)^2 (W)."""
+
+    coefficient: Array
+    velocity_dependent: bool = eqx.field(static=True, default=True)
+
+    def __init__(self, a: str, b: str, coefficient, *, links: tuple[str | None, str | None] = (None, None)):
+        self.points, self.links = (a, b), tuple(links)
+        self.coefficient = jnp.asarray(coefficient, dtype=float)
+        self.velocity_dependent = True
+
+    def wrenches(self, mechanism, kin, t):
+        _, rate = self._rate(mechanism, kin)
+        return self._pull(mechanism, kin, self.coefficient * rate)
+
+    def dissipation(self, mechanism, kin):
+        _, rate = self._rate(mechanism, kin)
+        return self.coefficient * rate**2
+
+
+class RotaryDamper(AbstractLoad):
+    """Viscous damper on the revolute ``joint`` (a point name shared by exactly two
+    links, or a link and the ground): couple c (w_b - w_a) on link a, the opposite
+    on link b; ``coefficient`` c in N m s/rad; dissipates c (w_b - w_a)^2 (W)."""
+
+    joint: str = eqx.field(static=True)
+    coefficient: Array
+    velocity_dependent: bool = eqx.field(static=True, default=True)
+
+    def __init__(self, joint: str, coefficient):
+        self.joint = joint
+        self.coefficient = jnp.asarray(coefficient, dtype=float)
+        self.velocity_dependent = True
+
+    def check(self, mechanism):
+        carriers = _carriers(mechanism, self.joint)
+        if len(carriers) != 2:
+            raise MechanismError(
+                f"rotary damper: point '{self.joint}' must be a joint of exactly two links (or a link and the ground), "
+                f"it is carried by {carriers or 'nothing'}"
+            )
+
+    def _relative(self, mechanism, kin):
+        a, b = _carriers(mechanism, self.joint)
+        w = lambda link: jnp.zeros(()) if link == GROUND else kin.angular_velocities[link]  # noqa: E731
+        return a, b, w(b) - w(a)
+
+    def wrenches(self, mechanism, kin, t):
+        a, b, rel = self._relative(mechanism, kin)
+        m = self.coefficient * rel
+        return [(link, jnp.zeros(2), s * m) for link, s in ((a, 1.0), (b, -1.0)) if link != GROUND]
+
+    def dissipation(self, mechanism, kin):
+        _, _, rel = self._relative(mechanism, kin)
+        return self.coefficient * rel**2
+
+
+class Drive(AbstractLoad):
+    """The driving effort on the driver: torque (N m, crank) or force (N along the
+    guide, slider), a number or ``f(q, omega, t)``."""
+
+    value: Any
+    velocity_dependent: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, value, *, velocity_dependent: bool | None = None):
+        self.value = _as_value(value)
+        self.velocity_dependent = _velocity_dependent(value, flag=velocity_dependent)
+
+    def effort(self, mechanism, q, omega, t):
+        return evaluate(self.value, q, omega, t)
+
+
+class MotorLine(AbstractLoad):
+    """A motor's linear torque-speed line on the driver:
+    tau = stall (1 - omega / no_load_speed). ``stall`` in N m (N for a linear motor),
+    ``no_load_speed`` in rad/s (m/s). The line is not clipped: beyond the no-load
+    speed the motor brakes."""
+
+    stall: Array
+    no_load_speed: Array
+    velocity_dependent: bool = eqx.field(static=True, default=True)
+
+    def __init__(self, stall, no_load_speed):
+        self.stall, self.no_load_speed = jnp.asarray(stall, dtype=float), jnp.asarray(no_load_speed, dtype=float)
+        self.velocity_dependent = True
+
+    def effort(self, mechanism, q, omega, t):
+        return self.stall * (1.0 - omega / self.no_load_speed)
+
+
+# ---------------------------------------------------------------------------- totals
+
+
+def check_loads(mechanism: Mechanism, loads) -> None:
+    """Raise :class:`MechanismError` for a load on an unknown point or link."""
+    for i, load in enumerate(loads):
+        if not isinstance(load, AbstractLoad):
+            raise MechanismError(f"load #{i + 1}: expected an assurjax load (PointForce, Couple, Spring, ...), got {type(load).__name__}")
+        load.check(mechanism)
+
+
+def any_velocity_dependent(loads) -> bool:
+    """True when some load (or driving effort) depends on the driving velocity."""
+    return any(load.velocity_dependent for load in loads)
+
+
+def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0) -> dict[str, tuple[Array, Array]]:
+    """Resultant applied force (N) and moment about the COM (N m, counterclockwise
+    positive) on every moving link, from gravity (m/s^2, a 2-vector) and every
+    load except the driving effort.
+
+    ``kin`` is a single-configuration :class:`assurjax.Kinematics` (``order >= 1``
+    when a load depends on velocity)."""
+    g = jnp.asarray(gravity, dtype=float)
+    out = {name: [link.mass * g, jnp.zeros(())] for name, link in mechanism.links.items()}
+    for load in loads:
+        for link, f, m in load.wrenches(mechanism, kin, t):
+            out[link][0] = out[link][0] + f
+            out[link][1] = out[link][1] + m
+    return {name: (f, m) for name, (f, m) in out.items()}
+
+
+def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0) -> Array:
+    """Torque (N m, crank) or force (N, slider) that the driving loads put on the driver; 0 if none."""
+    total = jnp.zeros(())
+    for load in loads:
+        total = total + load.effort(mechanism, q, omega, t)
+    return total
+
+
+def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose) -> Array:
+    """Potential energy (J) of gravity (-sum m g . r_G, zero at the origin) and springs."""
+    g = jnp.asarray(gravity, dtype=float)
+    v = jnp.zeros(())
+    for name, link in mechanism.links.items():
+        v = v - link.mass * dot(g, pose.coms[name])
+    for load in loads:
+        v = v + load.potential(mechanism, pose)
+    return v
+
+
+def dissipated_power(mechanism: Mechanism, loads, kin) -> Array:
+    """Power (W, >= 0) removed by the dampers at the configuration ``kin`` (with velocities)."""
+    total = jnp.zeros(())
+    for load in loads:
+        total = total + load.dissipation(mechanism, kin)
+    return total
+
+
+LOAD_CLASSES: Mapping[str, Callable] = {
+    "force": PointForce,
+    "couple": Couple,
+    "spring": Spring,
+    "damper": Damper,
+    "rotary_damper": RotaryDamper,
+    "drive": Drive,
+    "motor": MotorLine,
+}

@@ -1,0 +1,182 @@
+"""Modular reduction of inertia and loads to the driving link (seed 000, section 3).
+
+With a unit driving velocity the velocities of the mechanism are its kinematic
+coefficients (``jax.jvp`` of the position map, seed 000 step i). Each group then
+contributes, for its own links j,
+
+- to the reduced moment of inertia (kinetic-energy equivalence, eqs. 5-6):
+  J_red = sum_j m_j |dG_j/dq|^2 + J_j (dtheta_j/dq)^2,
+- to the reduced torque (power equivalence, eqs. 3-4):
+  tau_red = sum_j F_j . dG_j/dq + M_j dtheta_j/dq,
+
+where F_j, M_j are the applied force and moment about the centre of mass
+(:func:`assurjax.applied_wrenches`, driving effort excluded). The mechanism sums
+the groups. dJ_red/dq = 2 sum_j m_j dG_j/dq . d2G_j/dq2 + J_j dtheta_j/dq d2theta_j/dq2
+comes from a second jvp. For a crank, J_red is in kg m^2 and tau_red in N m; for a
+slider driver the reduced link translates: J_red is a reduced mass (kg) and tau_red
+a reduced force (N) along the guide.
+
+The equation of motion of the reduced link (seed 000 eq. 1, differentiated in time) is
+J_red(q) dw/dt + 0.5 dJ_red/dq w^2 = tau + tau_red(q, w, t).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._geometry import dot
+from ._kinematics import Kinematics
+from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
+from ._mechanism import Mechanism, positions
+
+
+class Reduction(eqx.Module):
+    """The mechanism reduced to its driving link at one (q, omega, t), or a batch.
+
+    ``inertia``: J_red (kg m^2; kg for a slider driver). ``dinertia``: dJ_red/dq
+    (kg m; kg/m). ``torque``: tau_red, the reduced applied loads without the
+    driving effort (N m; N). ``effort``: the driving effort tau (N m; N).
+    ``group_inertia``, ``group_dinertia``, ``group_torque``: each group's own
+    terms (dicts keyed by group name; they sum to the totals). ``ok``: one flag
+    per group (False: cannot assemble). With a batch of q, arrays get its shape.
+    """
+
+    inertia: Array
+    dinertia: Array
+    torque: Array
+    effort: Array
+    group_inertia: dict[str, Array]
+    group_dinertia: dict[str, Array]
+    group_torque: dict[str, Array]
+    ok: Array
+    angle_rates: dict[str, Array] | None = None  # dtheta/dq of every link, when a branch predictor was given
+
+    @property
+    def acceleration_terms(self):
+        """(J_red, dJ_red/dq, tau + tau_red)."""
+        return self.inertia, self.dinertia, self.torque + self.effort
+
+
+def coefficients(mechanism: Mechanism, q, *, near=None):
+    """Positions x, first and second kinematic coefficients dx/dq, d2x/dq2 (seed 000
+    step i, unit driving velocity) of every point, centre of mass and link angle,
+    as ((points, coms, angles) x 3, ok). ``near``: link angles (rad) selecting the
+    branch (see :func:`assurjax.positions`)."""
+    one = jnp.ones_like(q)
+
+    def coords(q):
+        pose = positions(mechanism, q, near=near)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
+    def first(q):
+        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
+        return (x, dx), ok
+
+    (x, dx), (_, d2x), ok = jax.jvp(first, (q,), (one,), has_aux=True)
+    return x, dx, d2x, ok
+
+
+def kinematics_from_coefficients(q, omega, x, dx, ok, *, velocities: bool = True) -> Kinematics:
+    """A single-configuration :class:`Kinematics` (order 1) built from the coefficients:
+    v = dx/dq w. Without ``velocities`` only positions are filled (loads that do not
+    depend on velocity need no more)."""
+    vel = jax.tree.map(lambda d: d * omega, dx) if velocities else (None, None, None)
+    return Kinematics(
+        q=q, omega=omega, alpha=jnp.zeros_like(q),
+        points=x[0], velocities=vel[0], accelerations=None,
+        coms=x[1], com_velocities=vel[1], com_accelerations=None,
+        angles=x[2], angular_velocities=vel[2], angular_accelerations=None,
+        ok=ok,
+    )
+
+
+def _link_terms(mechanism: Mechanism, dx, d2x, wrenches):
+    """Per link: (inertia term, its q-derivative, torque term), eqs. 3-6."""
+    out = {}
+    for name, link in mechanism.links.items():
+        dg, d2g = dx[1][name], d2x[1][name]
+        dth, d2th = dx[2][name], d2x[2][name]
+        j = link.mass * dot(dg, dg) + link.inertia * dth**2
+        dj = 2.0 * (link.mass * dot(dg, d2g) + link.inertia * dth * d2th)
+        force, moment = wrenches[name]
+        out[name] = (j, dj, dot(force, dg) + moment * dth)
+    return out
+
+
+def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> Reduction:
+    """The reduction at one configuration (pure, jittable). ``velocities``: build the
+    velocity-dependent part (None: only when some load depends on velocity).
+    ``near``: link angles (rad) selecting the branch; then ``angle_rates`` is filled."""
+    q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
+    if velocities is None:
+        velocities = any_velocity_dependent(loads)
+    x, dx, d2x, ok = coefficients(mechanism, q, near=near)
+    kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=velocities)
+    terms = _link_terms(mechanism, dx, d2x, applied_wrenches(mechanism, gravity, loads, kin, t))
+    zero = jnp.zeros(())
+    gj, gdj, gt = {}, {}, {}
+    for group in mechanism.groups:  # each group reduces its own links
+        parts = [terms[link] for link in group.links]
+        gj[group.name] = sum((p[0] for p in parts), zero)
+        gdj[group.name] = sum((p[1] for p in parts), zero)
+        gt[group.name] = sum((p[2] for p in parts), zero)
+    return Reduction(
+        inertia=sum(gj.values(), zero),
+        dinertia=sum(gdj.values(), zero),
+        torque=sum(gt.values(), zero),
+        effort=driver_effort(mechanism, loads, q, omega, t),
+        group_inertia=gj, group_dinertia=gdj, group_torque=gt,
+        ok=ok, angle_rates=None if near is None else dx[2],
+    )
+
+
+@eqx.filter_jit
+def _reduce_batch(mechanism, gravity, loads, q, omega, t):
+    shape = q.shape
+    single = lambda q, w, t: reduce_single(mechanism, gravity, loads, q, w, t)  # noqa: E731
+    flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), t.reshape(-1))
+    return jax.tree.map(lambda v: v.reshape(shape + v.shape[1:]), flat)
+
+
+def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None) -> Reduction:
+    """Reduce a mechanism's inertia and loads to its driving link (seed 000 eqs. 3-6).
+
+    **Arguments:**
+    - ``scene_or_mechanism``: a :class:`assurjax.Scene` (its loads and gravity are
+      used unless given) or a :class:`assurjax.Mechanism`.
+    - ``q``: driving coordinate(s) (rad or m), any shape; ``omega`` (rad/s or m/s)
+      and ``t`` (s) broadcast against it (they matter only for loads that depend on them).
+    - ``loads``: a sequence of loads; ``gravity``: a 2-vector (m/s^2), default 0.
+
+    Returns a :class:`Reduction`; also usable under ``jax.vmap`` / ``jax.jit``.
+
+    **Example:**
+    >>> scene = assurjax.load_scene("watt_sixbar")
+    >>> red = assurjax.reduce(scene, jnp.linspace(0.0, 1.0, 50))
+    >>> red.inertia.shape, sorted(red.group_inertia)
+    ((50,), ['crank2', 'dyad34', 'dyad56'])
+    """
+    mechanism, loads, gravity = _unpack(scene_or_mechanism, loads, gravity)
+    q = jnp.asarray(q, dtype=float)
+    shape = jnp.broadcast_shapes(q.shape, jnp.shape(omega), jnp.shape(t))
+    q, omega, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, omega, t))
+    if not shape:
+        return eqx.filter_jit(reduce_single)(mechanism, gravity, loads, q, omega, t)
+    return _reduce_batch(mechanism, gravity, loads, q, omega, t)
+
+
+def _unpack(scene_or_mechanism, loads, gravity):
+    if isinstance(scene_or_mechanism, Mechanism):
+        mechanism = scene_or_mechanism
+        loads = () if loads is None else tuple(loads)
+        gravity = jnp.zeros(2) if gravity is None else jnp.asarray(gravity, dtype=float)
+    else:
+        scene = scene_or_mechanism
+        mechanism = scene.mechanism
+        loads = scene.loads if loads is None else tuple(loads)
+        gravity = scene.gravity if gravity is None else jnp.asarray(gravity, dtype=float)
+    check_loads(mechanism, loads)
+    return mechanism, loads, gravity

@@ -1,0 +1,298 @@
+"""Batches of mechanisms: stacking, random perturbation, vmapped kinematics, chunked sweeps and sharding.
+
+Batch convention: a *batch of mechanisms* is one :class:`Mechanism` (or any
+equinox pytree, e.g. a Scene) whose every array leaf carries a leading batch
+axis of the same size; the static structure (groups, names, modes) is shared.
+``stack_mechanisms`` and ``perturb`` build such batches; ``eqx.filter_vmap``
+maps over them.
+
+Scale: :func:`sweep` runs a function over a batch of any size in chunks (a host
+loop, with a progress bar), so memory stays bounded by the chunk size; each
+chunk's results are either written into preallocated numpy arrays or reduced.
+With ``mesh=`` every chunk is split along its batch axis over the devices of a
+:class:`jax.sharding.Mesh` (``NamedSharding(mesh, PartitionSpec("batch"))``);
+the jitted function then runs on all devices at once (computation follows data).
+
+Multi-host: call ``jax.distributed.initialize()`` on every process first, then
+build the mesh over ``jax.devices()`` (all processes' devices) with
+:func:`batch_mesh`; every process runs the same :func:`sweep` call. Results are
+gathered to every host by ``np.asarray`` only for fully addressable arrays, so
+on several hosts pass ``reduce=`` (a per-chunk reduction) or keep chunks per
+host (``jax.make_array_from_process_local_data``); see the JAX guide on
+multi-process computation.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from ._errors import AssurjaxError
+from ._kinematics import Kinematics, _kinematics_single
+from ._mechanism import Mechanism
+
+BATCH_AXIS = "batch"
+
+
+# --------------------------------------------------------------------------- building batches
+
+
+def stack_mechanisms(mechanisms: Sequence[Any]) -> Any:
+    """Stack mechanisms (or scenes) of one structure into one batch (leading axis on every array).
+
+    Raises :class:`AssurjaxError` when the structures differ (other groups,
+    names or modes), naming the first mismatching index.
+    """
+    mechanisms = list(mechanisms)
+    if not mechanisms:
+        raise AssurjaxError("stack_mechanisms: empty sequence")
+    arrays0, static0 = eqx.partition(mechanisms[0], eqx.is_array)
+    treedef0 = jax.tree.structure(arrays0)
+    parts = []
+    for i, m in enumerate(mechanisms):
+        arrays, static = eqx.partition(m, eqx.is_array)
+        if jax.tree.structure(arrays) != treedef0 or jax.tree.structure(static) != jax.tree.structure(static0):
+            raise AssurjaxError(f"stack_mechanisms: item {i} has a different structure than item 0 (groups, links, points or modes differ)")
+        parts.append(arrays)
+    stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *parts)
+    return eqx.combine(stacked, static0)
+
+
+def broadcast_batch(mechanism: Any, n: int) -> Any:
+    """``n`` copies of one mechanism as a batch (every array gets a leading axis of size ``n``)."""
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)) if eqx.is_array(x) else x, mechanism)
+
+
+def batch_size(batch: Any) -> int:
+    """The common leading-axis size of every array of a batch."""
+    sizes = {np.shape(x)[0] if np.ndim(x) else None for x in jax.tree.leaves(batch) if eqx.is_array(x) or isinstance(x, np.ndarray)}
+    if len(sizes) != 1 or None in sizes:
+        raise AssurjaxError(f"not a batch: every array needs the same leading batch axis, found leading sizes {sorted(map(str, sizes))}")
+    return sizes.pop()
+
+
+def take(batch: Any, index) -> Any:
+    """Item ``index`` (or a slice) of a batch."""
+    return jax.tree.map(lambda x: x[index] if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
+
+
+def point_coordinates(mechanism: Mechanism):
+    """Default selection for :func:`perturb`: every ground and link point coordinate (m)."""
+    return (mechanism.ground, *(link.points for link in mechanism.links.values()))
+
+
+def perturb(
+    mechanism: Any,
+    key: jax.Array,
+    n: int,
+    *,
+    relative: float = 0.05,
+    absolute: float = 0.0,
+    select: Callable[[Any], Any] | None = None,
+) -> Any:
+    """A batch of ``n`` randomly perturbed copies of ``mechanism``.
+
+    Every selected array ``x`` becomes ``x * (1 + relative * u1) + absolute * u2``
+    with ``u1``, ``u2`` independent and uniform in [-1, 1]; unselected arrays are
+    broadcast. ``select`` picks a pytree of arrays (default: every point
+    coordinate, so every link length moves by up to about ``relative``).
+    Perturbed copies may fail to assemble: check ``Kinematics.ok``.
+    """
+    select = point_coordinates if select is None else select
+    chosen = select(mechanism)
+    leaves, treedef = jax.tree.flatten(chosen)
+    keys = jax.random.split(key, 2 * len(leaves))
+    new = []
+    for i, x in enumerate(leaves):
+        x = jnp.asarray(x, dtype=float)
+        u1 = jax.random.uniform(keys[2 * i], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
+        u2 = jax.random.uniform(keys[2 * i + 1], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
+        new.append(x * (1.0 + relative * u1) + absolute * u2)
+    batch = broadcast_batch(mechanism, n)
+    return eqx.tree_at(select, batch, jax.tree.unflatten(treedef, new))
+
+
+# --------------------------------------------------------------------------- sharding
+
+
+def batch_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
+    """A one-axis mesh named ``"batch"`` over ``devices`` (default: every device of every process)."""
+    devices = jax.devices() if devices is None else list(devices)
+    return Mesh(np.asarray(devices), (BATCH_AXIS,))
+
+
+def shard_batch(batch: Any, mesh: Mesh) -> Any:
+    """Place a batch on ``mesh``, split along its leading axis (which must divide by the device count)."""
+    sharding = NamedSharding(mesh, PartitionSpec(BATCH_AXIS))
+    n = batch_size(batch)
+    if n % mesh.size:
+        raise AssurjaxError(f"shard_batch: batch size {n} is not a multiple of the {mesh.size} devices of the mesh")
+    return jax.tree.map(lambda x: jax.device_put(x, sharding) if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
+
+
+# --------------------------------------------------------------------------- chunked sweeps
+
+
+def _progress_bar(total: int, progress: bool | None, desc: str):
+    from tqdm.auto import tqdm
+
+    disable = (not sys.stderr.isatty()) if progress is None else not progress
+    return tqdm(total=total, disable=disable, desc=desc, unit="item")
+
+
+def _pad(chunk: Any, size: int) -> Any:
+    """Pad a chunk to ``size`` items by repeating its last item (one compiled shape for every chunk)."""
+
+    def pad(x):
+        if not (eqx.is_array(x) or isinstance(x, np.ndarray)):
+            return x
+        missing = size - x.shape[0]
+        return x if missing == 0 else np.concatenate([np.asarray(x), np.repeat(np.asarray(x)[-1:], missing, axis=0)])
+
+    return jax.tree.map(pad, chunk)
+
+
+def sweep(
+    fn: Callable[[Any], Any],
+    batch: Any,
+    *,
+    chunk_size: int | None = None,
+    reduce: Callable[[Any, Any], Any] | None = None,
+    mesh: Mesh | None = None,
+    progress: bool | None = None,
+    desc: str = "sweep",
+) -> Any:
+    """Apply ``fn`` to every item of ``batch`` (vmapped, jitted), ``chunk_size`` items at a time.
+
+    **Arguments:**
+    - ``fn``: item -> pytree of arrays (one item: a batch with its leading axis removed).
+    - ``batch``: a pytree whose arrays share a leading batch axis (numpy arrays
+      stay on the host until their chunk runs), or an int ``n``: then ``fn``
+      receives the item index (an int array), e.g. to draw a random item with
+      ``jax.random.fold_in(key, i)`` without materializing the batch.
+    - ``chunk_size``: items per compiled call (default: all at once). The last
+      chunk is padded, so one compilation serves every chunk.
+    - ``reduce``: ``(carry, chunk_result) -> carry`` folded on the host over the
+      chunks (carry starts as None); the sweep returns the final carry. Without it
+      the results are written into preallocated numpy arrays of the full batch size.
+    - ``mesh``: shard every chunk's batch axis over this mesh's devices
+      (``chunk_size`` is rounded up to a multiple of the device count).
+    - ``progress``: tqdm bar (default: only when stderr is a terminal).
+    """
+    n = int(batch) if isinstance(batch, (int, np.integer)) else batch_size(batch)
+    if n <= 0:
+        raise AssurjaxError(f"sweep: empty batch (size {n})")
+    size = n if chunk_size is None else min(int(chunk_size), n)
+    if size <= 0:
+        raise AssurjaxError(f"sweep: chunk_size must be positive, got {chunk_size}")
+    if mesh is not None:
+        size = -(-size // mesh.size) * mesh.size
+    run = _compiled_vmap(fn)
+    out, carry = None, None
+    with _progress_bar(n, progress, desc) as bar:
+        for start in range(0, n, size):
+            stop = min(start + size, n)
+            if isinstance(batch, (int, np.integer)):
+                chunk = np.arange(start, start + size)  # padded indices beyond n are computed and dropped
+            else:
+                chunk = _pad(take(batch, slice(start, stop)), size)
+            if mesh is not None:
+                chunk = shard_batch(chunk, mesh)
+            result = jax.tree.map(lambda x: np.asarray(x)[: stop - start], run(chunk))
+            if reduce is not None:
+                carry = reduce(carry, result)
+            else:
+                if out is None:
+                    out = jax.tree.map(lambda x: np.empty((n,) + x.shape[1:], x.dtype), result)
+                jax.tree.map(lambda o, r: o.__setitem__(slice(start, stop), r), out, result)
+            bar.update(stop - start)
+    return carry if reduce is not None else out
+
+
+_COMPILED: dict = {}
+
+
+def _compiled_vmap(fn):
+    """One jitted vmap per function object (so repeated sweeps do not retrace)."""
+    try:
+        return _COMPILED[fn]
+    except (KeyError, TypeError):
+        compiled = eqx.filter_jit(eqx.filter_vmap(fn))
+        try:
+            _COMPILED[fn] = compiled
+        except TypeError:
+            pass
+        return compiled
+
+
+# --------------------------------------------------------------------------- batched kinematics
+
+
+def batch_kinematics(
+    mechanisms: Mechanism,
+    q,
+    omega=1.0,
+    alpha=0.0,
+    *,
+    points: Sequence[str] | None = None,
+    order: int = 2,
+    q_per_mechanism: bool = False,
+    chunk_size: int | None = None,
+    mesh: Mesh | None = None,
+    progress: bool | None = None,
+) -> Kinematics:
+    """Kinematics of a batch of mechanisms (leading axis ``B`` on every array).
+
+    ``q`` (rad or m) is shared by every mechanism (any shape), or, with
+    ``q_per_mechanism=True``, has shape ``(B, ...)``: one set per mechanism. Results have shape ``(B,) + q_shape + ...`` as numpy
+    arrays; ``ok`` flags per mechanism, q and group (never raises for a
+    mechanism that cannot assemble). Same conventions as :func:`assurjax.kinematics`.
+
+    **Example:**
+    >>> batch = assurjax.perturb(mech, jax.random.key(0), 100, relative=0.02)
+    >>> kin = assurjax.batch_kinematics(batch, jnp.linspace(0, 1, 50), points=["P"], order=0)
+    >>> kin.points["P"].shape
+    (100, 50, 2)
+    """
+    if order not in (0, 1, 2):
+        raise AssurjaxError(f"order must be 0, 1 or 2, got {order}")
+    n = batch_size(mechanisms)
+    pts = None if points is None else tuple(points)
+    if pts is not None:
+        unknown = [p for p in pts if p not in dict(mechanisms.owner)]
+        if unknown:
+            raise AssurjaxError(f"unknown point(s) {unknown}; the mechanisms have {list(mechanisms.point_names)}")
+    q = np.asarray(q, dtype=float)
+    if q_per_mechanism and (q.ndim == 0 or q.shape[0] != n):
+        raise AssurjaxError(f"q_per_mechanism=True needs q with a leading axis of {n} (the batch size), got shape {q.shape}")
+    q_items = q if q_per_mechanism else np.broadcast_to(q, (n,) + q.shape)
+    omega = np.broadcast_to(np.asarray(omega, dtype=float), q_items.shape)
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=float), q_items.shape)
+    fn = _kinematics_item(pts, order)
+    return sweep(fn, (mechanisms, q_items, omega, alpha), chunk_size=chunk_size, mesh=mesh, progress=progress, desc="kinematics")
+
+
+_KIN_ITEMS: dict = {}
+
+
+def _kinematics_item(points, order):
+    """The per-item kinematics function, cached so that :func:`sweep` compiles it once."""
+    key = (points, order)
+    if key not in _KIN_ITEMS:
+
+        def item(args):
+            mechanism, q, omega, alpha = args
+            shape = q.shape
+            single = lambda q, w, a: _kinematics_single(mechanism, q, w, a, points, order)  # noqa: E731
+            flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), alpha.reshape(-1))
+            return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+
+        _KIN_ITEMS[key] = item
+    return _KIN_ITEMS[key]

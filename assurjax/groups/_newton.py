@@ -1,0 +1,279 @@
+"""Iterative Assur groups: a Newton solve (optimistix) on a few link angles, with
+branch continuity by continuation and derivatives by the implicit function theorem.
+
+Groups of class III and higher have no closed-form position analysis. Each such
+group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
+``F(z, inputs) = 0`` (two closure conditions). The solution is found in three stages:
+
+1. **Reference**: at the group's reference coordinate ``guess_q`` (the scene's
+   ``[state] q0`` unless the group gives ``guess_q``), Newton starts from the angles
+   implied by the user's ``guess`` (approximate global positions of the internal
+   joints). The guess selects the assembly branch.
+2. **Continuation**: from the reference to the queried q in ``substeps`` equal
+   sub-steps of q; each sub-step predicts with the tangent dz/dq = -F_z^-1 F_q and
+   corrects with a few Newton iterations. The earlier groups are re-evaluated at
+   every intermediate q, so the path is the mechanism's own motion and the branch
+   is the one reached continuously from the reference. For a crank the step
+   q - guess_q is wrapped to (-pi, pi].
+   With ``positions(..., near=angles)`` (e.g. the previous sample of a sweep, see
+   :func:`positions_along`) the given link angles are the predictor instead and
+   stages 1-2 are skipped: the cheapest way to stay on a branch along a path.
+3. **Final solve** at q from that predictor. Stages 1-2 run under
+   ``stop_gradient``; only this solve is differentiated, implicitly
+   (``optimistix.ImplicitAdjoint``: dz = -F_z^-1 F_p dp), so forward mode,
+   nested forward mode (accelerations) and reverse mode never go through the
+   iterations.
+
+A group that cannot assemble returns ``ok`` False (a sub-step or the final solve
+did not converge, or the closure residual stays above tolerance); its values are
+then finite but meaningless.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array
+
+from .._errors import MechanismError
+from .._geometry import heading
+from ._base import AbstractGroup, Frame, Link, Placement
+
+
+def _tolerances(dtype) -> tuple[float, float]:
+    """(Newton step tolerance, accepted closure residual) for a float dtype.
+
+    The residuals are dimensionless (relative length errors), so the same
+    numbers serve every mechanism scale."""
+    eps = float(jnp.finfo(dtype).eps)
+    return 100.0 * eps, max(1e-9, 1e3 * eps)
+
+
+def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int) -> tuple[Array, Array]:
+    """Root of ``residual(z, args)`` by optimistix's Newton from ``z0``.
+
+    ``residual`` must be a global function (no closed-over arrays: everything
+    differentiable goes through ``args``). Differentiation is implicit.
+    Returns (z, ok); z is finite even when the solve fails (then z0 is returned)."""
+    step_tol, f_tol = _tolerances(z0.dtype)
+    solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=lx.LU())
+    sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, throw=False)
+    finite = jnp.all(jnp.isfinite(sol.value))
+    z = jnp.where(finite, sol.value, z0)
+    closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
+    ok = (sol.result == optx.RESULTS.successful) & finite & (closure < f_tol)
+    return z, ok
+
+
+def _tangent(residual: Callable, z: Array, args_at: Callable, q: Array) -> Array:
+    """dz/dq = -F_z^-1 dF/dq along the motion (zero where F_z is singular)."""
+    f_q = jax.jvp(lambda qq: residual(z, args_at(qq)), (q,), (jnp.ones_like(q),))[1]
+    f_z = jax.jacfwd(residual)(z, args_at(q))
+    t = -jnp.linalg.solve(f_z, f_q)
+    return jnp.where(jnp.all(jnp.isfinite(t)), t, jnp.zeros_like(t))
+
+
+def continuation(residual: Callable, z_start: Array, args_at: Callable, q_start: Array, q_end: Array, *, substeps: int, max_steps: int):
+    """Follow the root of ``residual(z, args_at(q))`` from (q_start, z_start) towards
+    q_end in ``substeps`` equal steps; returns the tangent prediction at q_end
+    (not yet corrected there) and whether every intermediate correction converged."""
+    dq = (q_end - q_start) / substeps
+
+    def step(k, carry):
+        z, ok = carry
+        q_prev = q_start + k * dq
+        guess = z + _tangent(residual, z, args_at, q_prev) * dq
+        z_new, ok_new = newton_solve(residual, guess, args_at(q_prev + dq), max_steps=max_steps)
+        return z_new, ok & ok_new
+
+    z, ok = jax.lax.fori_loop(0, substeps - 1, step, (z_start, jnp.array(True)))
+    q_last = q_start + (substeps - 1) * dq
+    return z + _tangent(residual, z, args_at, q_last) * dq, ok
+
+
+def _stop(tree):
+    return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
+
+
+def wrap_angle(delta):
+    """An angle difference wrapped to [-pi, pi)."""
+    return jnp.remainder(delta + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+
+
+class IterativeGroup(AbstractGroup):
+    """Base of the Assur groups solved by Newton iteration (class III triad, class IV).
+
+    A subclass declares its unknown links (their frame angles are the unknowns z),
+    its internal joints (the ones a ``guess`` places), and three pure functions of
+    global external joint positions ``ext`` (a tuple in ``external_points()`` order,
+    m) and local link geometry ``geo``: the static method ``residual(z, (ext, geo))``
+    (a global function: optimistix differentiates through ``args`` only, never
+    through closures), and the methods ``frames(z, ext, geo)`` and
+    ``angles_from_guess(guess, ext, geo)``. Subclasses also carry the fields
+    ``guess`` (internal joint -> approximate global position, m), ``guess_q``
+    (static float), ``substeps`` and ``max_steps`` (static ints).
+    """
+
+    @abc.abstractmethod
+    def unknown_links(self) -> tuple[str, str]:
+        """The two links whose frame angles are the unknowns."""
+
+    @abc.abstractmethod
+    def internal_points(self) -> tuple[str, ...]:
+        """The group's internal joints: the points ``guess`` must place."""
+
+    @abc.abstractmethod
+    def geometry(self, links: dict[str, Link]) -> dict[str, Array]:
+        """The local link data the residual and frames need."""
+
+    # -- the position analysis --------------------------------------------------
+
+    def solve(self, links: dict[str, Link], placed: Placement, q: Array):
+        geo = self.geometry(links)
+        ext = tuple(placed.point(p) for p in self.external_points())
+        z0, ok0 = self.predictor(links, placed, q)
+        z, ok = newton_solve(type(self).residual, jax.lax.stop_gradient(z0), (ext, geo), max_steps=self.max_steps)
+        return self.frames(z, ext, geo), ok & ok0
+
+    def predictor(self, links: dict[str, Link], placed: Placement, q: Array) -> tuple[Array, Array]:
+        """Starting angles for the final solve at q (no gradient flows through them)."""
+        near = getattr(placed, "near", None)
+        unknown = self.unknown_links()
+        if near is not None and all(k in near for k in unknown):
+            return _stop(jnp.stack([jnp.asarray(near[k], dtype=float) for k in unknown])), jnp.array(True)
+        return self.continued(links, placed, q)
+
+    def continued(self, links, placed, q):
+        """Stages 1-2 of the module docstring: reference solve, then continuation to q."""
+        mechanism = getattr(placed, "mechanism", None)
+        if mechanism is None:
+            raise MechanismError(f"{self.describe()} is iterative: solve it through assurjax.positions (it needs the whole mechanism for continuation)")
+        if self.guess_q is None:
+            raise MechanismError(f"{self.describe()}: guess_q is not set (the coordinate at which 'guess' places the internal joints)")
+        from .._mechanism import positions  # the groups package is imported by _mechanism
+
+        mech, geo = _stop(mechanism), _stop(self.geometry(links))
+        points = self.external_points()
+        residual = type(self).residual
+
+        def args_at(qq):
+            pose = positions(mech, qq, points=points)
+            return tuple(pose.points[p] for p in points), geo
+
+        q = jax.lax.stop_gradient(jnp.asarray(q, dtype=float))
+        q_ref = jnp.asarray(self.guess_q, dtype=q.dtype)
+        ext_ref, _ = args_at(q_ref)
+        z_guess = self.angles_from_guess(_stop(self.guess), ext_ref, geo)
+        z_ref, ok_ref = newton_solve(residual, z_guess, (ext_ref, geo), max_steps=self.max_steps)
+        delta = q - q_ref
+        if mechanism.driver.kind == "crank":
+            delta = wrap_angle(delta)
+        z, ok = continuation(residual, z_ref, args_at, q_ref, q_ref + delta, substeps=self.substeps, max_steps=self.max_steps)
+        return z, ok_ref & ok
+
+    def check_guess(self) -> None:
+        missing = [p for p in self.internal_points() if p not in self.guess]
+        extra = [p for p in self.guess if p not in self.internal_points()]
+        if missing or extra:
+            raise MechanismError(
+                f"{self.describe()}: 'guess' must give the approximate global position of each internal joint "
+                f"{list(self.internal_points())}; missing {missing}, unknown {extra}"
+            )
+        if self.substeps < 1 or self.max_steps < 1:
+            raise MechanismError(f"{self.describe()}: substeps and max_steps must be at least 1")
+
+
+def angle_of(local_vector: Array, global_vector: Array) -> Array:
+    """Frame angle (rad) of a link that maps ``local_vector`` onto the direction of ``global_vector``."""
+    return heading(global_vector) - heading(local_vector)
+
+
+# -- scene support ---------------------------------------------------------------
+
+
+def parse_guess(fields, internal: Iterable[str]) -> dict[str, Array]:
+    """The ``guess`` table of an iterative group: {internal joint: [x, y]} (m, global)."""
+    raw = fields.raw("guess")
+    internal = tuple(internal)
+    if not isinstance(raw, dict):
+        fields.fail("guess", f"expected a table of approximate global positions of the internal joints {list(internal)}, got {raw!r}")
+    missing = [p for p in internal if p not in raw]
+    extra = [p for p in raw if p not in internal]
+    if missing or extra:
+        fields.fail("guess", f"must place exactly the internal joints {list(internal)}; missing {missing}, unknown {extra}")
+    out = {}
+    for p in internal:
+        v = raw[p]
+        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+            fields.fail("guess", f"point '{p}': expected [x, y], got {v!r}")
+        out[p] = jnp.asarray(np.asarray(v, dtype=float))
+    return out
+
+
+def parse_options(fields) -> dict:
+    """Optional fields shared by iterative groups: guess_q, substeps, max_steps."""
+    opts: dict[str, Any] = {"guess_q": fields.number("guess_q") if fields.has("guess_q") else None}
+    for key, default in (("substeps", 8), ("max_steps", 32)):
+        v = fields.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            fields.fail(key, f"expected a positive integer, got {v!r}")
+        opts[key] = v
+    return opts
+
+
+def resolve_guess_q(mechanism, q0: float):
+    """The mechanism with every iterative group's unset ``guess_q`` set to ``q0``
+    (a scene's ``[state] q0``: guesses refer to it unless the group says otherwise)."""
+    groups = tuple(
+        dataclasses.replace(g, guess_q=float(q0)) if isinstance(g, IterativeGroup) and g.guess_q is None else g
+        for g in mechanism.groups
+    )
+    if all(a is b for a, b in zip(groups, mechanism.groups)):
+        return mechanism
+    return eqx.tree_at(lambda m: m.groups, mechanism, groups)
+
+
+# -- sweeps ------------------------------------------------------------------------
+
+
+def positions_along(mechanism, qs, *, points: Iterable[str] | None = None):
+    """Positions at a sequence of driving coordinates ``qs`` (1-D, along a path),
+    each iterative group starting from the previous sample's link angles.
+
+    The first sample is continued from the groups' reference; every later one
+    is a single Newton solve from the previous solution (``lax.scan``), which is
+    the cheapest way to sweep a motion and keeps the branch as long as
+    consecutive samples are close. Returns a :class:`Pose` with a leading axis.
+    Derivatives are implicit, as for :func:`assurjax.positions`.
+
+    >>> pose = positions_along(mech, jnp.linspace(0.0, 2 * jnp.pi, 361))
+    """
+    from .._mechanism import positions
+
+    qs = jnp.asarray(qs, dtype=float)
+    pts = None if points is None else tuple(points)
+    first = positions(mechanism, qs[0], points=pts)
+
+    def step(angles, q):
+        pose = positions(mechanism, q, points=pts, near=angles)
+        return pose.angles, pose
+
+    _, rest = jax.lax.scan(step, first.angles, qs[1:])
+    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+
+
+def frame_at_angle(local_point: Array, global_point: Array, angle: Array) -> Frame:
+    """The frame of angle ``angle`` (rad) that maps a local point onto its global position."""
+    from .._geometry import rotate, rotation
+
+    rot = rotation(angle)
+    return Frame(global_point - rotate(local_point, rot), rot)

@@ -1,0 +1,204 @@
+"""Drawing a mechanism: links as polygons or bars through their points, joints as
+circles, ground pivots with hatched symbols, guides, traced point paths and
+velocity arrows. One :class:`MechanismDrawing` owns the artists and moves them
+from frame to frame, which is what the animation needs."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Polygon
+
+from .._mechanism import Mechanism
+from ..groups import GROUND
+from ._frames import Frames, extent, length_scale, mechanism_frames
+
+LINK_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+VELOCITY_COLOR = "crimson"
+
+
+def _hull_order(local: dict[str, np.ndarray]) -> list[str]:
+    """Point names of a link ordered by angle around their centroid (a tidy polygon)."""
+    names = list(local)
+    xy = np.array([np.asarray(local[n], dtype=float) for n in names])
+    c = xy.mean(axis=0)
+    order = np.argsort(np.arctan2(xy[:, 1] - c[1], xy[:, 0] - c[0]))
+    return [names[i] for i in order]
+
+
+def _ground_guides(mechanism: Mechanism) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(point on the line, unit direction) of each prismatic guide carried by the ground (m)."""
+    owner = dict(mechanism.owner)
+    guides = []
+    for g in mechanism.groups:
+        points = getattr(g, "guide_points", None) or ((g.guide_point,) if hasattr(g, "guide_point") else ())
+        dirs = np.atleast_2d(np.asarray(getattr(g, "directions", getattr(g, "direction", [1.0, 0.0])), dtype=float))
+        offsets = np.atleast_1d(np.asarray(getattr(g, "offsets", getattr(g, "offset", 0.0)), dtype=float))
+        for k, p in enumerate(points):
+            if owner.get(p) != GROUND:
+                continue
+            u = dirs[min(k, len(dirs) - 1)]
+            u = u / np.hypot(*u)
+            n = np.array([-u[1], u[0]])
+            guides.append((np.asarray(mechanism.ground[p], dtype=float) + offsets[min(k, len(offsets) - 1)] * n, u))
+    return guides
+
+
+class MechanismDrawing:
+    """The artists of one mechanism on one Axes; :meth:`update` moves them to a frame.
+
+    **Arguments:**
+    - ``ax``: the matplotlib Axes (equal aspect is set).
+    - ``mechanism``: the :class:`assurjax.Mechanism` to draw.
+    - ``frames``: the configurations that will be shown (used for limits, traces
+      and the velocity scale).
+    - ``trace``: point names whose whole path over ``frames`` is drawn (coupler curves).
+    - ``velocities``: point names that get a velocity arrow (needs ``frames.velocities``).
+    - ``velocity_scale``: arrow length per unit speed (s: m of drawing per m/s);
+      default: the fastest arrow is a quarter of the drawing's size.
+    - ``unit``: length unit of the axes ("m", "cm" or "mm").
+    - ``labels``: write point names next to the joints.
+    """
+
+    def __init__(
+        self,
+        ax,
+        mechanism: Mechanism,
+        frames: Frames,
+        *,
+        trace: Iterable[str] = (),
+        velocities: Iterable[str] = (),
+        velocity_scale: float | None = None,
+        unit: str = "m",
+        labels: bool = True,
+    ):
+        self.ax, self.mechanism, self.frames = ax, mechanism, frames
+        self.scale = length_scale(unit)
+        self.velocity_points = tuple(velocities)
+        if self.velocity_points and frames.velocities is None:
+            raise ValueError("velocity arrows need frames computed with velocities=True")
+        lo, hi = extent(frames)
+        self.size = float(np.max(hi - lo)) or 1.0
+        self.velocity_scale = velocity_scale if velocity_scale is not None else self._auto_velocity_scale()
+        self._setup_axes(lo, hi, unit)
+        self._draw_ground()
+        self._draw_traces(tuple(trace))
+        self.link_artists = self._make_links()
+        self.joints = ax.plot([], [], "o", ms=6, mfc="white", mec="black", mew=1.5, zorder=5)[0]
+        self.labels = {p: ax.annotate(p, (0, 0), xytext=(4, 4), textcoords="offset points", fontsize=8, zorder=6) for p in mechanism.point_names} if labels else {}
+        self.arrows = {p: ax.annotate("", (0, 0), xytext=(0, 0), arrowprops=dict(arrowstyle="->", color=VELOCITY_COLOR, lw=1.5), zorder=7) for p in self.velocity_points}
+        self.update(self._first_ok())
+
+    def _first_ok(self) -> int:
+        ok = np.flatnonzero(self.frames.ok)
+        return int(ok[0]) if ok.size else 0
+
+    def _auto_velocity_scale(self) -> float:
+        if not self.velocity_points:
+            return 1.0
+        speeds = [np.hypot(*self.frames.velocities[p][self.frames.ok].T) for p in self.velocity_points]
+        vmax = max((float(np.max(s)) for s in speeds if s.size), default=0.0)
+        return 0.25 * self.size / vmax if vmax > 0 else 1.0
+
+    def _setup_axes(self, lo, hi, unit):
+        pad = 0.12 * self.size
+        ax, s = self.ax, self.scale
+        ax.set_xlim((lo[0] - pad) * s, (hi[0] + pad) * s)
+        ax.set_ylim((lo[1] - pad) * s, (hi[1] + pad) * s)
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"x ({unit})")
+        ax.set_ylabel(f"y ({unit})")
+        ax.grid(True, lw=0.3, alpha=0.5)
+
+    def _draw_ground(self):
+        s, h = self.scale, 0.04 * self.size * self.scale
+        for name, xy in self.mechanism.ground.items():
+            x, y = np.asarray(xy, dtype=float) * s
+            self.ax.add_patch(Polygon([[x, y], [x - h, y - 1.5 * h], [x + h, y - 1.5 * h]], closed=True, fc="lightgray", ec="black", hatch="///", zorder=1))
+        for base, u in _ground_guides(self.mechanism):
+            ends = np.array([base - 2 * self.size * u, base + 2 * self.size * u]) * s
+            self.ax.plot(ends[:, 0], ends[:, 1], color="gray", lw=1, ls="--", zorder=1)
+
+    def _draw_traces(self, names):
+        s, ok = self.scale, self.frames.ok
+        for name in names:
+            xy = np.where(ok[:, None], self.frames.points[name], np.nan) * s
+            self.ax.plot(xy[:, 0], xy[:, 1], lw=1, ls=":", color="black", alpha=0.7, zorder=2, label=f"path of {name}")
+
+    def _make_links(self) -> dict:
+        artists = {}
+        for i, (name, link) in enumerate(self.mechanism.links.items()):
+            color = LINK_COLORS[i % len(LINK_COLORS)]
+            order = _hull_order(link.points)
+            if len(order) == 2:  # a bar
+                artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3, label=name)[0]
+            else:  # a plate through its points, or a slider block around its only point
+                corners = np.zeros((4 if len(order) == 1 else len(order), 2))
+                artist = self.ax.add_patch(Polygon(corners, closed=True, fc=color, ec=color, lw=2, zorder=3, label=name))
+            artists[name] = (artist, order)
+        return artists
+
+    def _block(self, centre, angle):
+        """Corners of a slider block centred on ``centre`` and aligned with ``angle``."""
+        a, b = 0.06 * self.size, 0.035 * self.size
+        u = np.array([np.cos(angle), np.sin(angle)])
+        n = np.array([-u[1], u[0]])
+        return np.array([centre + a * u + b * n, centre - a * u + b * n, centre - a * u - b * n, centre + a * u - b * n])
+
+    def update(self, i: int) -> list:
+        """Move every artist to configuration ``i``; returns the artists (for blitting)."""
+        f = self.frames.at(i)
+        s, pts = self.scale, f["points"]
+        for name, (artist, order) in self.link_artists.items():
+            if len(order) == 1:
+                artist.set_xy(self._block(pts[order[0]], f["angles"][name]) * s)
+            elif len(order) == 2:
+                xy = np.array([pts[p] for p in order]) * s
+                artist.set_data(xy[:, 0], xy[:, 1])
+            else:
+                artist.set_xy(np.array([pts[p] for p in order]) * s)
+            artist.set_alpha((0.45 if len(order) != 2 else 0.9) if f["ok"] else 0.08)
+        xy = np.array([pts[p] for p in self.mechanism.point_names]) * s
+        self.joints.set_data(xy[:, 0], xy[:, 1])
+        for p, label in self.labels.items():
+            label.xy = tuple(pts[p] * s)
+        for p, arrow in self.arrows.items():
+            tail = pts[p] * s
+            arrow.xy = tuple(tail + f["velocities"][p] * self.velocity_scale * s)
+            arrow.set_position(tuple(tail))
+        return [a for a, _ in self.link_artists.values()] + [self.joints, *self.labels.values(), *self.arrows.values()]
+
+
+def draw_mechanism(
+    mechanism: Mechanism,
+    q: float,
+    *,
+    omega: float = 1.0,
+    ax=None,
+    velocities: Iterable[str] = (),
+    trace: Iterable[str] = (),
+    trace_q=None,
+    unit: str = "m",
+    labels: bool = True,
+    velocity_scale: float | None = None,
+):
+    """Draw ``mechanism`` at driving coordinate ``q`` (rad or m).
+
+    ``velocities``: points that get velocity arrows for the driving speed ``omega``
+    (rad/s or m/s). ``trace``: points whose paths over ``trace_q`` (an array of
+    driving coordinates; default a full turn around q) are drawn dotted.
+    Returns the :class:`MechanismDrawing` (its ``ax`` is the Axes).
+
+    **Example:**
+    >>> drawing = assurjax.viz.draw_mechanism(mech, 1.0, velocities=["P"], trace=["P"], unit="mm")
+    """
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 5))
+    q_all = np.concatenate([[q], np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)]) if trace else np.array([q], dtype=float)
+    frames = mechanism_frames(mechanism, q_all, omega, velocities=bool(tuple(velocities)))
+    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels, velocity_scale=velocity_scale)
+    drawing.update(0)
+    ax.set_title(f"{mechanism.name} at q = {q:.4g}")
+    return drawing

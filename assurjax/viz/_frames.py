@@ -1,0 +1,86 @@
+"""Plain numpy views of kinematic results, the common input of every plot and animation."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._kinematics import Kinematics, kinematics
+from .._mechanism import Mechanism
+
+LENGTH_UNITS = {"m": 1.0, "cm": 1e2, "mm": 1e3}
+
+
+def length_scale(unit: str) -> float:
+    """Factor from metres to ``unit`` ("m", "cm" or "mm")."""
+    if unit not in LENGTH_UNITS:
+        raise ValueError(f"unknown length unit {unit!r}; use one of {sorted(LENGTH_UNITS)}")
+    return LENGTH_UNITS[unit]
+
+
+@dataclass(frozen=True)
+class Frames:
+    """A sequence of mechanism configurations as numpy arrays (SI units).
+
+    ``q``: (n,) driving coordinate; ``points[name]``: (n, 2) positions (m);
+    ``angles[link]``: (n,) link angles (rad, counterclockwise from +x);
+    ``velocities[name]``: (n, 2) point velocities (m/s) or None;
+    ``angular_velocities[link]``: (n,) (rad/s) or None;
+    ``ok``: (n,) True where every group assembles (elsewhere values are meaningless).
+    """
+
+    q: np.ndarray
+    points: dict[str, np.ndarray]
+    angles: dict[str, np.ndarray]
+    velocities: dict[str, np.ndarray] | None
+    angular_velocities: dict[str, np.ndarray] | None
+    ok: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def at(self, i: int) -> dict:
+        """Configuration ``i`` as a dict of points, angles and velocities."""
+        pick = lambda d: None if d is None else {k: v[i] for k, v in d.items()}  # noqa: E731
+        return dict(points=pick(self.points), angles=pick(self.angles), velocities=pick(self.velocities), ok=bool(self.ok[i]))
+
+
+def frames_from_kinematics(kin: Kinematics) -> Frames:
+    """Flatten a (batched) :class:`assurjax.Kinematics` into :class:`Frames`."""
+    as_np = lambda d: None if d is None else {k: np.asarray(v).reshape(-1, *np.shape(v)[np.ndim(kin.q):]) for k, v in d.items()}  # noqa: E731
+    q = np.asarray(kin.q).reshape(-1)
+    ok = np.asarray(kin.ok).reshape(q.shape[0], -1).all(axis=-1)
+    return Frames(
+        q=q,
+        points=as_np(kin.points),
+        angles=as_np(kin.angles),
+        velocities=as_np(kin.velocities),
+        angular_velocities=as_np(kin.angular_velocities),
+        ok=ok,
+    )
+
+
+def mechanism_frames(mechanism: Mechanism, q, omega=None, *, velocities: bool = False) -> Frames:
+    """Kinematics of ``mechanism`` at every q in ``q`` (configurations that do not
+    assemble are kept and flagged in ``Frames.ok``). ``omega`` (rad/s or m/s) scales
+    the velocities; it defaults to 1, i.e. velocities are kinematic coefficients."""
+    q = np.atleast_1d(np.asarray(q, dtype=float))
+    omega = np.ones_like(q) if omega is None else np.broadcast_to(np.asarray(omega, dtype=float), q.shape)
+    kin = kinematics(mechanism, q, omega, order=1 if velocities else 0, check=False)
+    return frames_from_kinematics(kin)
+
+
+def masked(values: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``values`` with NaN where the mechanism does not assemble (matplotlib leaves gaps)."""
+    out = np.array(values, dtype=float, copy=True)
+    out[~np.asarray(ok)] = np.nan
+    return out
+
+
+def extent(frames: Frames, names: Iterable[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Lower-left and upper-right corners (m) of the points over all assembled frames."""
+    names = list(frames.points) if names is None else list(names)
+    xy = np.concatenate([frames.points[n][frames.ok] for n in names]) if frames.ok.any() else np.zeros((1, 2))
+    return xy.min(axis=0), xy.max(axis=0)

@@ -1,0 +1,158 @@
+"""Line plots: coupler curves, angular velocities, time histories, energies,
+joint reactions, the reduced inertia and load, and the velocity polygon.
+
+Every function takes plain arrays (SI units), draws on ``ax`` (a new figure when
+omitted), labels its axes with units and returns the Axes."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from ._frames import Frames, length_scale, masked
+
+
+def _axes(ax, figsize=(6, 4)):
+    if ax is None:
+        _, ax = plt.subplots(figsize=figsize)
+    return ax
+
+
+def driving_label(frames_or_kind) -> str:
+    """Axis label of the driving coordinate: a crank angle (rad) or a slider position (m)."""
+    kind = frames_or_kind if isinstance(frames_or_kind, str) else "crank"
+    return "driving coordinate q (m)" if kind == "slider" else "crank angle q (rad)"
+
+
+def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, ax=None, unit: str = "m", equal: bool = True):
+    """Paths of ``points`` (default: all) over the configurations of ``frames``.
+
+    Gaps show driving coordinates where the mechanism does not assemble. With
+    ``equal=False`` the axes are scaled independently (seed 001, Fig. 2b, where
+    y_P is the straight-line error)."""
+    ax, s = _axes(ax), length_scale(unit)
+    for name in points if points is not None else frames.points:
+        xy = masked(frames.points[name], frames.ok) * s
+        ax.plot(xy[:, 0], xy[:, 1], label=f"path of {name}")
+    if equal:
+        ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(f"x ({unit})")
+    ax.set_ylabel(f"y ({unit})")
+    ax.set_title("coupler curves")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=8)
+    return ax
+
+
+def plot_against(x, series: Mapping[str, np.ndarray], *, xlabel: str, ylabel: str, ax=None, title: str | None = None, ok=None, styles: Mapping[str, str] | None = None):
+    """One line per entry of ``series`` against ``x``; NaN gaps where ``ok`` is False."""
+    ax = _axes(ax)
+    x = np.asarray(x, dtype=float)
+    for name, y in series.items():
+        y = np.asarray(y, dtype=float)
+        y = masked(y, ok) if ok is not None else y
+        ax.plot(x, y, (styles or {}).get(name, "-"), label=name)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title)
+    ax.grid(True, lw=0.3)
+    if series:
+        ax.legend(fontsize=8)
+    return ax
+
+
+def plot_angular_velocities(frames: Frames, links: Iterable[str] | None = None, *, ax=None, degrees: bool = False, driver_kind: str = "crank"):
+    """Angular velocities of ``links`` (default: all) against the driving coordinate.
+
+    With the frames computed for omega = 1 these are the kinematic coefficients
+    d(theta)/dq (seed 001, Fig. 3 uses w2 = 1 rad/s and deg/s)."""
+    if frames.angular_velocities is None:
+        raise ValueError("angular velocities need frames computed with velocities=True")
+    k = np.degrees(1.0) if degrees else 1.0
+    names = list(links) if links is not None else list(frames.angular_velocities)
+    series = {f"w {n}": frames.angular_velocities[n] * k for n in names}
+    return plot_against(frames.q, series, xlabel=driving_label(driver_kind), ylabel="angular velocity (deg/s)" if degrees else "angular velocity (rad/s)", ax=ax, title="angular velocities", ok=frames.ok)
+
+
+def plot_time_histories(t, series: Mapping[str, np.ndarray], *, ylabel: str, ax=None, title: str | None = None):
+    """Quantities against time t (s); ``ylabel`` must carry the unit."""
+    return plot_against(t, series, xlabel="time t (s)", ylabel=ylabel, ax=ax, title=title)
+
+
+def plot_energies(t, kinetic, potential, *, ax=None, work=None):
+    """Kinetic T, potential V and total E = T + V (J) against time (seed 000, Fig. 7a).
+
+    With ``work`` (J, work of the non-conservative loads since t0) the conserved
+    quantity T + V - work is shown instead of E."""
+    kinetic, potential = np.asarray(kinetic), np.asarray(potential)
+    series = {"T (kinetic)": kinetic, "V (potential)": potential}
+    total = kinetic + potential - (0 if work is None else np.asarray(work))
+    series["E = T + V" if work is None else "T + V - W"] = total
+    return plot_time_histories(t, series, ylabel="energy (J)", ax=ax, title="energies")
+
+
+def plot_energy_drift(t, total, *, ax=None):
+    """Drift of the conserved energy from its initial value (J) (seed 000, Fig. 7b)."""
+    total = np.asarray(total, dtype=float)
+    return plot_time_histories(t, {"E(t) - E(0)": total - total[0]}, ylabel="energy drift (J)", ax=ax, title="energy drift")
+
+
+def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, components: bool = False):
+    """Joint reactions (N) against time: magnitudes (seed 000, Fig. 6c), or x/y components."""
+    series = {}
+    for joint, force in reactions.items():
+        force = np.asarray(force, dtype=float)
+        if components:
+            series[f"{joint} Fx"], series[f"{joint} Fy"] = force[..., 0], force[..., 1]
+        else:
+            series[f"|F| at {joint}"] = np.hypot(force[..., 0], force[..., 1])
+    return plot_time_histories(t, series, ylabel="reaction force (N)", ax=ax, title="joint reactions")
+
+
+def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank"):
+    """Reduced inertia J_red(q) (kg m^2, or kg for a slider) and reduced load
+    tau_red(q) (N m, or N) against the driving coordinate (seed 000, eqs. 3-6)."""
+    slider = driver_kind == "slider"
+    if axes is None:
+        _, axes = plt.subplots(1, 2 if tau_red is not None else 1, figsize=(10 if tau_red is not None else 5, 4), squeeze=False)
+        axes = axes[0]
+    plot_against(q, {"J_red": j_red}, xlabel=driving_label(driver_kind), ylabel="reduced inertia (kg)" if slider else "reduced inertia (kg m^2)", ax=axes[0], title="reduced inertia")
+    if tau_red is not None:
+        plot_against(q, {"tau_red": tau_red}, xlabel=driving_label(driver_kind), ylabel="reduced load (N)" if slider else "reduced torque (N m)", ax=axes[1], title="reduced load")
+    return axes
+
+
+def plot_velocity_polygon(velocities: Mapping[str, np.ndarray], *, ax=None, unit: str = "mm", relative: Iterable[tuple[str, str]] = ()):
+    """The velocity polygon (seed 001, Fig. 5): absolute velocities drawn from one
+    pole, relative velocities v_ab = v_a - v_b joining their tips.
+
+    ``velocities``: point -> (2,) velocity (m/s); ``relative``: pairs (a, b) for
+    which v_ab is drawn. Lengths in ``unit``/s."""
+    ax, s = _axes(ax, (5, 5)), length_scale(unit)
+    tips = {}
+    for i, (name, v) in enumerate(velocities.items()):
+        v = np.asarray(v, dtype=float) * s
+        tips[name] = v
+        ax.annotate("", xy=tuple(v), xytext=(0, 0), arrowprops=dict(arrowstyle="->", lw=2, color=f"C{i}"))
+        ax.plot([], [], color=f"C{i}", lw=2, label=f"v_{name}: {np.hypot(*v):.1f} {unit}/s")
+        ax.annotate(f"v_{name}", tuple(v), xytext=(4, 4), textcoords="offset points", fontsize=9)
+    for a, b in relative:
+        d = tips[a] - tips[b]
+        ax.annotate("", xy=tuple(tips[a]), xytext=tuple(tips[b]), arrowprops=dict(arrowstyle="->", lw=1.2, ls="--", color="gray"))
+        ax.plot([], [], color="gray", ls="--", label=f"v_{a}{b}: {np.hypot(*d):.1f} {unit}/s")
+    pts = np.array([[0.0, 0.0], *tips.values()])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    pad = 0.15 * float(np.max(hi - lo) or 1.0)
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.plot([0], [0], "ko")
+    ax.set_xlabel(f"v_x ({unit}/s)")
+    ax.set_ylabel(f"v_y ({unit}/s)")
+    ax.set_title("velocity polygon")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return ax

@@ -1,0 +1,296 @@
+"""Kinetostatics: joint reactions and driving effort, checked against independent routes.
+
+- Newton-Euler equilibrium of every link, summed here from the returned reactions,
+  the applied loads and the inertia terms (not from the solver's matrices).
+- Virtual work: the driving torque equals J_red dw/dt + 0.5 dJ_red/dq w^2 - tau_red
+  from the power-equivalent reduction (seed 000 eqs. 1-6).
+- The joint-coordinate reference tests/joint_reference.py (numpy/scipy, Lagrange
+  multipliers) for the Watt six-bar of seed 000.
+- Statics: the holding torque at rest is dV/dq (central finite differences of the
+  potential energy).
+"""
+
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax._geometry import cross
+from assurjax._kinetostatics import SingularConfigurationError, joint_names, reactions, static_reactions, static_torque
+from assurjax._kinetostatics import _api as kinetostatics_api
+
+sys.path.insert(0, os.path.dirname(__file__))
+import joint_reference as jr  # noqa: E402
+
+N_STATES = 4
+
+# the in-line slider-crank written with its dyad listed from the prismatic end
+PRR_SLIDER_CRANK = """
+[scene]
+name = "slider_crank_prr"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+[links.crank]
+points = { O = [0.0, 0.0], A = [0.1, 0.0] }
+com = [0.05, 0.0]
+mass = 0.5
+inertia = 0.001
+[links.rod]
+points = { A = [0.0, 0.0], B = [0.3, 0.0] }
+com = [0.12, 0.01]
+mass = 1.0
+inertia = 0.0075
+[links.slider]
+points = { B = [0.0, 0.0] }
+com = [0.02, 0.03]
+mass = 0.8
+inertia = 0.002
+[[formation]]
+group = "crank"
+name = "crank"
+link = "crank"
+pivot = "O"
+[[formation]]
+group = "PRR"
+name = "slider_rod"
+links = ["slider", "rod"]
+joints = ["B", "A"]
+guide_point = "O"
+direction = [1.0, 0.2]
+offset = 0.02
+mode = "forward"
+[state]
+q0 = 0.5
+"""
+
+# a four-bar whose output dyad is exactly collinear (A, B, O4 on the x axis) at q = 0
+TOGGLE_FOUR_BAR = """
+[scene]
+name = "toggle"
+gravity = [0.0, -9.81]
+[ground]
+O2 = [0.0, 0.0]
+O4 = [3.0, 0.0]
+[links.crank]
+points = { O2 = [0.0, 0.0], A = [1.0, 0.0] }
+mass = 1.0
+inertia = 0.1
+[links.coupler]
+points = { A = [0.0, 0.0], B = [0.5, 0.0] }
+mass = 1.0
+inertia = 0.1
+[links.rocker]
+points = { O4 = [0.0, 0.0], B = [1.5, 0.0] }
+mass = 1.0
+inertia = 0.1
+[[formation]]
+group = "crank"
+link = "crank"
+pivot = "O2"
+[[formation]]
+group = "RRR"
+name = "dyad"
+links = ["coupler", "rocker"]
+joints = ["A", "O4", "B"]
+mode = "left"
+"""
+
+
+def _scenes():
+    from assurjax.scene._load import scene_from_dict
+    import tomllib
+
+    scenes = {name: assurjax.load_scene(name) for name in assurjax.bundled_scenes()}
+    scenes["slider_crank_prr"] = scene_from_dict(tomllib.loads(PRR_SLIDER_CRANK), source="prr")
+    return scenes
+
+
+SCENES = _scenes()
+
+
+def _states(scene, seed):
+    rng = np.random.default_rng(seed)
+    q0 = scene.state["q0"]
+    span = 0.05 if scene.mechanism.driver.kind == "slider" else 0.3
+    q = q0 + rng.uniform(-span, span, N_STATES)
+    w, a = rng.normal(size=N_STATES) * 2.0, rng.normal(size=N_STATES) * 3.0
+    t = rng.uniform(0.0, 1.0, N_STATES)
+    return q, w, a, t
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Per scene: states, reactions (one compile each) and kinematics."""
+    out = {}
+    for k, (name, scene) in enumerate(SCENES.items()):
+        q, w, a, t = _states(scene, k)
+        r = reactions(scene, (q, w, a, t))
+        kin = assurjax.kinematics(scene.mechanism, q, w, a)
+        out[name] = (scene, (q, w, a, t), r, kin)
+    return out
+
+
+def _single(tree, i):
+    return jax.tree.map(lambda x: x[i] if hasattr(x, "shape") and x.ndim > 0 else x, tree)
+
+
+def newton_euler_residuals(scene, kin, r, t):
+    """Per link (force x, force y, moment about the COM) of all loads, inertia terms
+    and reactions: zero for a link in dynamic equilibrium."""
+    mech = scene.mechanism
+    wrenches = assurjax.applied_wrenches(mech, scene.gravity, scene.loads, kin, t)
+    res = {}
+    for name, link in mech.links.items():
+        f, m = wrenches[name]
+        res[name] = [f - link.mass * kin.com_accelerations[name], m - link.inertia * kin.angular_accelerations[name]]
+
+    def apply(link, at, force, couple):
+        if link in res:
+            res[link][0] = res[link][0] + force
+            res[link][1] = res[link][1] + couple + cross(at - kin.coms[link], force)
+
+    for pair in r.pairs:
+        at = kin.points[pair.point]
+        force = r.forces[pair.name]
+        couple = r.couples.get(pair.name, jnp.zeros(()))
+        apply(pair.on, at, force, couple)
+        apply(pair.by, at, -force, -couple)
+    driver = mech.driver
+    link = driver.links[0]
+    if driver.kind == "crank":
+        apply(link, kin.coms[link], jnp.zeros(2), r.driving)
+    else:
+        u = jnp.stack([jnp.cos(kin.angles[link]), jnp.sin(kin.angles[link])])
+        apply(link, kin.points[driver.point], r.driving * u, jnp.zeros(()))
+    return np.array([[*np.asarray(f), float(m)] for f, m in res.values()])
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_every_link_in_equilibrium(solved, name):
+    scene, (q, w, a, t), r, kin = solved[name]
+    assert np.all(np.asarray(r.ok))
+    for i in range(N_STATES):
+        residual = newton_euler_residuals(scene, _single(kin, i), _single(r, i), t[i])
+        assert np.max(np.abs(residual)) < 1e-10, (name, i, residual)
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_driving_effort_is_the_virtual_work_of_the_reduction(solved, name):
+    scene, (q, w, a, t), r, _ = solved[name]
+    red = assurjax.reduce(scene, q, w, t)
+    expected = red.inertia * a + 0.5 * red.dinertia * w**2 - red.torque
+    np.testing.assert_allclose(r.driving, expected, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["watt_sixbar", "quick_return", "tangent_drive", "slider_crank_prr"])
+def test_group_by_group_equals_dense_and_global_solves(solved, name):
+    scene, state, r, _ = solved[name]
+    for method in ("dense", "global"):
+        other = reactions(scene, state, method=method)
+        for joint in r.forces:
+            np.testing.assert_allclose(other[joint], r[joint], rtol=0, atol=1e-9, err_msg=f"{method} {joint}")
+        np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
+
+
+def test_prr_is_rrp_listed_from_the_other_end(solved):
+    """Same mechanism, dyad listed either way: B's reaction flips (the later link
+    changes), everything else is the same."""
+    from assurjax.scene._load import scene_from_dict
+    import tomllib
+
+    data = tomllib.loads(PRR_SLIDER_CRANK)
+    data["formation"][1] = dict(group="RRP", name="rod_slider", links=["rod", "slider"], joints=["A", "B"], guide_point="O",
+                                direction=[1.0, 0.2], offset=0.02, mode="forward")
+    rrp = scene_from_dict(data, source="rrp")
+    _, state, prr, _ = solved["slider_crank_prr"]
+    other = reactions(rrp, state)
+    np.testing.assert_allclose(other["B"], -prr["B"], atol=1e-10)
+    for joint in ("O", "A", "slider/ground"):
+        np.testing.assert_allclose(other[joint], prr[joint], atol=1e-10)
+    np.testing.assert_allclose(other.couples["slider/ground"], prr.couples["slider/ground"], atol=1e-10)
+
+
+def _reference_watt(q, w):
+    """Joint-reference multipliers at (q, w): (wdot, {joint: force on body_i by body_j})."""
+    model = jr.watt_sixbar(float(q), float(w))
+    s = model.system
+    z = s.newton(float(q), s.to_internal(model.initial.coords))
+    wdot, _, _, lam, _ = s.accelerations(z, float(w))
+    forces, _ = s.reactions(z, lam)
+    return wdot, forces
+
+
+def test_watt_reactions_match_the_joint_reference_along_its_motion():
+    """Along the reference's own fall from rest at theta2 = 0 (its q, w, dw/dt).
+    The reference gives O2 on the ground by the crank, A on the crank by the
+    coupler, E on link5 by link6: each is minus ours (on the later link)."""
+    scene = SCENES["watt_sixbar"]
+    run = jr.watt_sixbar(0.0, 0.0).simulate(1.5, t_eval=np.linspace(0.0, 1.5, 16))
+    r = reactions(scene, (run.q, run.w, run.wdot, run.t), joints=["O2", "A", "E"])
+    for joint in ("O2", "A", "E"):
+        np.testing.assert_allclose(r[joint], -run.reactions[joint], rtol=0, atol=1e-6, err_msg=joint)
+    np.testing.assert_allclose(r.driving, run.tau_needed, atol=1e-9)  # free fall: no driving torque needed
+    np.testing.assert_allclose(r.driving, 0.0, atol=1e-9)
+
+
+def test_watt_reactions_along_the_package_simulation():
+    """assurjax.simulate from rest at theta2 = 0 until standstill, then the reactions
+    along the Solution (vmapped) against the reference at the same (q, w).
+    Simulating traces no kinetostatics."""
+    scene = SCENES["watt_sixbar"]
+    traces = kinetostatics_api.TRACE_COUNT[0]
+    sol = assurjax.simulate(scene, samples=12)
+    assert kinetostatics_api.TRACE_COUNT[0] == traces
+    r = reactions(scene, sol, joints=("O2", "A", "E"))
+    for k in range(0, len(sol.t), 3):
+        wdot, ref = _reference_watt(sol.q[k], sol.omega[k])
+        assert abs(float(sol.domega[k]) - wdot) < 1e-8
+        for joint in ("O2", "A", "E"):
+            np.testing.assert_allclose(r[joint][k], -ref[joint], rtol=0, atol=1e-6, err_msg=joint)
+
+
+@pytest.mark.parametrize("name", ["watt_sixbar", "quick_return"])
+def test_static_torque_is_the_derivative_of_the_potential(name):
+    scene = SCENES[name]
+    mech = scene.mechanism
+    q = scene.state["q0"] + np.array([0.2, 0.9])
+    tau = static_torque(scene, q)
+    h = 1e-5
+
+    def potential(qq):
+        pose = assurjax.pose_at(mech, qq)
+        return float(assurjax.potential_energy(mech, scene.gravity, scene.loads, pose))
+
+    dv = np.array([(potential(x + h) - potential(x - h)) / (2 * h) for x in q])
+    np.testing.assert_allclose(tau, dv, rtol=1e-7, atol=1e-7)
+
+
+def test_unknown_joint_is_a_clear_error():
+    scene = SCENES["watt_sixbar"]
+    with pytest.raises(assurjax.AssurjaxError, match=r"unknown joint\(s\) \['Z'\].*watt_sixbar"):
+        reactions(scene, (0.3, 0.0, 0.0), joints=["A", "Z"])
+    r = reactions(scene, (0.3, 0.0, 0.0), joints=["A"])
+    with pytest.raises(assurjax.AssurjaxError, match="no reaction at joint 'E'"):
+        r["E"]
+    assert set(joint_names(scene.mechanism)) == {"O2", "A", "O4", "B", "C", "D", "E"}
+
+
+def test_singular_dyad_is_a_clear_error_not_nan():
+    from assurjax.scene._load import scene_from_dict
+    import tomllib
+
+    scene = scene_from_dict(tomllib.loads(TOGGLE_FOUR_BAR), source="toggle")
+    with pytest.raises(SingularConfigurationError, match="group 'dyad' \\(RRR\\).*singular") as info:
+        static_torque(scene, 0.0)
+    assert info.value.group == "dyad"
+    r = static_reactions(scene, jnp.array([0.0, 0.4]), check=False)  # flags instead of raising
+    assert np.asarray(r.ok).tolist() == [[True, False], [True, True]]
+    assert all(np.all(np.isfinite(np.asarray(v))) for v in r.forces.values())
+    # the same system, solved whole, is singular too
+    with pytest.raises(SingularConfigurationError):
+        reactions(scene, (0.0, 0.0, 0.0), method="dense")

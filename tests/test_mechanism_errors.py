@@ -1,0 +1,266 @@
+"""Bad input: every mistake raises an error of the right class whose message names the culprit
+(scene field, group, link or point), never a raw JAX traceback or a silent NaN."""
+
+import copy
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax import AssemblyError, Link, Mechanism, MechanismError, SceneError, groups
+
+FOUR_BAR = {
+    "scene": {"name": "four_bar"},
+    "ground": {"O2": [0.0, 0.0], "O4": [1.0, 0.0]},
+    "links": {
+        "crank": {"points": {"O2": [0.0, 0.0], "A": [0.3, 0.0]}, "mass": 1.0, "inertia": 0.01},
+        "coupler": {"points": {"A": [0.0, 0.0], "B": [1.0, 0.0]}, "mass": 1.0, "inertia": 0.1},
+        "rocker": {"points": {"O4": [0.0, 0.0], "B": [0.8, 0.0]}, "mass": 1.0, "inertia": 0.05},
+    },
+    "formation": [
+        {"group": "crank", "name": "drive", "link": "crank", "pivot": "O2"},
+        {"group": "RRR", "name": "dyad", "links": ["coupler", "rocker"], "joints": ["A", "O4", "B"], "mode": "left"},
+    ],
+    "outputs": {"points": ["B"]},
+}
+
+
+def scene(edit=None):
+    """The four-bar above, edited by ``edit(data)``."""
+    data = copy.deepcopy(FOUR_BAR)
+    if edit:
+        edit(data)
+    return assurjax.scene_from_dict(data, source="bad.toml")
+
+
+def raises(cls, *fragments):
+    """pytest.raises that also checks every fragment appears in the message."""
+
+    class Check:
+        def __enter__(self):
+            self.ctx = pytest.raises(cls)
+            self.info = self.ctx.__enter__()
+            return self.info
+
+        def __exit__(self, *exc):
+            suppressed = self.ctx.__exit__(*exc)
+            message = str(self.info.value)
+            for fragment in fragments:
+                assert fragment in message, f"{fragment!r} not in: {message}"
+            return suppressed
+
+    return Check()
+
+
+def test_the_base_scene_is_valid():
+    s = scene()
+    assert s.mechanism.group_names == ("drive", "dyad")
+
+
+def test_unknown_group_kind():
+    def edit(d):
+        d["formation"][1]["group"] = "RRX"
+
+    with raises(SceneError, "bad.toml", "'group'", "RRX", "#2"):
+        scene(edit)
+
+
+def test_missing_field():
+    def edit(d):
+        del d["formation"][1]["joints"]
+
+    with raises(SceneError, "missing field 'joints'", "'dyad'"):
+        scene(edit)
+
+
+def test_missing_links_table():
+    with raises(SceneError, "missing field 'links'"):
+        scene(lambda d: d.pop("links"))
+
+
+@pytest.mark.parametrize(
+    "edit,fragments",
+    [
+        (lambda d: d["links"]["crank"].update(mass="heavy"), ("[links.crank]", "'mass'", "number")),
+        (lambda d: d["formation"][1].update(joints="A O4 B"), ("'joints'", "'dyad'", "list of 3 names")),
+        (lambda d: d["ground"].update(O4=[1.0]), ("[ground]", "'O4'", "2 numbers")),
+        (lambda d: d["formation"][1].update(mode="sideways"), ("'mode'", "'dyad'", "sideways")),
+        (lambda d: d["links"]["rocker"].update(points="O4"), ("[links.rocker].points", "table")),
+    ],
+    ids=["mass-string", "joints-string", "short-vector", "bad-mode", "points-not-table"],
+)
+def test_wrong_type(edit, fragments):
+    with raises(SceneError, "bad.toml", *fragments):
+        scene(edit)
+
+
+def test_unknown_field_is_rejected():
+    with raises(SceneError, "[links.crank]", "lenght"):
+        scene(lambda d: d["links"]["crank"].update(lenght=0.3))
+
+
+def test_unknown_link():
+    with raises(SceneError, "'dyad'", "unknown link 'rockr'"):
+        scene(lambda d: d["formation"][1].update(links=["coupler", "rockr"]))
+
+
+def test_point_used_before_defined():
+    """The dyad's external joint 'Z' is defined by no earlier group nor the ground."""
+
+    def edit(d):
+        d["links"]["rocker"]["points"] = {"Z": [0.0, 0.0], "B": [0.8, 0.0]}
+        d["formation"][1]["joints"] = ["A", "Z", "B"]
+
+    with raises(SceneError, "'dyad'", "point 'Z'", "no earlier group"):
+        scene(edit)
+
+
+def test_duplicate_group_name():
+    with raises(SceneError, "duplicate group name 'drive'"):
+        scene(lambda d: d["formation"][1].update(name="drive"))
+
+
+def test_link_placed_twice():
+    def edit(d):
+        d["formation"].append({"group": "RRR", "name": "again", "links": ["coupler", "rocker"], "joints": ["A", "O4", "B"], "mode": "left"})
+
+    with raises(SceneError, "'again'", "link 'coupler' is already placed by group 'dyad'"):
+        scene(edit)
+
+
+def test_link_in_no_group():
+    with raises(SceneError, "spare", "no group"):
+        scene(lambda d: d["links"].update(spare={"points": {"S": [0.0, 0.0]}}))
+
+
+def test_wrong_dof_count():
+    """B pinned to the ground as well: a structure (0 DOF by Gruebler's count 3*3 - 2*5 = -1)."""
+    with raises(SceneError, "degrees of freedom", "Gruebler", "-1"):
+        scene(lambda d: d["ground"].update(B=[1.2, 0.8]))
+
+
+def test_zero_length():
+    with raises(SceneError, "'dyad'", "link 'rocker'", "zero length", "'O4'", "'B'"):
+        scene(lambda d: d["links"]["rocker"].update(points={"O4": [0.5, 0.5], "B": [0.5, 0.5]}))
+
+
+@pytest.mark.parametrize("field", ["mass", "inertia"])
+def test_negative_mass_or_inertia_in_scene(field):
+    with raises(SceneError, "[links.coupler]", f"'{field}'", "non-negative"):
+        scene(lambda d: d["links"]["coupler"].update({field: -1.0}))
+
+
+@pytest.mark.parametrize("field", ["mass", "inertia"])
+def test_negative_mass_or_inertia_in_python(field):
+    mech = scene().mechanism
+    links = dict(mech.links)
+    links["rocker"] = eqx.tree_at(lambda lk: getattr(lk, field), links["rocker"], jnp.asarray(-2.0))
+    with raises(MechanismError, "link 'rocker'", field, "non-negative"):
+        Mechanism(mech.ground, links, mech.groups)
+
+
+def test_zero_guide_direction():
+    data = {
+        "ground": {"O": [0.0, 0.0]},
+        "links": {
+            "crank": {"points": {"O": [0.0, 0.0], "A": [0.1, 0.0]}},
+            "rod": {"points": {"A": [0.0, 0.0], "B": [0.3, 0.0]}},
+            "slider": {"points": {"B": [0.0, 0.0]}},
+        },
+        "formation": [
+            {"group": "crank", "link": "crank", "pivot": "O"},
+            {"group": "RRP", "name": "rod_slider", "links": ["rod", "slider"], "joints": ["A", "B"], "guide_point": "O", "direction": [0.0, 0.0], "mode": "forward"},
+        ],
+    }
+    with raises(SceneError, "'rod_slider'", "direction", "non-zero"):
+        assurjax.scene_from_dict(data, source="bad.toml")
+
+
+def test_unknown_point_in_outputs():
+    with raises(SceneError, "[outputs]", "'points'", "unknown point 'Q'"):
+        scene(lambda d: d["outputs"].update(points=["B", "Q"]))
+
+
+def test_unknown_link_in_outputs():
+    with raises(SceneError, "[outputs]", "'angles'", "unknown link 'link7'"):
+        scene(lambda d: d["outputs"].update(angles=["link7"]))
+
+
+def test_invalid_toml(write_scene):
+    path = write_scene(
+        """
+        [scene]
+        name = "broken
+        """
+    )
+    with raises(SceneError, str(path), "not valid TOML"):
+        assurjax.load_scene(path)
+
+
+def test_missing_scene_file(tmp_path):
+    with raises(SceneError, "no such scene file"):
+        assurjax.load_scene(tmp_path / "nowhere.toml")
+    with raises(SceneError, "neither a scene file nor a bundled scene", "roberts"):
+        assurjax.load_scene("no_such_bundled_scene")
+
+
+def test_cannot_assemble_outside_jit_names_the_group():
+    """Coupler + rocker (1.8) cannot reach O4 from A when |A O4| > 1.8: make the crank long."""
+    mech = scene(lambda d: d["links"]["crank"].update(points={"O2": [0.0, 0.0], "A": [1.5, 0.0]})).mechanism
+    with raises(AssemblyError, "'dyad'", "cannot assemble") as info:
+        assurjax.pose_at(mech, np.pi)  # A at (-1.5, 0): 2.5 from O4
+    assert info.value.group == "dyad"
+    with raises(AssemblyError, "'dyad'", "cannot assemble"):
+        assurjax.kinematics(mech, np.array([0.0, np.pi]))
+    kin = assurjax.kinematics(mech, np.array([0.0, np.pi]), check=False)
+    np.testing.assert_array_equal(np.asarray(kin.ok), [[True, True], [True, False]])
+
+
+def test_cannot_assemble_inside_jit_sets_flags_and_stays_finite():
+    mech = scene(lambda d: d["links"]["crank"].update(points={"O2": [0.0, 0.0], "A": [1.5, 0.0]})).mechanism
+
+    @eqx.filter_jit
+    def run(mech, q):
+        return assurjax.kinematics(mech, q, 1.0, 0.0)  # check is a no-op under tracing
+
+    kin = run(mech, jnp.array([0.0, np.pi]))
+    np.testing.assert_array_equal(np.asarray(kin.ok)[:, 1], [True, False])
+    for tree in (kin.points, kin.velocities, kin.accelerations, kin.angles, kin.angular_velocities):
+        for v in jax.tree.leaves(tree):
+            assert np.all(np.isfinite(np.asarray(v)))
+
+
+def test_inverse_kinematics_out_of_reach():
+    mech = assurjax.load_scene("slider_crank").mechanism  # x_B stays within [0.2, 0.4] m
+    with raises(AssemblyError, "inverse kinematics", "out of reach"):
+        assurjax.inverse_kinematics(mech, lambda pose: pose.points["B"][0], 0.6, 0.5)
+
+
+def test_unknown_point_in_kinematics():
+    mech = scene().mechanism
+    with raises(assurjax.AssurjaxError, "unknown point(s) ['Q']"):
+        assurjax.kinematics(mech, 0.1, points=["Q"])
+
+
+def test_formation_must_start_with_a_driver():
+    def edit(d):
+        d["formation"].reverse()
+
+    with raises(SceneError, "'dyad'", "must start with a driver"):
+        scene(edit)
+
+
+def test_python_mechanism_errors_name_the_culprit():
+    """The same checks guard mechanisms built in Python (MechanismError)."""
+    mech = scene().mechanism
+    bad = groups.RRR("dyad", ("coupler", "rocker"), ("A", "O9", "B"), 1)
+    with raises(MechanismError, "'dyad'", "point 'O9'"):
+        Mechanism(mech.ground, mech.links, [mech.groups[0], bad])
+    with raises(MechanismError, "'ground'", "reserved"):
+        Mechanism(mech.ground, {**mech.links, "ground": mech.links["crank"]}, mech.groups)
+    lonely = Link(points={"S": jnp.zeros(2)}, com=jnp.zeros(2), mass=jnp.asarray(1.0), inertia=jnp.asarray(0.0))
+    with raises(MechanismError, "'lonely'", "no group"):
+        Mechanism(mech.ground, {**mech.links, "lonely": lonely}, mech.groups)
