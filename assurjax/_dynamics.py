@@ -57,6 +57,7 @@ DEFAULT_ATOL = 1e-8
 DEFAULT_SAMPLES = 201
 DEFAULT_MAX_STEPS = 4096
 
+_TINY = 1e-30
 # Event codes in Solution.event.
 NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
 
@@ -67,7 +68,7 @@ class Settings(NamedTuple):
     solver: str = DEFAULT_SOLVER
     rtol: float = DEFAULT_RTOL
     atol: float = DEFAULT_ATOL
-    dt: float | None = None  # fixed step (s); None: adaptive (PID controller)
+    fixed_step: bool = False  # True: constant steps of the traced ``dt``; False: adaptive (PID controller)
     max_steps: int = DEFAULT_MAX_STEPS
     standstill: bool = False
     check_assembly: bool = True
@@ -78,6 +79,7 @@ class Settings(NamedTuple):
     energies: bool = False
     domega: bool = True
     branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
+    adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
 
 
 class Solution(eqx.Module):
@@ -90,8 +92,9 @@ class Solution(eqx.Module):
     ``t_stop``: time (s) at which a stop event fired (None when none did; an array
     under jit/vmap, read with ``event``). ``event``: -1 none, 0 standstill, 1 a group
     can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
-    ``valid``: saved times actually reached (the others repeat the final state,
-    under jit/vmap only; :func:`simulate` trims them). ``result``: diffrax result code
+    ``valid``: the saved times reached, then the final state (at ``t_final``); the
+    entries after it repeat the final state (under jit/vmap only; :func:`simulate`
+    trims them). ``result``: diffrax result code
     (0 successful); ``status`` a readable summary.
     """
 
@@ -160,7 +163,7 @@ def _margins(settings: Settings, t, y, args) -> list:
     if settings.standstill:
         out.append(direction * y[1])
     if settings.check_assembly:
-        out.append(jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -1.0))
+        out.append(jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -_TINY))
     for k, cond in enumerate(settings.events):
         out.append(user_signs[k] * jnp.asarray(cond(t, y[0], y[1]), dtype=float))
     return out
@@ -180,7 +183,9 @@ def _event(settings: Settings):
         return None
 
     def cond_fn(t, y, args, **kwargs):
-        return jnp.min(jnp.stack(_margins(settings, t, y, args)))
+        # Clipped at a tiny positive value: the bisection's |f| < atol test then holds
+        # on both sides of a step (the assembly margin), and the root is the first crossing.
+        return jnp.minimum(jnp.min(jnp.stack(_margins(settings, t, y, args))), _TINY)
 
     tol = min(1e-3 * settings.rtol, 1e-12)
     return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
@@ -195,18 +200,43 @@ def _solver(settings: Settings):
     return SOLVERS[settings.solver]()
 
 
+# Gradients through diffeqsolve: "recursive" (RecursiveCheckpointAdjoint, reverse mode,
+# discretize-then-optimize: exact gradients of the computed solution), "forward"
+# (ForwardMode: jvp / jacfwd, cheapest for few parameters), "backsolve" (BacksolveAdjoint:
+# solves the adjoint ODE backwards, O(1) memory, gradients only to the solver tolerance).
+ADJOINTS: dict[str, Callable[[], diffrax.AbstractAdjoint]] = {
+    "recursive": diffrax.RecursiveCheckpointAdjoint,
+    "forward": diffrax.ForwardMode,
+    "backsolve": diffrax.BacksolveAdjoint,
+}
+
+
+def _adjoint(settings: Settings):
+    if settings.adjoint not in ADJOINTS:
+        raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
+    return ADJOINTS[settings.adjoint]()
+
+
 def _controller(settings: Settings):
-    if settings.dt is not None:
+    if settings.fixed_step:
         return diffrax.ConstantStepSize()
     return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol)
 
 
-def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, *, settings: Settings = Settings()) -> Solution:
+def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, dt=None, *, settings: Settings = Settings()) -> Solution:
     """The pure, jittable simulation (no Python-side checks or trimming).
 
     ``q0``, ``omega0``, ``t0``, ``t1`` and the arrays inside ``mechanism`` and
     ``loads`` may be traced (vmap over them with ``eqx.filter_vmap``); ``settings``
     is static. ``ts``: save times (default ``settings.samples`` times from t0 to t1).
+    ``dt``: the step (s) when ``settings.fixed_step`` (traced: a step-size sweep
+    compiles once); else an optional initial step.
+
+    **Example** (10 starting angles at once):
+    >>> core = eqx.filter_jit(eqx.filter_vmap(
+    ...     lambda q0: assurjax.simulate_core(mech, gravity, (), q0, 0.0, 0.0, 2.0,
+    ...                                       settings=assurjax.SimulationSettings(samples=2))))
+    >>> sols = core(jnp.linspace(0.0, 1.0, 10))
     """
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     if ts is None:
@@ -226,13 +256,14 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         _solver(settings),
         t0=t0,
         t1=t1,
-        dt0=settings.dt,
+        dt0=None if dt is None else jnp.asarray(dt, dtype=float),
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True),
         stepsize_controller=_controller(settings),
         event=_event(settings),
         max_steps=settings.max_steps,
+        adjoint=_adjoint(settings),
         throw=False,
     )
     return _package(mechanism, gravity, loads, sol, ts, args, settings, track_work)
@@ -243,20 +274,22 @@ def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> 
     # deletes those past it) and pads with inf.
     last = jnp.sum(jnp.isfinite(sol.ts)) - 1
     t_final, q_final, w_final = sol.ts[last], sol.ys[0][last], sol.ys[1][last]
-    valid = jnp.arange(ts.shape[0]) < last
-    # Times not reached hold the final state, so every output stays finite.
-    q = jnp.where(valid, sol.ys[0][:-1], q_final)
-    w = jnp.where(valid, sol.ys[1][:-1], w_final)
-    t = jnp.where(valid, ts, t_final)
-    event = _which_event(sol, settings, args)
+    # The times reached, then the final state itself (an event stops between two
+    # saved times); the rest repeat the final state, so every output stays finite.
+    valid = jnp.arange(ts.shape[0]) <= last
+    reached = jnp.arange(ts.shape[0]) < last
+    q = jnp.where(reached, sol.ys[0][:-1], q_final)
+    w = jnp.where(reached, sol.ys[1][:-1], w_final)
+    t = jnp.where(reached, ts, t_final)
     near = branch_state(sol.ys)  # saved link angles (tracked branch) or None
-    near_final = None if near is None else jax.tree.map(lambda z: z[-1], near)
-    near = None if near is None else jax.tree.map(lambda z: jnp.where(valid, z[:-1], z[-1]), near)
+    near_final = None if near is None else jax.tree.map(lambda z: z[last], near)
+    near = None if near is None else jax.tree.map(lambda z: jnp.where(reached, z[:-1], z[last]), near)
+    event = _which_event(sol, settings, args, last, near_final)
     outputs = _outputs(mechanism, gravity, loads, t, q, w, settings, near)
     dissipated = None
     if track_work:
         work = sol.ys[2]
-        dissipated = jnp.where(valid, work[:-1], work[last])
+        dissipated = jnp.where(reached, work[:-1], work[last])
     failed = _failed_group(mechanism, q_final, w_final, event, near_final)
     return Solution(
         t=t, q=q, omega=w, **outputs, dissipated=dissipated, valid=valid,
@@ -266,22 +299,31 @@ def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> 
     )
 
 
-def _which_event(sol, settings, args):
-    """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
+def _which_event(sol, settings, args, last, near_final):
+    """The code of the stop condition that fired (the smallest margin at the stop), or -1.
+    The assembly condition is read at and just past the final state, since bisection
+    may leave that state on the assembled side."""
     codes = _event_codes(settings)
     if not codes:
         return jnp.asarray(NO_EVENT)
-    fired = sol.event_mask
-    margins = jnp.stack(_margins(settings, sol.ts[-1], jax.tree.map(lambda y: y[-1], sol.ys), args))
-    return jnp.where(fired, jnp.asarray(codes)[jnp.argmin(margins)], NO_EVENT)
+    y_final = jax.tree.map(lambda y: y[last], sol.ys)
+    margins = _margins(settings, sol.ts[last], y_final, args)
+    if settings.check_assembly:
+        ok = _assembles(args[0], y_final[0], y_final[1], near_final)
+        margins[codes.index(LOCKUP)] = jnp.where(jnp.all(ok), 1.0, -1.0)
+    return jnp.where(sol.event_mask, jnp.asarray(codes)[jnp.argmin(jnp.stack(margins))], NO_EVENT)
+
+
+def _assembles(mechanism, q_final, w_final, near=None):
+    """Per group: assembled at the final state and just past it (in the direction of motion)."""
+    nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
+    return positions(mechanism, q_final + nudge, near=near).ok & positions(mechanism, q_final, near=near).ok
 
 
 def _failed_group(mechanism, q_final, w_final, event, near=None):
     """Index of the first group that cannot assemble just past the final state (-1: none)."""
-    nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
-    ok = positions(mechanism, q_final + nudge, near=near).ok & positions(mechanism, q_final, near=near).ok
-    first_bad = jnp.argmin(ok)
-    return jnp.where((event == LOCKUP) & ~jnp.all(ok), first_bad, -1)
+    ok = _assembles(mechanism, q_final, w_final, near)
+    return jnp.where((event == LOCKUP) & ~jnp.all(ok), jnp.argmin(ok), -1)
 
 
 def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:
@@ -371,7 +413,7 @@ def simulate(
         solver=str(pick(solver, sim, "solver", DEFAULT_SOLVER)),
         rtol=float(pick(rtol, sim, "rtol", DEFAULT_RTOL)),
         atol=float(pick(atol, sim, "atol", DEFAULT_ATOL)),
-        dt=None if pick(dt, sim, "dt", None) is None else float(pick(dt, sim, "dt", None)),
+        fixed_step=pick(dt, sim, "dt", None) is not None,
         max_steps=int(pick(max_steps, sim, "max_steps", DEFAULT_MAX_STEPS)),
         standstill=stop == "standstill",
         check_assembly=bool(check_assembly),
@@ -387,14 +429,18 @@ def simulate(
     _check_outputs(mechanism, settings)
     q0, omega0, t0, t1 = (pick(v, state, k, d) for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
     if settings.solver in BASELINES:
-        return simulate_seed_euler(mechanism, gravity, loads, q0, omega0, t0=t0, t1=t1, dq=settings.dt or 1e-3,
+        return simulate_seed_euler(mechanism, gravity, loads, q0, omega0, t0=t0, t1=t1, dq=pick(dt, sim, "dt", None) or 1e-3,
                                    standstill=settings.standstill)
     _solver(settings)  # unknown names fail here, not inside jit
     if saveat is not None:
         saveat = jnp.asarray(saveat, dtype=float)
         if saveat.ndim != 1:
             raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
-    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, settings=settings)
+    # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
+    q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    step = pick(dt, sim, "dt", None)
+    step = None if step is None else jnp.asarray(step, dtype=float)
+    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings)
     return _trim(sol, mechanism)
 
 
@@ -412,9 +458,12 @@ RESULT_MESSAGES = {0: "successful", 1: "max_steps_reached"}
 
 def _trim(sol: Solution, mechanism: Mechanism) -> Solution:
     """Keep only the saved times reached, and turn codes into readable fields."""
+    # On the host, in one transfer: slicing device arrays to a new length n would
+    # compile per n. The trimmed Solution holds NumPy arrays.
+    sol = jax.device_get(sol)
     n_saved = sol.valid.shape[0]
-    n = int(np.sum(np.asarray(sol.valid)))
-    cut = lambda x: x[:n] if isinstance(x, jax.Array) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
+    n = int(np.sum(sol.valid))
+    cut = lambda x: x[:n] if isinstance(x, np.ndarray) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
     fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
     event, failed = int(sol.event), int(sol.failed_group_index)
     group = mechanism.groups[failed].name if failed >= 0 else None

@@ -44,16 +44,35 @@ class Kinematics(eqx.Module):
     ok: Array
 
 
-def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None) -> Callable:
+def _stack(values: list) -> Array | None:
+    return jnp.stack(values) if values else None
+
+
+def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tuple[bool, bool], names: dict) -> Callable:
+    """q -> ((points (n, 2), coms (m, 2), angles (m,)), ok), each kind stacked into one
+    array (one output stream instead of one per name: XLA writes it from a single
+    fused loop). The names in stacking order are recorded in ``names`` at trace time."""
+    want_coms, want_angles = what
+
     def coords(q):
         pose = positions(mechanism, q, points=points)
-        return (pose.points, pose.coms, pose.angles), pose.ok
+        names["points"] = tuple(pose.points)
+        names["coms"] = tuple(pose.coms) if want_coms else ()
+        names["angles"] = tuple(pose.angles) if want_angles else ()
+        x = (
+            _stack([pose.points[k] for k in names["points"]]),
+            _stack([pose.coms[k] for k in names["coms"]]),
+            _stack([pose.angles[k] for k in names["angles"]]),
+        )
+        return x, pose.ok
 
     return coords
 
 
-def _kinematics_single(mechanism: Mechanism, q, omega, alpha, points, order: int) -> Kinematics:
-    coords = _coordinates(mechanism, points)
+def _stacked_single(mechanism: Mechanism, q, omega, alpha, points, order: int, what=(True, True)):
+    """Positions, velocities and accelerations at one q as stacked arrays, and their names."""
+    names: dict = {}
+    coords = _coordinates(mechanism, points, what, names)
     one = jnp.ones_like(q)
     dx = d2x = None
     if order == 0:
@@ -62,15 +81,39 @@ def _kinematics_single(mechanism: Mechanism, q, omega, alpha, points, order: int
         x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
     else:
         x, dx, d2x, ok = _second_order(coords, q, one)
-    vel = (None,) * 3 if dx is None else jax.tree.map(lambda d: d * omega, dx)
-    acc = (None,) * 3 if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
+    vel = None if dx is None else jax.tree.map(lambda d: d * omega, dx)
+    acc = None if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
+    return names, dict(q=q, omega=omega, alpha=alpha, x=x, v=vel, a=acc, ok=ok)
+
+
+def _unstack(names: dict, arrays: dict, batch_ndim: int) -> Kinematics:
+    """The stacked arrays (with ``batch_ndim`` leading batch axes) as a Kinematics of dicts."""
+
+    def split(stacked, kind):
+        if stacked is None:
+            return {}
+        index = (slice(None),) * batch_ndim
+        return {k: stacked[index + (i,)] for i, k in enumerate(names[kind])}
+
+    def fields(triple):
+        if triple is None:
+            return None, None, None
+        return split(triple[0], "points"), split(triple[1], "coms"), split(triple[2], "angles")
+
+    x, v, a = fields(arrays["x"]), fields(arrays["v"]), fields(arrays["a"])
     return Kinematics(
-        q=q, omega=omega, alpha=alpha,
-        points=x[0], velocities=vel[0], accelerations=acc[0],
-        coms=x[1], com_velocities=vel[1], com_accelerations=acc[1],
-        angles=x[2], angular_velocities=vel[2], angular_accelerations=acc[2],
-        ok=ok,
+        q=arrays["q"], omega=arrays["omega"], alpha=arrays["alpha"],
+        points=x[0], velocities=v[0], accelerations=a[0],
+        coms=x[1], com_velocities=v[1], com_accelerations=a[1],
+        angles=x[2], angular_velocities=v[2], angular_accelerations=a[2],
+        ok=arrays["ok"],
     )
+
+
+def _kinematics_single(mechanism: Mechanism, q, omega, alpha, points, order: int, what=(True, True)) -> Kinematics:
+    """Kinematics at one q (unbatched); see :func:`kinematics`."""
+    names, arrays = _stacked_single(mechanism, q, omega, alpha, points, order, what)
+    return _unstack(names, arrays, 0)
 
 
 def _second_order(coords, q, one):
@@ -85,11 +128,18 @@ def _second_order(coords, q, one):
 
 
 @eqx.filter_jit
-def _kinematics_batch(mechanism, q, omega, alpha, points, order):
-    single = lambda q, w, a: _kinematics_single(mechanism, q, w, a, points, order)  # noqa: E731
+def _kinematics_batch(mechanism, q, omega, alpha, points, order, what=(True, True)):
+    names: dict = {}
+
+    def single(q, w, a):
+        found, arrays = _stacked_single(mechanism, q, w, a, points, order, what)
+        names.update(found)
+        return {k: v for k, v in arrays.items() if k not in ("q", "omega", "alpha")}  # no copies of the inputs
+
     shape = q.shape
     flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), alpha.reshape(-1))
-    return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+    flat = jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+    return _unstack(names, dict(flat, q=q, omega=omega, alpha=alpha), len(shape))  # split per name outside the loop
 
 
 def kinematics(
@@ -100,6 +150,8 @@ def kinematics(
     *,
     points: Iterable[str] | None = None,
     order: int = 2,
+    coms: bool = True,
+    angles: bool = True,
     check: bool = True,
 ) -> Kinematics:
     """Positions, velocities and accelerations of every named point, centre of mass and link.
@@ -110,6 +162,8 @@ def kinematics(
       With ``omega=1`` the velocities are the kinematic coefficients dx/dq.
     - ``points``: only these points (and the groups they need) are computed.
     - ``order``: 0 positions, 1 adds velocities, 2 adds accelerations.
+    - ``coms``, ``angles``: set False to skip the centres of mass or the link angles
+      (their dicts are then empty); the angles cost an atan2 per link.
     - ``check``: outside jit, raise :class:`AssemblyError` naming the group that
       cannot assemble; inside jit read ``Kinematics.ok`` instead.
 
@@ -128,7 +182,7 @@ def kinematics(
         unknown = [p for p in pts if p not in dict(mechanism.owner)]
         if unknown:
             raise AssurjaxError(f"unknown point(s) {unknown}; the mechanism has {list(mechanism.point_names)}")
-    kin = _kinematics_batch(mechanism, q, omega, alpha, pts, order)
+    kin = _kinematics_batch(mechanism, q, omega, alpha, pts, order, (bool(coms), bool(angles)))
     if check:
         raise_if_not_assembled(mechanism, kin.ok, q)
     return kin

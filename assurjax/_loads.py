@@ -79,6 +79,19 @@ class Table(eqx.Module):
         return jnp.interp(x, self.x, self.values)
 
 
+class Vector(eqx.Module):
+    """A 2-vector whose components are values (numbers, forms or functions of (q, omega, t))."""
+
+    x: Any
+    y: Any
+
+    def __init__(self, x, y):
+        self.x, self.y = _as_value(x), _as_value(y)
+
+    def __call__(self, q, omega, t):
+        return jnp.stack([evaluate(self.x, q, omega, t), evaluate(self.y, q, omega, t)])
+
+
 def evaluate(value, q, omega, t) -> Array:
     """A load value at (q, omega, t): numbers as they are, forms and functions called."""
     if callable(value):
@@ -90,7 +103,10 @@ def _velocity_dependent(*values, flag: bool | None = None) -> bool:
     if flag is not None:
         return flag
     for v in values:
-        if isinstance(v, (Polynomial, Table)):
+        if isinstance(v, Vector):
+            if _velocity_dependent(v.x, v.y):
+                return True
+        elif isinstance(v, (Polynomial, Table)):
             if v.variable == "omega":
                 return True
         elif callable(v):

@@ -17,7 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import heading, relative_rotation, rotate
+from .._geometry import V2, heading, relative_rotation, rotate
 
 
 class Frame(NamedTuple):
@@ -66,6 +66,12 @@ class Placement:
         frame = self.frames[link]
         return frame.origin + rotate(self.links[link].points[name], frame.rot)
 
+    def xy(self, name: str):
+        """Like :meth:`point`, as separate components (a :class:`V2`)."""
+        link = self.owner[name]
+        frame = self.frames[link]
+        return V2.of(frame.origin) + V2.of(self.links[link].points[name]).rotate(V2.of(frame.rot))
+
     def rotation_of_owner(self, name: str) -> Array:
         """Rotation (cos, sin) of the link that carries point ``name``."""
         return self.frames[self.owner[name]].rot
@@ -79,6 +85,20 @@ def frame_through(local_a, local_b, global_a, global_b) -> Frame:
     (the distance between them is assumed to match)."""
     rot = relative_rotation(local_b - local_a, global_b - global_a)
     return Frame(global_a - rotate(local_a, rot), rot)
+
+
+def frame_through_xy(local_a, local_b, global_a, global_b) -> Frame:
+    """:func:`frame_through` with the global points as :class:`V2` (no sqrt, no atan2)."""
+    la, lb = V2.of(local_a), V2.of(local_b)
+    local, glob = lb - la, global_b - global_a
+    inv = 1.0 / local.dot(local)  # a constant of the link
+    rot = V2(glob.dot(local) * inv, local.cross(glob) * inv)
+    return Frame((global_a - la.rotate(rot)).array(), rot.array())
+
+
+def frame_from_rotation_xy(local_a, global_a, rot) -> Frame:
+    """:func:`frame_from_rotation` with ``global_a`` and ``rot`` as :class:`V2`."""
+    return Frame((global_a - V2.of(local_a).rotate(rot)).array(), rot.array())
 
 
 def frame_from_rotation(local_a, global_a, rot) -> Frame:

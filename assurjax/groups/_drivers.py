@@ -4,8 +4,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import rotation, unit
-from ._base import AbstractGroup, Frame, Link, Placement, frame_from_rotation
+from .._geometry import V2
+from ._base import AbstractGroup, Frame, Link, Placement, frame_from_rotation_xy
 
 
 class Crank(AbstractGroup):
@@ -30,7 +30,7 @@ class Crank(AbstractGroup):
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         link = self.links[0]
-        frame = frame_from_rotation(placed.local(link, self.pivot), placed.point(self.pivot), rotation(q))
+        frame = frame_from_rotation_xy(placed.local(link, self.pivot), placed.xy(self.pivot), V2(jnp.cos(q), jnp.sin(q)))
         return {link: frame}, jnp.array(True)
 
 
@@ -59,9 +59,9 @@ class Slider(AbstractGroup):
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         link = self.links[0]
-        u = unit(self.direction)
-        position = placed.point(self.guide_point) + q * u
-        frame = frame_from_rotation(placed.local(link, self.point), position, u)
+        u = V2.of(self.direction).unit()
+        position = placed.xy(self.guide_point) + u * q
+        frame = frame_from_rotation_xy(placed.local(link, self.point), position, u)
         return {link: frame}, jnp.array(True)
 
 

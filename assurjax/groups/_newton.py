@@ -66,7 +66,8 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int) ->
     Returns (z, ok); z is finite even when the solve fails (then z0 is returned)."""
     step_tol, f_tol = _tolerances(z0.dtype)
     solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=lx.LU())
-    sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, throw=False)
+    adjoint = optx.ImplicitAdjoint(linear_solver=lx.LU())
+    sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
     finite = jnp.all(jnp.isfinite(sol.value))
     z = jnp.where(finite, sol.value, z0)
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
@@ -83,21 +84,22 @@ def _tangent(residual: Callable, z: Array, args_at: Callable, q: Array) -> Array
 
 
 def continuation(residual: Callable, z_start: Array, args_at: Callable, q_start: Array, q_end: Array, *, substeps: int, max_steps: int):
-    """Follow the root of ``residual(z, args_at(q))`` from (q_start, z_start) towards
-    q_end in ``substeps`` equal steps; returns the tangent prediction at q_end
-    (not yet corrected there) and whether every intermediate correction converged."""
+    """Follow the root of ``residual(z, args_at(q))`` from q_start (where ``z_start``
+    is an approximate root: it is corrected first) towards q_end in ``substeps``
+    equal steps. Returns the tangent prediction at q_end (not yet corrected there)
+    and whether every correction converged."""
     dq = (q_end - q_start) / substeps
 
     def step(k, carry):
-        z, ok = carry
-        q_prev = q_start + k * dq
-        guess = z + _tangent(residual, z, args_at, q_prev) * dq
-        z_new, ok_new = newton_solve(residual, guess, args_at(q_prev + dq), max_steps=max_steps)
-        return z_new, ok & ok_new
+        # step 0 corrects the starting guess in place; later steps predict along the tangent first
+        z, _, ok = carry
+        q_k = q_start + k * dq
+        z_new, ok_new = newton_solve(residual, z, args_at(q_k), max_steps=max_steps)
+        t = _tangent(residual, z_new, args_at, q_k)
+        return z_new + t * dq, z_new, ok & ok_new
 
-    z, ok = jax.lax.fori_loop(0, substeps - 1, step, (z_start, jnp.array(True)))
-    q_last = q_start + (substeps - 1) * dq
-    return z + _tangent(residual, z, args_at, q_last) * dq, ok
+    predicted, _, ok = jax.lax.fori_loop(0, substeps, step, (z_start, z_start, jnp.array(True)))
+    return predicted, ok
 
 
 def _stop(tree):
@@ -173,12 +175,10 @@ class IterativeGroup(AbstractGroup):
         q_ref = jnp.asarray(self.guess_q, dtype=q.dtype)
         ext_ref, _ = args_at(q_ref)
         z_guess = self.angles_from_guess(_stop(self.guess), ext_ref, geo)
-        z_ref, ok_ref = newton_solve(residual, z_guess, (ext_ref, geo), max_steps=self.max_steps)
         delta = q - q_ref
         if mechanism.driver.kind == "crank":
             delta = wrap_angle(delta)
-        z, ok = continuation(residual, z_ref, args_at, q_ref, q_ref + delta, substeps=self.substeps, max_steps=self.max_steps)
-        return z, ok_ref & ok
+        return continuation(residual, z_guess, args_at, q_ref, q_ref + delta, substeps=self.substeps, max_steps=self.max_steps)
 
     def check_guess(self) -> None:
         missing = [p for p in self.internal_points() if p not in self.guess]

@@ -4,8 +4,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import dot
-from ._base import AbstractGroup, Link, Placement, frame_from_rotation
+from ._base import AbstractGroup, Link, Placement, frame_from_rotation_xy
 from ._guides import guide_line
 
 
@@ -36,11 +35,11 @@ class PRP(AbstractGroup):
         (s1, s2), j = self.links, self.joint
         b1, u1, _ = guide_line(placed, self.guide_points[0], self.directions[0], self.offsets[0])
         b2, u2, n2 = guide_line(placed, self.guide_points[1], self.directions[1], self.offsets[1])
-        denom = dot(n2, u1)
+        denom = n2.dot(u1)
         ok = jnp.abs(denom) > 1e-12
-        pj = b1 + (dot(n2, b2 - b1) / jnp.where(ok, denom, 1.0)) * u1
+        pj = b1 + u1 * (n2.dot(b2 - b1) / jnp.where(ok, denom, 1.0))
         frames = {
-            s1: frame_from_rotation(links[s1].points[j], pj, u1),
-            s2: frame_from_rotation(links[s2].points[j], pj, u2),
+            s1: frame_from_rotation_xy(links[s1].points[j], pj, u1),
+            s2: frame_from_rotation_xy(links[s2].points[j], pj, u2),
         }
         return frames, ok

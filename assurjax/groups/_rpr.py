@@ -5,8 +5,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import relative_rotation, rotate, safe_norm, safe_sqrt, unit
-from ._base import AbstractGroup, Link, Placement, frame_from_rotation
+from .._geometry import V2, safe_sqrt
+from ._base import AbstractGroup, Link, Placement, frame_from_rotation_xy
 
 
 class RPR(AbstractGroup):
@@ -35,19 +35,21 @@ class RPR(AbstractGroup):
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (block, guide), (e1, e2) = self.links, self.joints
-        p1, p2 = placed.point(e1), placed.point(e2)
+        p1, p2 = placed.xy(e1), placed.xy(e2)
         d = p1 - p2
-        r = safe_norm(d)
-        ratio = self.offset / jnp.where(r > 0.0, r, 1.0)
+        r2 = d.dot(d)
+        inv_r = jnp.where(r2 > 0.0, 1.0 / jnp.sqrt(jnp.where(r2 > 0.0, r2, 1.0)), 0.0)  # 1/|E1 - E2|, one division
+        ratio = self.offset * inv_r
         eps = jnp.finfo(ratio.dtype).eps
-        ok = (r > 0.0) & (jnp.abs(ratio) <= 1.0 + 16.0 * eps)  # |ratio| = 1 up to rounding: singular, not a failure
+        ok = (r2 > 0.0) & (jnp.abs(ratio) <= 1.0 + 16.0 * eps)  # |ratio| = 1 up to rounding: singular, not a failure
         # guide direction u: d turned by -asin(ratio) (mode +1) or by pi + asin(ratio) (mode -1)
         s = jnp.clip(jnp.where(ok, ratio, 0.0), -1.0, 1.0)
         c = safe_sqrt(1.0 - s**2, 1.0 - s**2 > 16.0 * eps)  # finite derivative at |ratio| = 1
-        u = self.mode * rotate(d / jnp.where(r > 0.0, r, 1.0), jnp.stack([c, -self.mode * s]))
+        u = (d * (self.mode * inv_r)).rotate(V2(c, -self.mode * s))
+        w = V2.of(self.direction).unit()  # the guide link's rotation takes w onto u: u * conj(w)
         frames = {
-            block: frame_from_rotation(links[block].points[e1], p1, u),
-            guide: frame_from_rotation(links[guide].points[e2], p2, relative_rotation(unit(self.direction), u)),
+            block: frame_from_rotation_xy(links[block].points[e1], p1, u),
+            guide: frame_from_rotation_xy(links[guide].points[e2], p2, V2(u.dot(w), w.cross(u))),
         }
         return frames, ok
 

@@ -6,7 +6,7 @@ end first; the geometry is the same."""
 import equinox as eqx
 from jaxtyping import Array
 
-from ._base import AbstractGroup, Link, Placement, distance, frame_from_rotation, frame_through
+from ._base import AbstractGroup, Link, Placement, distance, frame_from_rotation_xy, frame_through_xy
 from ._guides import guide_line, line_circle
 
 
@@ -38,11 +38,11 @@ class RRP(AbstractGroup):
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (rod, slider), (e, j) = self.links, self.joints
         base, u, n = guide_line(placed, self.guide_point, self.direction, self.offset)
-        pe = placed.point(e)
+        pe = placed.xy(e)
         pj, ok = line_circle(base, u, n, pe, distance(links, rod, e, j), self.mode)
         frames = {
-            rod: frame_through(links[rod].points[e], links[rod].points[j], pe, pj),
-            slider: frame_from_rotation(links[slider].points[j], pj, u),
+            rod: frame_through_xy(links[rod].points[e], links[rod].points[j], pe, pj),
+            slider: frame_from_rotation_xy(links[slider].points[j], pj, u),
         }
         return frames, ok
 

@@ -5,24 +5,24 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import dot, perp, safe_sqrt
-from ._base import AbstractGroup, Link, Placement, distance, frame_through
+from .._geometry import V2, safe_sqrt
+from ._base import AbstractGroup, Link, Placement, distance, frame_through_xy
 
 
-def circle_circle(c1: Array, r1: Array, c2: Array, r2: Array, mode: int):
-    """Intersection of two circles; ``mode`` = +1 takes the point left of the
-    directed line c1 -> c2, -1 the one on its right. Returns (point, ok)."""
+def circle_circle(c1: V2, r1: Array, c2: V2, r2: Array, mode: int):
+    """Intersection of two circles (centres as :class:`V2`); ``mode`` = +1 takes the
+    point left of the directed line c1 -> c2, -1 the one on its right. Returns (point, ok)."""
     d = c2 - c1
-    dd = dot(d, d)
-    dd_safe = jnp.where(dd > 0.0, dd, 1.0)
-    along = (dd + r1**2 - r2**2) / (2.0 * dd_safe)  # as a fraction of |d|
-    h2 = r1**2 / dd_safe - along**2  # squared height, also as a fraction of |d|
+    dd = d.dot(d)
+    inv = 1.0 / jnp.where(dd > 0.0, dd, 1.0)  # one division, reused (divisions are costly)
+    along = (dd + r1**2 - r2**2) * (0.5 * inv)  # as a fraction of |d|
+    h2 = r1**2 * inv - along**2  # squared height, also as a fraction of |d|
     # at a stretched or folded dyad h2 = 0 up to rounding: accept it (a singular
     # configuration, not a failure) and keep the sqrt's derivative finite there
-    tol = 16.0 * jnp.finfo(h2.dtype).eps * (r1**2 + r2**2) / dd_safe
+    tol = 16.0 * jnp.finfo(h2.dtype).eps * (r1**2 + r2**2) * inv
     ok = (h2 >= -tol) & (dd > 0.0)
     h = safe_sqrt(h2, h2 > tol)
-    return c1 + along * d + mode * h * perp(d), ok
+    return c1 + d * along + d.perp() * (mode * h), ok
 
 
 class RRR(AbstractGroup):
@@ -44,10 +44,10 @@ class RRR(AbstractGroup):
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (a, b), (e1, e2, j) = self.links, self.joints
-        p1, p2 = placed.point(e1), placed.point(e2)
+        p1, p2 = placed.xy(e1), placed.xy(e2)
         pj, ok = circle_circle(p1, distance(links, a, e1, j), p2, distance(links, b, e2, j), self.mode)
         frames = {
-            a: frame_through(links[a].points[e1], links[a].points[j], p1, pj),
-            b: frame_through(links[b].points[e2], links[b].points[j], p2, pj),
+            a: frame_through_xy(links[a].points[e1], links[a].points[j], p1, pj),
+            b: frame_through_xy(links[b].points[e2], links[b].points[j], p2, pj),
         }
         return frames, ok

@@ -286,3 +286,9 @@ def _outputs(f: Fields, mechanism: Mechanism) -> dict:
     values = dict(points=points, angles=angles, reactions=reactions, energies=f.boolean("energies", True))
     extra = {k: v for k, v in f.table.items() if k not in values}
     return {**values, **extra}
+
+
+# The [[loads]] tables (imported last: the parser uses Fields above).
+from ._loads_table import parse_loads as _parse_loads  # noqa: E402
+
+LOAD_PARSER.append(_parse_loads)

@@ -1,0 +1,142 @@
+"""The [[loads]] tables of a scene file (see docs/scene-format.md, "Loads").
+
+No code is evaluated: a load value is a number, or one of the documented forms
+``{ polynomial = [c0, c1, ...], variable = "q" }`` and
+``{ x = [...], values = [...], variable = "q", period = 6.283185307179586 }``.
+"""
+
+from __future__ import annotations
+
+from .. import _loads
+from .._errors import MechanismError, SceneError
+from .._mechanism import Mechanism
+from ._load import Fields
+
+FORM_KEYS = {"polynomial", "x", "values", "variable", "period"}
+
+
+def _value(f: Fields, key: str, default=...):
+    """A number, a polynomial or a table."""
+    v = f.raw(key, default)
+    if isinstance(v, bool):
+        f.fail(key, f"expected a number or a table, got {v!r}")
+    if isinstance(v, (int, float)):
+        return float(v)
+    if not isinstance(v, dict):
+        f.fail(key, f"expected a number, {{ polynomial = [...] }} or {{ x = [...], values = [...] }}, got {v!r}")
+    extra = sorted(set(v) - FORM_KEYS)
+    if extra:
+        f.fail(key, f"unknown entries {extra} (allowed: {sorted(FORM_KEYS)})")
+    variable = v.get("variable", "q")
+    if variable not in _loads.VARIABLES:
+        f.fail(key, f"variable must be one of {list(_loads.VARIABLES)}, got {variable!r}")
+    if "polynomial" in v:
+        coefficients = v["polynomial"]
+        if not _numbers(coefficients) or not coefficients:
+            f.fail(key, f"polynomial must be a non-empty list of numbers (c0, c1, ...), got {coefficients!r}")
+        return _loads.Polynomial(coefficients, variable)
+    x, values, period = v.get("x"), v.get("values"), v.get("period")
+    if not (_numbers(x) and _numbers(values) and len(x) == len(values) >= 2):
+        f.fail(key, f"a table needs lists 'x' and 'values' of the same length >= 2, got x = {x!r}, values = {values!r}")
+    if any(b <= a for a, b in zip(x, x[1:])):
+        f.fail(key, "table 'x' must be strictly increasing")
+    if period is not None and (isinstance(period, bool) or not isinstance(period, (int, float)) or period <= 0):
+        f.fail(key, f"period must be a positive number, got {period!r}")
+    return _loads.Table(x, values, variable, None if period is None else float(period))
+
+
+def _numbers(v) -> bool:
+    return isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+
+
+def _point(f: Fields, key: str, mechanism: Mechanism) -> str:
+    p = f.string(key)
+    if p not in mechanism.point_names:
+        f.fail(key, f"unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    return p
+
+
+def _link(f: Fields, key: str, mechanism: Mechanism, default=...) -> str | None:
+    link = f.string(key, default) if default is ... or f.has(key) else default
+    if link is not None and link not in mechanism.links:
+        f.fail(key, f"unknown link '{link}' (known: {sorted(mechanism.links)})")
+    return link
+
+
+def _two_points(f: Fields, mechanism: Mechanism) -> tuple[str, str]:
+    a, b = f.names("points", 2)
+    for p in (a, b):
+        if p not in mechanism.point_names:
+            f.fail("points", f"unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    if a == b:
+        f.fail("points", f"both ends are point '{a}'")
+    return a, b
+
+
+def _force(f, mechanism):
+    point = _point(f, "point", mechanism)
+    raw = f.raw("force")
+    if not (isinstance(raw, list) and len(raw) == 2):
+        f.fail("force", f"expected [fx, fy] (numbers or value forms), got {raw!r}")
+    components = [_value(Fields({"fx": raw[0], "fy": raw[1]}, f.where + ", field 'force'", f.source), k) for k in ("fx", "fy")]
+    force = components if all(isinstance(c, float) for c in components) else _loads.Vector(*components)
+    return _loads.PointForce(point, force, link=_link(f, "link", mechanism, None))
+
+
+def _couple(f, mechanism):
+    return _loads.Couple(_link(f, "link", mechanism), _value(f, "moment"))
+
+
+def _spring(f, mechanism):
+    a, b = _two_points(f, mechanism)
+    return _loads.Spring(a, b, f.number("stiffness", nonnegative=True), f.number("free_length", 0.0, nonnegative=True))
+
+
+def _damper(f, mechanism):
+    a, b = _two_points(f, mechanism)
+    return _loads.Damper(a, b, f.number("coefficient", nonnegative=True))
+
+
+def _rotary_damper(f, mechanism):
+    return _loads.RotaryDamper(_point(f, "joint", mechanism), f.number("coefficient", nonnegative=True))
+
+
+def _drive(f, mechanism):
+    return _loads.Drive(_value(f, "value"))
+
+
+def _motor(f, mechanism):
+    return _loads.MotorLine(f.number("stall"), f.number("no_load_speed", positive=True))
+
+
+PARSERS = {
+    "force": _force,
+    "couple": _couple,
+    "spring": _spring,
+    "damper": _damper,
+    "rotary_damper": _rotary_damper,
+    "drive": _drive,
+    "motor": _motor,
+}
+
+
+def parse_loads(raw, mechanism: Mechanism, source: str) -> tuple:
+    """The scene's [[loads]] array of tables as a tuple of load objects."""
+    if not isinstance(raw, list):
+        raise SceneError(f"{source}: [[loads]] must be an array of tables, got {type(raw).__name__}")
+    loads = []
+    for i, table in enumerate(raw):
+        kind = table.get("type") if isinstance(table, dict) else None
+        where = f"[[loads]] #{i + 1}"
+        if kind not in PARSERS:
+            raise SceneError(f"{source}: {where}, field 'type': unknown load type {kind!r} (known: {', '.join(PARSERS)})")
+        f = Fields(table, f"{where} ({kind})", source)
+        f.raw("type")
+        load = PARSERS[kind](f, mechanism)
+        f.reject_unknown()
+        try:
+            load.check(mechanism)
+        except MechanismError as e:
+            raise SceneError(f"{source}: {where} ({kind}): {e}") from None
+        loads.append(load)
+    return tuple(loads)

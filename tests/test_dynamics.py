@@ -1,0 +1,251 @@
+"""Forward dynamics (simulate) against the joint-based reference, energy balances,
+closed forms and convergence orders. One compile per settings: the runs below
+share settings so that the suite stays fast."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax as aj
+from assurjax._dynamics import LOCKUP, STANDSTILL
+
+import joint_reference as ref
+
+TIGHT = dict(rtol=1e-12, atol=1e-12, max_steps=20000)
+TS = np.linspace(0.0, 2.0, 21)
+
+
+# ----------------------------------------------------------------------------- scenes
+
+
+@pytest.fixture(scope="module")
+def watt():
+    return aj.load_scene("watt_sixbar")
+
+
+def _bar(a, b, length, mass, inertia=None, **extra):
+    """A uniform bar from point a (local origin) to point b on the local x axis."""
+    inertia = mass * length**2 / 12 if inertia is None else inertia
+    return dict(points={a: [0.0, 0.0], b: [length, 0.0], **extra}, com=[length / 2, 0.0], mass=mass, inertia=inertia)
+
+
+def slider_driven_scene():
+    """The reference's slider-driven rocker: q = x of the pin B on the x axis."""
+    d = ref.SLIDER_DRIVEN
+    return aj.scene_from_dict(dict(
+        scene=dict(name="slider_driven", gravity=[0.0, -9.81]),
+        ground=dict(G=[0.0, 0.0], O3=list(d["O3"])),
+        links=dict(
+            slider=dict(points=dict(B=[0.0, 0.0]), com=[0.0, 0.0], mass=d["m_slider"], inertia=0.0),
+            rod=_bar("B", "C", d["L_rod"], d["m_rod"]),
+            rocker=_bar("O3", "C", d["L_rocker"], d["m_rocker"]),
+        ),
+        formation=[
+            dict(group="slider", name="slider", link="slider", point="B", guide_point="G", direction=[1.0, 0.0]),
+            dict(group="RRR", name="dyad", links=["rod", "rocker"], joints=["B", "O3", "C"], mode="left"),
+        ],
+    ))
+
+
+def four_bar_scene(stall, no_load_speed, damping, **geometry):
+    """The reference's crank-rocker with a motor line and a translational damper
+    from a ground point to the coupler's midpoint M (gravity along -y)."""
+    d = {**ref.FOUR_BAR, **geometry}
+    return aj.scene_from_dict(dict(
+        scene=dict(name="four_bar_motor", gravity=[0.0, -9.81]),
+        ground=dict(O2=list(d["O2"]), O4=list(d["O4"]), P=list(d["damper_anchor"])),
+        links=dict(
+            crank=_bar("O2", "A", d["L2"], d["m2"]),
+            coupler=_bar("A", "B", d["L3"], d["m3"], M=[d["L3"] / 2, 0.0]),
+            rocker=_bar("O4", "B", d["L4"], d["m4"]),
+        ),
+        formation=[
+            dict(group="crank", name="crank", link="crank", pivot="O2"),
+            dict(group="RRR", name="dyad", links=["coupler", "rocker"], joints=["A", "O4", "B"], mode="left"),
+        ],
+        loads=[
+            dict(type="motor", stall=stall, no_load_speed=no_load_speed),
+            dict(type="damper", points=["P", "M"], coefficient=damping),
+        ],
+    ))
+
+
+# ----------------------------------------------------------------------------- Watt six-bar
+
+
+@pytest.mark.parametrize("theta0", [0.0, 0.6, -1.2])
+def test_watt_matches_joint_reference(watt, theta0):
+    sol = aj.simulate(watt, q0=theta0, stop=None, t1=2.0, saveat=TS, energies=True, **TIGHT)
+    r = ref.watt_sixbar(theta0).simulate(2.0, t_eval=TS)
+    assert sol.status.startswith("reached t1")
+    np.testing.assert_allclose(sol.t, TS, atol=1e-12)
+    np.testing.assert_allclose(sol.q, r.q, atol=1e-8, rtol=0)
+    np.testing.assert_allclose(sol.omega, r.w, atol=1e-8, rtol=0)
+    np.testing.assert_allclose(sol.domega, r.wdot, atol=1e-7, rtol=1e-9)
+    # energies: T from the reference's body velocities, V from its COM heights
+    np.testing.assert_allclose(sol.kinetic, r.T, atol=1e-8)
+    assert np.ptp(sol.total) < 1e-9 * np.max(np.abs(sol.kinetic))
+    np.testing.assert_allclose(np.asarray(sol.potential) - sol.potential[0], r.V - r.V[0], atol=1e-8)
+    assert np.all(np.isfinite(sol.q)) and sol.t_stop is None
+
+
+def test_watt_standstill_matches_joint_reference(watt):
+    sol = aj.simulate(watt, q0=0.0, stop="standstill", t1=5.0, **TIGHT)
+    r = ref.watt_sixbar(0.0).simulate(5.0, standstill=0)
+    t_ref = r.t_events[0]
+    assert sol.event == STANDSTILL and sol.status.startswith("standstill")
+    assert abs(sol.t_stop - t_ref) < 1e-8
+    assert abs(sol.t[-1] - t_ref) < 1e-8 and abs(sol.q[-1] - r.q[-1]) < 1e-8
+    assert abs(sol.omega[-1]) < 1e-8
+    # the outputs the scene asks for are there, and end at the stop
+    assert set(sol.points) == {"A", "B", "E"} and sol.points["E"].shape == (len(sol.t), 2)
+    assert np.all(np.isfinite(sol.points["E"]))
+
+
+def test_watt_standstill_from_the_scene_defaults(watt):
+    """The bundled scene says stop = "standstill": falling from rest it swings to a stop;
+    from rest a standstill is where T returns to 0, so V(q_stop) = V(q0)."""
+    sol = aj.simulate(watt, **TIGHT, energies=True, stop="standstill", t1=5.0)
+    assert sol.t_stop is not None and 1.0 < sol.t_stop < 2.0
+    assert abs(sol.potential[-1] - sol.potential[0]) < 1e-9
+
+
+def test_simulate_is_jittable_and_vmappable(watt):
+    import equinox as eqx
+
+    settings = aj.SimulationSettings(samples=3, check_assembly=False, rtol=1e-10, atol=1e-10)
+    core = eqx.filter_jit(eqx.filter_vmap(
+        lambda q0: aj.simulate_core(watt.mechanism, watt.gravity, (), q0, 0.0, 0.0, 0.5, settings=settings)))
+    q0s = jnp.array([0.0, 0.6, -1.2])
+    sols = core(q0s)
+    for k, theta0 in enumerate(np.asarray(q0s)):
+        r = ref.watt_sixbar(theta0).simulate(0.5, t_eval=[0.0, 0.25, 0.5])
+        np.testing.assert_allclose(sols.q[k], r.q, atol=1e-7)
+
+
+# ----------------------------------------------------------------------------- other drivers and loads
+
+
+def test_slider_driver_matches_joint_reference():
+    scene = slider_driven_scene()
+    ts = np.linspace(0.0, 1.0, 11)
+    sol = aj.simulate(scene, q0=0.17, omega0=0.0, stop=None, t1=1.0, saveat=ts, **TIGHT)
+    r = ref.slider_driven(0.17).simulate(1.0, t_eval=ts)
+    np.testing.assert_allclose(sol.q, r.q, atol=1e-8, rtol=0)
+    np.testing.assert_allclose(sol.omega, r.w, atol=1e-8, rtol=0)
+
+
+@pytest.fixture(scope="module")
+def four_bar_runs():
+    """Motor + damper, and the same with the motor switched off (energy balance);
+    one compile for both (the loads have the same structure)."""
+    ts = np.linspace(0.0, 1.5, 16)
+    out = {}
+    for stall in (ref.FOUR_BAR["T_stall"], 0.0):
+        scene = four_bar_scene(stall, ref.FOUR_BAR["w_noload"], ref.FOUR_BAR["damper_c"])
+        out[stall] = aj.simulate(scene, q0=0.3, omega0=0.0, stop=None, t1=1.5, saveat=ts, energies=True, **TIGHT)
+    return ts, out
+
+
+def test_motor_line_and_damper_match_joint_reference(four_bar_runs):
+    ts, runs = four_bar_runs
+    sol = runs[ref.FOUR_BAR["T_stall"]]
+    r = ref.four_bar_motor(0.3).simulate(1.5, t_eval=ts)
+    np.testing.assert_allclose(sol.q, r.q, atol=1e-8, rtol=0)
+    np.testing.assert_allclose(sol.omega, r.w, atol=1e-8, rtol=0)
+    assert sol.omega[-1] > 1.0  # the motor drives the crank round
+
+
+def test_energy_lost_equals_damper_work(four_bar_runs):
+    ts, runs = four_bar_runs
+    sol = runs[0.0]
+    lost = sol.total[0] - np.asarray(sol.total)
+    assert np.max(lost) > 1e-2  # the damper does work
+    np.testing.assert_allclose(lost, sol.dissipated, atol=1e-9)
+    # and the dissipated work agrees with the reference's damper work
+    r = ref.four_bar_motor(0.3, T_stall=0.0).simulate(1.5, t_eval=ts)
+    np.testing.assert_allclose(sol.dissipated, -r.work, atol=1e-8)
+
+
+# ----------------------------------------------------------------------------- lock-up and bad input
+
+
+def test_lockup_stops_with_a_clear_result():
+    """A triple-rocker (non-Grashof) four-bar swings into its limit position: the dyad
+    cannot assemble beyond it. The run stops there, names the group, no NaN."""
+    scene = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    sol = aj.simulate(scene, q0=0.9, omega0=-6.0, stop=None, t1=3.0, rtol=1e-8, atol=1e-8)
+    for v in (sol.t, sol.q, sol.omega, sol.domega):
+        assert np.all(np.isfinite(v))
+    assert sol.event in (LOCKUP, STANDSTILL) or "assemble" in sol.status
+    if sol.event == LOCKUP:
+        assert sol.failed_group == "dyad" and "dyad" in sol.status
+        # the dyad is stretched at its limit: |A - O4| = L3 + L4
+        pose = aj.positions(scene.mechanism, sol.q[-1] + 1e-7 * np.sign(sol.omega[-1] or 1.0))
+        a = np.asarray(aj.positions(scene.mechanism, sol.q[-1]).points["A"])
+        assert abs(np.hypot(*(a - np.array([0.5, 0.0]))) - 0.6) < 1e-6 or not bool(np.all(pose.ok))
+    assert sol.t[-1] < 3.0
+
+
+def test_unknown_point_in_a_load_is_a_clear_error(watt):
+    with pytest.raises(aj.AssurjaxError, match="unknown point 'Z'"):
+        aj.simulate(watt, loads=[aj.PointForce("Z", [1.0, 0.0])])
+
+
+def test_unknown_solver_and_output_are_clear_errors(watt):
+    with pytest.raises(aj.AssurjaxError, match="unknown solver"):
+        aj.simulate(watt, solver="rk99")
+    with pytest.raises(aj.AssurjaxError, match="unknown point 'Q'"):
+        aj.simulate(watt, points=["Q"])
+
+
+# ----------------------------------------------------------------------------- convergence orders
+
+
+def _watt_reference_at(t1, theta0=0.3):
+    return ref.watt_sixbar(theta0).simulate(t1, t_eval=[t1])
+
+
+@pytest.mark.parametrize("solver, order, steps", [("heun", 2, (0.02, 0.01, 0.005)), ("tsit5", 5, (0.1, 0.05, 0.025))])
+def test_fixed_step_solvers_show_their_order(watt, solver, order, steps):
+    r = _watt_reference_at(0.6)
+    errors = []
+    for dt in steps:
+        sol = aj.simulate(watt, q0=0.3, stop=None, t1=0.6, saveat=np.array([0.6]), solver=solver, dt=dt,
+                          check_assembly=False, energies=False, points=(), angles=())
+        errors.append(abs(sol.q[-1] - r.q[-1]))
+    slopes = np.diff(np.log(errors)) / np.diff(np.log(steps))
+    assert np.all(np.abs(slopes - order) < 0.5), (errors, slopes)
+
+
+def _watt_energy_speed(q, theta0):
+    """|w| at q from energy conservation from rest at theta0: J_red(q) w^2 / 2 = V(theta0) - V(q),
+    J_red and V from the reference's closed-form positions (central differences)."""
+    m, J = ref.WATT["m"], ref.WATT["J"]
+    L = dict(crank=1.0, coupler=1.5, rocker=1.5, link5=1.0, link6=1.0)
+    start = dict(crank="O2", coupler="A", rocker="O4", link5="C", link6="D")
+
+    def coms(th):
+        pts, ang = ref.watt_sixbar_points(th)
+        return {b: pts[start[b]] + L[b] / 2 * np.array([np.cos(ang[b]), np.sin(ang[b])]) for b in L}, ang
+
+    def potential(th):
+        return sum(m[b] * 9.81 * c[1] for b, c in coms(th)[0].items())
+
+    h = 1e-6
+    (cp, ap), (cm, am) = coms(q + h), coms(q - h)
+    jred = sum(m[b] * np.sum(((cp[b] - cm[b]) / (2 * h)) ** 2) + J[b] * ((ap[b] - am[b]) / (2 * h)) ** 2 for b in L)
+    return np.sqrt(2 * (potential(theta0) - potential(q)) / jred)
+
+
+def test_seed_euler_baseline_converges_with_order_one(watt):
+    q_target = -1.0  # reached from rest at 0 while falling
+    exact = _watt_energy_speed(q_target, 0.0)
+    errors, steps = [], (4e-3, 2e-3, 1e-3)
+    for dq in steps:
+        base = aj.simulate_seed_euler(watt.mechanism, watt.gravity, (), 0.0, 0.0, t1=5.0, dq=dq, max_steps=2000)
+        q, w = np.asarray(base.q), np.asarray(base.omega)
+        assert q[-1] < q_target
+        errors.append(abs(np.interp(q_target, q[::-1], np.abs(w[::-1])) - exact))
+    slopes = np.diff(np.log(errors)) / np.diff(np.log(steps))
+    assert np.all(np.abs(slopes - 1.0) < 0.25), (errors, slopes)

@@ -1,0 +1,366 @@
+"""Iterative Assur groups (class III triad, class IV group): closure, derivatives,
+branch continuity, failure reporting, and an independent solution of the loop equations.
+
+The references here are written from the definitions only, with numpy/scipy:
+
+- the raw scene files are read with ``tomllib`` (link lengths and local points);
+- the loop equations are written in global joint coordinates (lengths, and for the
+  ternary links the dot and cross products of their two sides, which fix a rigid
+  triangle including its orientation) and solved with ``scipy.optimize.fsolve``,
+  tracked along the crank revolution from the scene's guess in small steps;
+- rigidity: every point of every link, placed from the link's centre of mass and
+  angle, coincides with the point the package reports (the revolute constraints);
+- velocities, accelerations and design gradients against central finite differences.
+"""
+
+import tomllib
+from importlib import resources
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import fsolve
+
+import assurjax
+
+SCENES = ("triad_mechanism", "class4_seed003")
+TOL = 1e-12  # closure residuals (m); links are 0.1 - 0.6 m long
+Q_KIN = np.linspace(-3.0, 3.0, 7)  # one shape for every kinematics() call: one compile per scene
+
+
+# ----------------------------------------------------------------------------- helpers
+def raw_scene(name):
+    return tomllib.loads((resources.files("assurjax.scenes") / f"{name}.toml").read_text())
+
+
+def rot(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def cross(a, b):
+    return a[0] * b[1] - a[1] * b[0]
+
+
+class LoopEquations:
+    """The loop equations of a scene's iterative group in global joint coordinates
+    (numpy), with the crank angle q as parameter. Unknowns: the internal joints."""
+
+    def __init__(self, name):
+        raw = raw_scene(name)
+        self.ground = {k: np.array(v) for k, v in raw["ground"].items()}
+        self.links = {k: {p: np.array(v) for p, v in t["points"].items()} for k, t in raw["links"].items()}
+        driver, group = raw["formation"]
+        self.crank, self.pivot = driver["link"], driver["pivot"]
+        self.kind, self.group_links, self.joints = group["group"], group["links"], group["joints"]
+        self.guess = {p: np.array(v) for p, v in group["guess"].items()}
+        self.q0 = raw["state"]["q0"]
+        self.internal = self.joints[3:] if self.kind == "triad" else self.joints[2:]
+
+    def crank_point(self, name, q):
+        local = self.links[self.crank]
+        return self.ground[self.pivot] + rot(q) @ (local[name] - local[self.pivot])
+
+    def external(self, name, q):
+        return self.ground[name] if name in self.ground else self.crank_point(name, q)
+
+    def length(self, link, a, b):
+        d = self.links[link][a] - self.links[link][b]
+        return d @ d
+
+    def rigid_triangle(self, link, o, a, b, po, pa, pb):
+        """|oa|^2, oa.ob and oa x ob of the link, in global minus local form."""
+        pts = self.links[link]
+        la, lb = pts[a] - pts[o], pts[b] - pts[o]
+        ga, gb = pa - po, pb - po
+        return [ga @ ga - la @ la, ga @ gb - la @ lb, cross(ga, gb) - cross(la, lb)]
+
+    def residual(self, x, q):
+        pts = dict(zip(self.internal, x.reshape(-1, 2)))
+        if self.kind == "triad":
+            t, l1, l2, l3 = self.group_links
+            e1, e2, e3, p1, p2, p3 = self.joints
+            out = self.rigid_triangle(t, p1, p2, p3, pts[p1], pts[p2], pts[p3])
+            for link, e, p in ((l1, e1, p1), (l2, e2, p2), (l3, e3, p3)):
+                d = pts[p] - self.external(e, q)
+                out.append(d @ d - self.length(link, e, p))
+        else:
+            l2, l3, l4, l5 = self.group_links
+            b, g, c, d, e, f = self.joints
+            out = self.rigid_triangle(l2, b, e, c, self.external(b, q), pts[e], pts[c])
+            out += self.rigid_triangle(l4, g, d, f, self.external(g, q), pts[d], pts[f])
+            for link, u, v in ((l3, c, d), (l5, e, f)):
+                w = pts[u] - pts[v]
+                out.append(w @ w - self.length(link, u, v))
+        return np.array(out)
+
+    def track(self, qs):
+        """Solutions at the increasing angles ``qs`` (which contain q0), each step started
+        from the previous solution extrapolated linearly: the branch of the guess."""
+        qs = np.asarray(qs)
+        i0 = int(np.argmin(abs(qs - self.q0)))
+        assert abs(qs[i0] - self.q0) < 1e-12
+        start = np.concatenate([self.guess[p] for p in self.internal])
+        out = np.zeros((len(qs), start.size))
+        out[i0] = fsolve(self.residual, start, args=(qs[i0],), xtol=1e-12)
+        for direction in (1, -1):
+            prev = prev2 = out[i0]
+            for i in range(i0 + direction, len(qs) if direction > 0 else -1, direction):
+                guess = 2 * prev - prev2 if prev2 is not prev else prev
+                out[i] = fsolve(self.residual, guess, args=(qs[i],), xtol=1e-12)
+                assert np.max(abs(self.residual(out[i], qs[i]))) < 1e-12
+                prev2, prev = prev, out[i]
+        return {p: out[:, 2 * k : 2 * k + 2] for k, p in enumerate(self.internal)}
+
+
+def link_point_errors(mech, pose):
+    """Largest distance between a link's point placed rigidly from the link's centre of
+    mass and angle (numpy) and the package's global point: zero when every link is rigid
+    and every shared point (revolute) coincides."""
+    worst = 0.0
+    for name, link in mech.links.items():
+        angle = np.asarray(pose.angles[name])
+        com = np.asarray(pose.coms[name])
+        for p, local in link.points.items():
+            arm = np.asarray(local) - np.asarray(link.com)
+            placed = com + np.stack([np.cos(angle) * arm[0] - np.sin(angle) * arm[1], np.sin(angle) * arm[0] + np.cos(angle) * arm[1]], -1)
+            worst = max(worst, float(np.max(np.abs(placed - np.asarray(pose.points[p])))))
+    return worst
+
+
+def with_leaf(mech, where, value):
+    return eqx.tree_at(where, mech, jnp.asarray(value))
+
+
+# ----------------------------------------------------------------------------- fixtures
+CHUNK = 192  # every batch of q is cut into chunks of this size: one compile per mechanism structure
+
+
+@pytest.fixture(scope="module")
+def batch_positions():
+    """positions() over a 1-D array of q; the mechanism is an argument and the batch is
+    padded and chunked to a fixed size, so there is one compile per mechanism structure."""
+    chunk = eqx.filter_jit(jax.vmap(assurjax.positions, in_axes=(None, 0)))
+
+    def run(mech, qs):
+        qs = np.asarray(qs, dtype=float)
+        padded = np.concatenate([qs, np.full(-len(qs) % CHUNK, qs[0])])
+        parts = [chunk(mech, jnp.asarray(padded[i : i + CHUNK])) for i in range(0, len(padded), CHUNK)]
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[: len(qs)], *parts)
+
+    return run
+
+
+@pytest.fixture(scope="module", params=SCENES)
+def scene(request):
+    return assurjax.load_scene(request.param)
+
+
+# ----------------------------------------------------------------------------- tests
+def test_gruebler_and_kinds(scene):
+    """Both groups fit the Gruebler count from shared point names (4 links, 6 revolutes
+    each; with the crank: 5 moving links, 7 revolutes) and are registered kinds."""
+    from assurjax._mechanism import gruebler
+
+    mech = scene.mechanism
+    assert gruebler(mech.ground, mech.links, mech.groups) == (1, 5, 7)
+    kind = mech.groups[1].kind
+    assert assurjax.groups.KINDS[kind] is type(mech.groups[1])
+
+
+def test_closure_over_random_inputs(scene, batch_positions, rng):
+    """Random crank angles, on the bundled geometry and on randomly perturbed ones
+    (every local point and ground pivot moved by up to 2 mm): links rigid, joints closed."""
+    mech = scene.mechanism
+    qs = jnp.asarray(rng.uniform(-np.pi, np.pi, 16))
+    designs = [mech]
+    for _ in range(3):
+        leaves, tree = jax.tree.flatten(mech)
+        perturbed = [leaf + rng.uniform(-0.002, 0.002, np.shape(leaf)) if np.ndim(leaf) == 1 and np.shape(leaf) == (2,) else leaf for leaf in leaves]
+        designs.append(jax.tree.unflatten(tree, perturbed))
+    for design in designs:
+        pose = batch_positions(design, qs)
+        assert np.asarray(pose.ok).all()
+        for i in range(len(qs)):
+            single = jax.tree.map(lambda x: x[i], pose)
+            assert link_point_errors(design, single) < TOL
+
+
+def test_independent_loop_equations_along_revolution(scene, batch_positions):
+    """fsolve on the raw loop equations, tracked from the scene's guess over the whole
+    revolution, against positions() (continuation from the reference per q) and
+    positions_along() (one sweep): the same branch everywhere, to 1e-10 m."""
+    ref = LoopEquations(scene.name)
+    qs = ref.q0 + np.linspace(-np.pi, np.pi, 181)
+    expected = ref.track(qs)
+    pose = batch_positions(scene.mechanism, jnp.asarray(qs))
+    swept = eqx.filter_jit(assurjax.positions_along)(scene.mechanism, jnp.asarray(qs))
+    assert np.asarray(pose.ok).all() and np.asarray(swept.ok).all()
+    for p, xy in expected.items():
+        np.testing.assert_allclose(np.asarray(pose.points[p]), xy, atol=1e-10)
+        np.testing.assert_allclose(np.asarray(swept.points[p]), xy, atol=1e-10)
+
+
+def test_branch_continuity_full_revolution(scene, batch_positions):
+    """No jumps over a dense revolution: every step of every joint is below a Lipschitz
+    bound, 2 x (largest speed of that joint from central differences) x dq, and the
+    motion is periodic (q and q + 2 pi give the same pose)."""
+    n = 1441
+    qs = np.linspace(-np.pi, np.pi, n)
+    h = 1e-6
+    pose, plus, minus = (batch_positions(scene.mechanism, jnp.asarray(qs + d)) for d in (0.0, h, -h))
+    assert np.asarray(pose.ok).all()
+    dq = qs[1] - qs[0]
+    for p in pose.points:
+        x = np.asarray(pose.points[p])
+        speed = np.linalg.norm(np.asarray(plus.points[p]) - np.asarray(minus.points[p]), axis=-1) / (2 * h)
+        steps = np.linalg.norm(np.diff(x, axis=0), axis=-1)
+        assert steps.max() <= 2.0 * speed.max() * dq + 1e-12, p
+        np.testing.assert_allclose(x[0], x[-1], atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def kinematics_result(scene):
+    return assurjax.kinematics(scene.mechanism, jnp.asarray(Q_KIN))
+
+
+def test_velocities_and_accelerations_vs_finite_differences(scene, kinematics_result, batch_positions):
+    """kinematics() (nested jvp through the implicit Newton solve) against central
+    differences of positions: dx/dq to 1e-8, d2x/dq2 to 1e-6 (m per rad, rad per rad)."""
+    kin = kinematics_result
+    h = 1e-4
+    x0, xp, xm = (batch_positions(scene.mechanism, jnp.asarray(Q_KIN + d)) for d in (0.0, h, -h))
+    for p in kin.points:
+        fd1 = (np.asarray(xp.points[p]) - np.asarray(xm.points[p])) / (2 * h)
+        fd2 = (np.asarray(xp.points[p]) - 2 * np.asarray(x0.points[p]) + np.asarray(xm.points[p])) / h**2
+        np.testing.assert_allclose(np.asarray(kin.velocities[p]), fd1, atol=1e-8)
+        np.testing.assert_allclose(np.asarray(kin.accelerations[p]), fd2, atol=1e-6)
+    for link in kin.angles:
+        unwrap = lambda a: np.unwrap(np.stack([np.asarray(xm.angles[link]), np.asarray(x0.angles[link]), np.asarray(xp.angles[link])]), axis=0)  # noqa: E731
+        am, a0, ap = unwrap(None)
+        np.testing.assert_allclose(np.asarray(kin.angular_velocities[link]), (ap - am) / (2 * h), atol=1e-8)
+        np.testing.assert_allclose(np.asarray(kin.angular_accelerations[link]), (ap - 2 * a0 + am) / h**2, atol=1e-6)
+
+
+# Design variables per scene: (description, where-function into the mechanism, index in that leaf)
+DESIGN = {
+    "triad_mechanism": ("X", [
+        ("ground O5 x", lambda m: m.ground["O5"], 0),
+        ("L2 length", lambda m: m.links["L2"].points["P2"], 0),
+        ("T: P3 y", lambda m: m.links["T"].points["P3"], 1),
+        ("crank length", lambda m: m.links["crank"].points["A"], 0),
+    ]),
+    "class4_seed003": ("D", [
+        ("link3 length", lambda m: m.links["link3"].points["D"], 0),
+        ("link4: F y", lambda m: m.links["link4"].points["F"], 1),
+        ("ground G x", lambda m: m.ground["G"], 0),
+        ("link2: C y", lambda m: m.links["link2"].points["C"], 1),
+    ]),
+}
+
+
+def test_design_gradients_vs_finite_differences(scene):
+    """eqx.filter_grad of a point coordinate and of its kinematic coefficient (reverse mode
+    over a jvp, through the implicit solve) w.r.t. the link dimensions, against central
+    differences of the same quantities."""
+    point, variables = DESIGN[scene.name]
+    q = 0.7
+
+    @eqx.filter_jit
+    def objectives(mech):
+        coords = lambda q: assurjax.positions(mech, q, points=[point]).points[point]  # noqa: E731
+        x, dx = jax.jvp(coords, (jnp.asarray(q),), (jnp.asarray(1.0),))
+        return jnp.stack([x[0] + 0.5 * x[1], dx[0] - dx[1]])
+
+    weighted_grad = eqx.filter_jit(eqx.filter_grad(lambda m, w: w @ objectives(m)))  # one compile for both
+    grads = [weighted_grad(scene.mechanism, jnp.eye(2)[k]) for k in range(2)]
+    h = 1e-6
+    for label, where, index in variables:
+        leaf = np.asarray(where(scene.mechanism))
+        step = np.zeros_like(leaf)
+        step[index] = h
+        fd = (np.asarray(objectives(with_leaf(scene.mechanism, where, leaf + step))) - np.asarray(objectives(with_leaf(scene.mechanism, where, leaf - step)))) / (2 * h)
+        for k in range(2):
+            got = float(np.asarray(where(grads[k]))[index])
+            assert got == pytest.approx(fd[k], rel=1e-6, abs=1e-8), (label, k)
+
+
+CANNOT_ASSEMBLE = {
+    "triad_mechanism": ("triad", lambda m: m.links["L2"].points["P2"], 3.0),
+    "class4_seed003": ("class4", lambda m: m.links["link5"].points["F"], 5.0),
+}
+
+
+def test_cannot_assemble_is_reported(scene, batch_positions):
+    """A binary link made far too long: ok False for that group, finite values, and
+    kinematics() raises AssemblyError naming the group."""
+    group, where, factor = CANNOT_ASSEMBLE[scene.name]
+    broken = with_leaf(scene.mechanism, where, factor * np.asarray(where(scene.mechanism)))
+    pose = batch_positions(broken, jnp.asarray(Q_KIN))
+    ok = np.asarray(pose.ok)
+    assert ok[:, 0].all() and not ok[:, 1].any()
+    for leaf in jax.tree.leaves(pose):
+        assert np.isfinite(np.asarray(leaf)).all()
+    with pytest.raises(assurjax.AssemblyError, match=group) as info:
+        assurjax.kinematics(broken, jnp.asarray(Q_KIN))
+    assert info.value.group == group
+
+
+# Another assembly of each group at q0 (found by multi-start fsolve on the loop equations),
+# rounded to 1 cm: a guess, not an expected value.
+OTHER_BRANCH = {
+    "triad_mechanism": {"P1": [0.32, 0.19], "P2": [0.09, 0.47], "P3": [0.52, 0.47]},
+    "class4_seed003": {"C": [-0.13, 0.01], "D": [0.47, 0.11], "E": [0.12, 0.44], "F": [0.33, 0.23]},
+}
+
+
+def test_guess_selects_the_branch(scene, batch_positions):
+    """A guess near another assembly gives that assembly at q0 and follows it nearby
+    (against fsolve tracked from the same guess), distinct from the bundled branch."""
+    ref = LoopEquations(scene.name)
+    ref.guess = {p: np.array(v) for p, v in OTHER_BRANCH[scene.name].items()}
+    group = scene.mechanism.groups[1]
+    other = eqx.tree_at(lambda m: m.groups[1].guess, scene.mechanism, {p: jnp.asarray(v) for p, v in ref.guess.items()})
+    qs = ref.q0 + np.linspace(-0.2, 0.2, 5)
+    expected = ref.track(qs)
+    pose = batch_positions(other, jnp.asarray(qs))
+    bundled = batch_positions(scene.mechanism, jnp.asarray(qs))
+    assert np.asarray(pose.ok).all()
+    for p, xy in expected.items():
+        np.testing.assert_allclose(np.asarray(pose.points[p]), xy, atol=1e-10)
+    assert max(np.abs(np.asarray(pose.points[p]) - np.asarray(bundled.points[p])).max() for p in group.internal_points()) > 0.05
+
+
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        (lambda t: t.replace('guess = { P1 = [0.32, 0.19], P2 = [0.59, 0.43], P3 = [0.61, 0.0] }', 'guess = { P1 = [0.32, 0.19], P2 = [0.59, 0.43] }'), "guess"),
+        (lambda t: t.replace('guess = { P1 = [0.32, 0.19], P2 = [0.59, 0.43], P3 = [0.61, 0.0] }', 'guess = { P1 = [0.32, 0.19], P2 = [0.59, 0.43], P3 = "here" }'), "guess"),
+        (lambda t: t.replace('joints = ["A", "O5", "O6", "P1", "P2", "P3"]', 'joints = ["A", "O5", "P1", "P2", "P3"]'), "joints"),
+        (lambda t: t.replace('name = "triad"\n', 'name = "triad"\nsubsteps = 0\n'), "substeps"),
+    ],
+)
+def test_scene_errors_name_the_field(write_scene, edit, field):
+    text = (resources.files("assurjax.scenes") / "triad_mechanism.toml").read_text()
+    edited = edit(text)
+    assert edited != text
+    with pytest.raises(assurjax.SceneError, match=field) as info:
+        assurjax.load_scene(write_scene(edited))
+    assert "triad" in str(info.value)
+
+
+@pytest.mark.slow
+def test_hundred_thousand_crank_angles_in_one_call(batch_positions):
+    """positions() of 100 000 crank angles in one vmapped call: all assembled, and a
+    sample agrees with the independent loop equations."""
+    scene = assurjax.load_scene("triad_mechanism")
+    qs = np.linspace(-np.pi, np.pi, 100_000)
+    pose = batch_positions(scene.mechanism, jnp.asarray(qs))
+    assert np.asarray(pose.ok).all()
+    ref = LoopEquations(scene.name)
+    idx = np.arange(0, len(qs), 5000)
+    for i in idx:
+        x = fsolve(ref.residual, np.concatenate([np.asarray(pose.points[p][i]) for p in ref.internal]), args=(qs[i],), xtol=1e-12)
+        np.testing.assert_allclose(x, np.concatenate([np.asarray(pose.points[p][i]) for p in ref.internal]), atol=1e-10)

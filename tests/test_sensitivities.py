@@ -1,0 +1,189 @@
+"""Derivatives with respect to every mechanism parameter, checked against central finite differences.
+
+Every Jacobian J (reverse and forward mode) is compared with a Richardson-extrapolated
+central difference D of the same function over the flat parameter vector:
+max |J - D| <= 1e-6 max |D| (float64).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax import synthesis as syn
+from assurjax._reduction import reduce_single
+
+RTOL = 1e-6
+Q_SYMMETRIC = float(np.arccos(1.0 / 3.0))  # Roberts symmetric position (seed 001)
+Q_NEAR_TOGGLE = 1.565  # the Roberts dyad toggles at q ~ 1.5717: 7 mrad away
+
+
+def central_difference(f, theta, h):
+    """Richardson-extrapolated central difference of f at theta along every axis (O(h^4))."""
+    eye = jnp.eye(theta.size, dtype=theta.dtype)
+
+    def d(step):
+        plus = jax.vmap(lambda e: f(theta + step * e))(eye)
+        minus = jax.vmap(lambda e: f(theta - step * e))(eye)
+        return jnp.moveaxis((plus - minus) / (2 * step), 0, -1)
+
+    return (4 * d(h / 2) - d(h)) / 3
+
+
+def assert_close_jacobian(jac, fd, rtol=RTOL):
+    jac, fd = np.asarray(jac), np.asarray(fd)
+    assert np.all(np.isfinite(jac))
+    scale = np.max(np.abs(fd))
+    err = np.max(np.abs(jac - fd))
+    assert err <= rtol * scale, f"max |AD - FD| = {err:.3e} > {rtol} * {scale:.3e}"
+
+
+@pytest.fixture(scope="module")
+def roberts():
+    return assurjax.load_scene("roberts").mechanism
+
+
+@pytest.fixture(scope="module")
+def watt():
+    return assurjax.load_scene("watt_sixbar")
+
+
+def _flat_check(fn, tree, h, select=None, rtol=RTOL):
+    theta, unflatten = syn.flatten_parameters(tree, select=select)
+    f = jax.jit(lambda th: fn(unflatten(th)))
+    fd = central_difference(f, theta, h)
+    rev = jax.jit(jax.jacrev(f))(theta)
+    fwd = jax.jit(jax.jacfwd(f))(theta)
+    assert_close_jacobian(rev, fd, rtol)
+    assert_close_jacobian(fwd, fd, rtol)
+    return rev
+
+
+def test_coupler_curve_gradient_every_parameter(roberts):
+    """Coupler point P of the Roberts linkage at five crank angles, one of them 7 mrad from a toggle."""
+    q = jnp.array([0.9, Q_SYMMETRIC, 1.4, 1.53, Q_NEAR_TOGGLE])
+    pts, ok = syn.coupler_curve(roberts, "P", q)
+    assert np.all(ok)
+    jac = _flat_check(lambda m: syn.coupler_curve(m, "P", q)[0], roberts, 1e-5)
+    names = syn.parameter_names(roberts)
+    assert jac.shape == (5, 2, len(names))
+    # masses and inertias do not move the coupler point; the coupler's P does, one for one
+    for i, name in enumerate(names):
+        if "mass" in name or "inertia" in name or "com" in name:
+            assert np.all(jac[..., i] == 0.0), name
+    assert np.abs(jac[..., names.index(".links['link4'].points['P'][0]")]).max() > 0.5
+
+
+def test_library_jacobian_matches_jax(roberts):
+    """syn.jacobian (both modes) and syn.gradient agree with the flat Jacobian."""
+    q = jnp.array([1.0, 1.3])
+    fn = lambda m: syn.coupler_curve(m, "P", q)[0][:, 1]  # noqa: E731
+    sel = lambda m: (m.ground["D"], m.links["link4"].points["P"])  # noqa: E731
+    theta, unflatten = syn.flatten_parameters(roberts, select=sel)
+    fd = central_difference(jax.jit(lambda th: fn(unflatten(th))), theta, 1e-5)
+    assert_close_jacobian(syn.jacobian(fn, roberts, select=sel, mode="reverse"), fd)
+    assert_close_jacobian(syn.jacobian(fn, roberts, select=sel, mode="forward"), fd)
+    g = syn.gradient(lambda m: fn(m)[0], roberts, select=sel)
+    assert_close_jacobian(np.concatenate([np.ravel(x) for x in g]), fd[0])
+    assert syn.parameter_names(roberts, select=sel) == ["['D'][0]", "['D'][1]", "['P'][0]", "['P'][1]"] or len(
+        syn.parameter_names(roberts, select=sel)) == 4
+
+
+def _law_of_cosines_mu(l_a, l_b, d):
+    return np.arccos((l_a**2 + l_b**2 - d**2) / (2 * l_a * l_b))
+
+
+def test_transmission_angle_closed_form_and_gradient(roberts):
+    """Transmission angle at C (coupler BC, rocker DC) against the law of cosines, then its gradient."""
+    q = jnp.array([0.9, Q_SYMMETRIC, Q_NEAR_TOGGLE])
+    mu = np.asarray(jax.vmap(lambda qi: syn.transmission_angles(roberts, qi)["dyad43"])(q))
+    a, d_pt = np.array([-0.12, 0.0]), np.array([0.12, 0.0])
+    b = a + 0.18 * np.stack([np.cos(q), np.sin(q)], -1)
+    expected = _law_of_cosines_mu(0.12, 0.18, np.linalg.norm(b - d_pt, axis=-1))
+    np.testing.assert_allclose(mu, expected, rtol=1e-12)
+    _flat_check(lambda m: jax.vmap(lambda qi: syn.transmission_angles(m, qi)["dyad43"])(q), roberts, 1e-5)
+    margin = jax.vmap(lambda qi: syn.assembly_margin(roberts, qi))(q)
+    np.testing.assert_allclose(margin, np.sin(expected), rtol=1e-12)
+
+
+def test_link_angles_gradient(watt):
+    """Every link angle of the Watt six-bar at three crank angles."""
+    q = jnp.array([0.0, 0.4, -0.5])
+
+    def angles(m):
+        pose = jax.vmap(lambda qi: assurjax.positions(m, qi))(q)
+        assert pose.ok.shape == (3, 3)
+        return jnp.stack([pose.angles[k] for k in sorted(pose.angles)])
+
+    _flat_check(angles, watt.mechanism, 1e-5)
+
+
+def test_reduced_inertia_gradient(watt):
+    """J_red(q), dJ_red/dq and tau_red (gravity) w.r.t. every length, mass, inertia and gravity."""
+    q = jnp.array([0.0, 0.3, -0.4])
+
+    def reduced(scene):
+        red = jax.vmap(lambda qi: reduce_single(scene.mechanism, scene.gravity, scene.loads, qi, 0.0, 0.0))(q)
+        return jnp.stack([red.inertia, red.dinertia, red.torque])
+
+    _flat_check(reduced, watt, 1e-5, select=lambda s: (s.mechanism, s.gravity))
+
+
+def test_peak_driving_torque_gradient(watt):
+    """Peak driving torque at constant crank speed (inverse dynamics via the reduction)."""
+    q = jnp.linspace(-0.6, 0.6, 25)
+
+    def peak(m):
+        tau, ok = syn.driving_torque(m, q, 3.0, gravity=watt.gravity)
+        return jnp.max(tau)
+
+    tau, ok = syn.driving_torque(watt.mechanism, q, 3.0, gravity=watt.gravity)
+    assert np.all(ok) and np.sum(np.asarray(tau) == np.max(np.asarray(tau))) == 1  # a unique, smooth peak
+    _flat_check(lambda m: peak(m)[None], watt.mechanism, 1e-5)
+
+
+def test_driving_torque_matches_energy_balance(watt):
+    """At constant speed, tau w = dE/dt with E = J_red w^2 / 2 + V(q): checked by differencing E in q."""
+    w = 3.0
+    q = jnp.linspace(-0.5, 0.5, 11)
+    tau, _ = syn.driving_torque(watt.mechanism, q, w, gravity=watt.gravity)
+
+    def energy(qi):
+        pose = assurjax.positions(watt.mechanism, qi)
+        potential = -sum(link.mass * jnp.dot(watt.gravity, pose.coms[k]) for k, link in watt.mechanism.links.items())
+        kin = assurjax.kinematics(watt.mechanism, qi, 1.0, order=1, check=False)
+        j_red = sum(link.mass * jnp.sum(kin.com_velocities[k] ** 2) + link.inertia * kin.angular_velocities[k] ** 2
+                    for k, link in watt.mechanism.links.items())
+        return 0.5 * j_red * w**2 + potential
+
+    h = 1e-5
+    de_dq = (jax.vmap(energy)(q + h) - jax.vmap(energy)(q - h)) / (2 * h)
+    np.testing.assert_allclose(tau, de_dq, rtol=1e-7, atol=1e-8)
+
+
+def test_no_nan_gradients_on_random_valid_configurations(roberts, watt):
+    """Random perturbed mechanisms at random q: every gradient of an assembled configuration is finite,
+    and so is every value where assembly fails (flagged, never NaN)."""
+    n = 64
+    key = jax.random.key(7)
+    for mech, point in ((roberts, "P"), (watt.mechanism, "E")):
+        batch = assurjax.perturb(mech, key, n, relative=0.1)
+        q = jax.random.uniform(jax.random.fold_in(key, 1), (n,), minval=-np.pi, maxval=np.pi)
+
+        def value_and_grads(m, qi):
+            f = lambda m, qi: syn.coupler_curve(m, point, qi)[0]  # noqa: E731
+            ok = syn.coupler_curve(m, point, qi)[1]
+            jac_m = jax.jacrev(f)(m, qi)
+            jac_q = jax.jacfwd(f, argnums=1)(m, qi)
+            return f(m, qi), ok, jac_m, jac_q
+
+        vals, ok, jac_m, jac_q = eqx.filter_jit(eqx.filter_vmap(value_and_grads))(batch, q)
+        ok = np.asarray(ok)
+        assert ok.sum() >= n // 4, "too few valid configurations to test"
+        assert np.all(np.isfinite(np.asarray(vals)))
+        for leaf in jax.tree.leaves(eqx.filter(jac_m, eqx.is_array)) + [jac_q]:
+            leaf = np.asarray(leaf)
+            assert np.all(np.isfinite(leaf[ok])), "NaN/inf gradient on an assembled configuration"
+            assert np.all(np.isfinite(leaf)), "NaN/inf gradient where assembly fails"

@@ -1,0 +1,423 @@
+"""Numerical stress tests: branch continuity through singular configurations (the
+IFToMM A02 N-four-bar), limit and toggle positions, random geometries of every
+group kind, float32, long horizons.
+
+References are independent of the package: the parallelogram's closed-form
+configuration and the exact one-degree-of-freedom motion of the N-four-bar
+(``tests/joint_reference.py``, Jacobi elliptic functions), closed-form limit
+positions, distance/line residuals computed from the link geometry, central
+finite differences and energy conservation. Long versions are marked slow.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax._sweep import stack_mechanisms
+
+sys.path.insert(0, os.path.dirname(__file__))
+import joint_reference as jr  # noqa: E402
+
+EPS = np.finfo(float).eps
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def parallelogram(n: int, theta) -> np.ndarray:
+    """Exact B_n of the N-four-bar on its parallelogram branch, rockers at angle theta."""
+    theta = np.asarray(theta, dtype=float)
+    return np.stack([n + np.cos(theta), np.sin(theta)], axis=-1)
+
+
+def parallelogram_angles(n: int, theta) -> dict:
+    """Link angles (rad) of the parallelogram: every rocker at theta, couplers horizontal."""
+    angles = {f"rocker{i}": theta for i in range(1, n + 1)}
+    angles.update({f"coupler{i}": 0.0 * theta for i in range(n)})
+    return angles
+
+
+def bar(a: str, b: str, length: float, mass: float = 1.0) -> dict:
+    return {"points": {a: [0.0, 0.0], b: [float(length), 0.0]}, "com": [length / 2, 0.0], "mass": mass, "inertia": mass * length**2 / 12}
+
+
+def four_bar_dict(a, b, c, d, *, q0=0.0, omega0=0.0, t1=1.0, mode="left") -> dict:
+    """Crank O2A (a), coupler AB (b), rocker O4B (c), ground O2O4 (d), uniform bars of 1 kg/m."""
+    return {
+        "scene": {"name": "four_bar", "gravity": [0.0, -9.81]},
+        "ground": {"O2": [0.0, 0.0], "O4": [float(d), 0.0]},
+        "links": {"crank": bar("O2", "A", a, a), "coupler": bar("A", "B", b, b), "rocker": bar("O4", "B", c, c)},
+        "formation": [
+            {"group": "crank", "link": "crank", "pivot": "O2"},
+            {"group": "RRR", "name": "dyad", "links": ["coupler", "rocker"], "joints": ["A", "O4", "B"], "mode": mode},
+        ],
+        "state": {"q0": q0, "omega0": omega0, "t1": t1},
+    }
+
+
+# ----------------------------------------------------------------------------- N-four-bar: kinematics
+
+
+N_SWEEP = 3
+
+
+@pytest.fixture(scope="module")
+def nfb():
+    return assurjax.n_four_bar(N_SWEEP)
+
+
+def test_fixed_mode_is_not_enough(nfb):
+    """Below the horizontal the fixed assembly mode lands on the folded branch (the
+    reason for branch tracking); with a predictor the parallelogram is kept."""
+    mech = nfb.mechanism
+    q = -1.0
+    fixed = assurjax.positions(mech, q).points[f"B{N_SWEEP}"]
+    tracked = assurjax.positions(mech, q, near=parallelogram_angles(N_SWEEP, q)).points[f"B{N_SWEEP}"]
+    exact = parallelogram(N_SWEEP, q)
+    assert np.linalg.norm(np.asarray(fixed) - exact) > 0.5
+    np.testing.assert_allclose(tracked, exact, atol=1e-14)
+
+
+def test_sweep_follows_parallelogram_through_both_singularities(nfb):
+    """Two revolutions backwards from the vertical: 8 crossings of the coincident-joint
+    (rockers along +x) and stretched (along -x) configurations."""
+    qs = np.pi / 2 - np.linspace(0.0, 4 * np.pi, 797)  # no sample exactly at a singular point
+    pose = assurjax.positions_tracked(nfb.mechanism, qs)
+    assert np.asarray(pose.ok).all()
+    for i in range(N_SWEEP + 1):
+        np.testing.assert_allclose(pose.points[f"B{i}"], parallelogram(i, qs), atol=1e-11)
+
+
+def test_sweep_over_an_exactly_singular_sample(nfb):
+    """At q = 0 exactly the first window's external joints coincide: its joint is
+    undetermined, reported as not assembled (never NaN), and the sweep keeps the
+    branch past it (the failed sample does not steer the predictor)."""
+    qs = np.array([0.3, 0.2, 0.1, 0.0, -0.1, -0.2])
+    pose = assurjax.positions_tracked(nfb.mechanism, qs)
+    ok = np.asarray(pose.ok)
+    assert not ok[3, 1]
+    assert ok[[0, 1, 2, 4, 5]].all()
+    assert all(np.isfinite(np.asarray(v)).all() for v in pose.points.values())
+    keep = [0, 1, 2, 4, 5]
+    np.testing.assert_allclose(np.asarray(pose.points[f"B{N_SWEEP}"])[keep], parallelogram(N_SWEEP, qs[keep]), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def near_singular(nfb):
+    """Positions, jvp velocities and reverse-mode gradients of B_N at q, the
+    predictor being the exact parallelogram angles at q: one compile, vmapped."""
+    mech = nfb.mechanism
+
+    def at(q):
+        near = parallelogram_angles(N_SWEEP, q)
+        f = lambda qq: assurjax.positions(mech, qq, near=near).points[f"B{N_SWEEP}"]  # noqa: E731
+        x, dx = jax.jvp(f, (q,), (jnp.ones_like(q),))
+        grad = jax.grad(lambda qq: jnp.sum(f(qq)))(q)
+        return x, dx, grad, assurjax.positions(mech, q, near=near).ok
+
+    return jax.jit(jax.vmap(at))
+
+
+DISTANCES = np.array([1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12])
+
+
+@pytest.mark.parametrize("q_singular", [0.0, np.pi], ids=["coincident", "stretched"])
+def test_accuracy_near_singular_points(near_singular, q_singular):
+    """The closed forms lose accuracy near the singular points (0/0): measured here.
+
+    coincident external joints (q -> 0): the dyad's joint direction is d/|d| with
+    |d| ~ |q|, so positions stay accurate but velocities err by ~eps/q^2;
+    stretched dyad (q -> pi): the root height is sqrt(h2) with h2 ~ q^2 and an
+    absolute rounding of ~eps, so positions err by ~min(|q|, eps/|q|) and
+    velocities by O(1) once |q| < ~1e-7. Never NaN, never a failure flag."""
+    q = q_singular + np.concatenate([DISTANCES, -DISTANCES])
+    x, dx, grad, ok = (np.asarray(v) for v in near_singular(jnp.asarray(q)))
+    assert ok.all() and np.isfinite(x).all() and np.isfinite(dx).all() and np.isfinite(grad).all()
+    delta = np.abs(q - q_singular)
+    pos_err = np.abs(x - parallelogram(N_SWEEP, q)).max(-1)
+    vel_err = np.abs(dx - np.stack([-np.sin(q), np.cos(q)], -1)).max(-1)
+    if q_singular == 0.0:
+        assert (pos_err <= 100 * EPS / delta + 1e-14).all()
+        assert (vel_err <= np.minimum(1e3 * EPS / delta**2, 10.0 / delta) + 1e-12).all()
+    else:
+        assert (pos_err <= np.minimum(delta, 100 * EPS / delta) + 1e-14).all()
+        far = delta >= 1e-4
+        assert (vel_err[far] <= 1e3 * EPS / delta[far] ** 2).all()
+        assert (vel_err <= 1.0).all()  # bounded (the crossing's rate is 1)
+
+
+# ----------------------------------------------------------------------------- N-four-bar: dynamics
+
+
+@pytest.fixture(scope="module")
+def nfb_motion():
+    n, t1 = 2, 6.0
+    ts = np.linspace(0.0, t1, 301)
+    sol = assurjax.simulate(assurjax.n_four_bar(n, t1=t1), branch="tracked", saveat=ts, rtol=1e-10, atol=1e-10,
+                            energies=True, points=["B0", f"B{n}"], angles=[f"coupler{n - 1}"])
+    return n, sol
+
+
+def test_tracked_motion_matches_exact_solution(nfb_motion):
+    """B_0 against the exact parallelogram motion (Jacobi elliptic functions) over
+    ~3 revolutions, i.e. ~6 crossings of each kind of singular configuration."""
+    n, sol = nfb_motion
+    assert sol.status.startswith("reached t1")
+    theta, omega = jr.n_four_bar_exact(n, np.asarray(sol.t))
+    assert np.ptp(theta) > 5 * np.pi  # it really went round
+    np.testing.assert_allclose(sol.q, theta, atol=1e-6)
+    np.testing.assert_allclose(sol.omega, omega, atol=1e-5)
+    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=1e-6)
+    np.testing.assert_allclose(sol.points[f"B{n}"], parallelogram(n, theta), atol=1e-6)
+    np.testing.assert_allclose(np.sin(np.asarray(sol.angles[f"coupler{n - 1}"])), 0.0, atol=1e-6)  # couplers translate
+
+
+def test_tracked_motion_conserves_energy(nfb_motion):
+    _, sol = nfb_motion
+    total = np.asarray(sol.total)
+    assert np.isfinite(total).all()
+    assert np.ptp(total) < 1e-5 * np.abs(total).max()
+
+
+@pytest.mark.slow
+def test_n_four_bar_40_for_20_s():
+    """The benchmark as specified: N = 40, 20 s; B_0 against the exact motion, energy drift."""
+    n = 40
+    ts = np.linspace(0.0, 20.0, 401)
+    sol = assurjax.simulate(assurjax.n_four_bar(n), branch="tracked", saveat=ts, rtol=1e-10, atol=1e-10, energies=True, points=["B0"], angles=[])
+    assert sol.status.startswith("reached t1")
+    theta, _ = jr.n_four_bar_exact(n, np.asarray(sol.t))
+    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=1e-5)
+    total = np.asarray(sol.total)
+    assert np.ptp(total) < 1e-5 * np.abs(total).max()
+
+
+# ----------------------------------------------------------------------------- limit and toggle positions
+
+
+def limit_angle(a, b, c, d):
+    """Crank angle (rad) of the stretched limit of a non-Grashof four-bar: |A - O4| = b + c."""
+    return np.arccos((a**2 + d**2 - (b + c) ** 2) / (2 * a * d))
+
+
+@pytest.fixture(scope="module")
+def non_grashof():
+    # the crank swings in |q| <= q_lim ~ 0.985 rad; start inside, moving towards +q_lim
+    return assurjax.scene_from_dict(four_bar_dict(1.0, 1.0, 0.5, 1.8, q0=0.5, omega0=3.0, t1=1.0))
+
+
+@pytest.fixture(scope="module")
+def pose_and_derivatives():
+    """Positions, jvp velocities and reverse-mode gradients of every point at q (vmapped)."""
+
+    def at(mech, q):
+        f = lambda qq: assurjax.positions(mech, qq)  # noqa: E731
+        pose, dpose = jax.jvp(f, (q,), (jnp.ones_like(q),))
+        grad = jax.grad(lambda qq: sum(jnp.sum(v) for v in f(qq).points.values()))(q)
+        return pose, dpose, grad
+
+    return eqx.filter_jit(eqx.filter_vmap(at, in_axes=(None, 0)))
+
+
+def test_limit_position_kinematics(non_grashof, pose_and_derivatives):
+    """Within 1e-6 .. 1e-12 of the limit: assembled, finite values and gradients;
+    beyond it by 1e-6: a clear 'cannot assemble' flag, still finite."""
+    q_lim = limit_angle(1.0, 1.0, 0.5, 1.8)
+    inside = q_lim - np.array([1e-6, 1e-9, 1e-12])
+    outside = q_lim + np.array([1e-6, 1e-3])
+    pose, dpose, grad = pose_and_derivatives(non_grashof.mechanism, jnp.asarray(np.concatenate([inside, outside])))
+    ok = np.asarray(pose.ok).all(-1)
+    assert ok[:3].all() and not ok[3:].any()
+    for tree in (pose.points, dpose.points):
+        assert all(np.isfinite(np.asarray(v)).all() for v in tree.values())
+    assert np.isfinite(np.asarray(grad)).all()
+    B, A = np.asarray(pose.points["B"])[:3], np.asarray(pose.points["A"])[:3]
+    np.testing.assert_allclose(np.linalg.norm(B - A, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(B - [1.8, 0.0], axis=-1), 0.5, atol=1e-12)
+
+
+def test_limit_position_simulation_stops_cleanly(non_grashof):
+    """Driven into its limit position, the motion stops there with a lock-up event
+    naming the dyad, finite values, never past the limit, and energy conserved up to it.
+    (With the fixed mode the integrator may instead step over the singular point and
+    bounce back on the same branch, unphysically: the tracked branch sees the dyad
+    pass its stretched configuration, where the crank cannot follow.)"""
+    sol = assurjax.simulate(non_grashof, branch="tracked", rtol=1e-8, atol=1e-8, energies=True)
+    q_lim = limit_angle(1.0, 1.0, 0.5, 1.8)
+    assert sol.failed_group == "dyad" and "can no longer assemble" in sol.status
+    q = np.asarray(sol.q)
+    assert np.isfinite(q).all() and np.isfinite(np.asarray(sol.omega)).all()
+    assert q.max() <= q_lim + 1e-9 and float(sol.q_final) > q_lim - 1e-6
+    total = np.asarray(sol.total)[q < q_lim - 1e-3]  # the rocker's rate diverges at the limit itself
+    assert np.ptp(total) < 1e-5 * np.abs(total).max()
+
+
+def slider_crank_dict(a, b, e, *, kind="RRP") -> dict:
+    """Crank O2A (a), rod AB (b), slider B on the ground line y = e along +x."""
+    rod, slider = bar("A", "B", b), {"points": {"B": [0.0, 0.0]}, "com": [0.0, 0.0], "mass": 0.5, "inertia": 0.01}
+    group = {"group": kind, "name": "dyad", "guide_point": "G", "direction": [1.0, 0.0], "offset": float(e), "mode": "forward"}
+    if kind == "RRP":
+        group.update(links=["rod", "slider"], joints=["A", "B"])
+    else:
+        group.update(links=["slider", "rod"], joints=["B", "A"])
+    return {
+        "scene": {"name": "slider_crank"},
+        "ground": {"O2": [0.0, 0.0], "G": [0.0, 0.0]},
+        "links": {"crank": bar("O2", "A", a), "rod": rod, "slider": slider},
+        "formation": [{"group": "crank", "link": "crank", "pivot": "O2"}, group],
+    }
+
+
+def inverted_dict(a, d, e) -> dict:
+    """Crank O2A (a); block pinned at A slides on a guide link pivoted at O4 = (d, 0),
+    the block's line at signed distance e from the guide through O4."""
+    return {
+        "scene": {"name": "inverted"},
+        "ground": {"O2": [0.0, 0.0], "O4": [float(d), 0.0]},
+        "links": {"crank": bar("O2", "A", a), "block": {"points": {"A": [0.0, 0.0]}, "com": [0.0, 0.0], "mass": 0.3, "inertia": 0.01},
+                  "guide": bar("O4", "T", 2.0)},
+        "formation": [{"group": "crank", "link": "crank", "pivot": "O2"},
+                      {"group": "RPR", "name": "dyad", "links": ["block", "guide"], "joints": ["A", "O4"], "direction": [1.0, 0.0],
+                       "offset": float(e), "mode": "forward"}],
+    }
+
+
+@pytest.mark.parametrize("kind", ["RRP", "PRR", "RPR"])
+def test_tangent_limits_of_guided_dyads(kind, pose_and_derivatives):
+    """Slider dyads at their limit positions (rod perpendicular to the guide, or the
+    block's line tangent to the crank circle): within 1e-6..1e-12 of the limit
+    assembled and finite with finite gradients; beyond it, a clean 'cannot assemble'."""
+    if kind == "RPR":
+        a, d, e = 1.0, 2.0, 1.5  # |A - O4| >= e needed; |A - O4| = 1.5 at cos q = (1 + 4 - 2.25) / 4
+        mech = assurjax.scene_from_dict(inverted_dict(a, d, e)).mechanism
+        q_lim = np.arccos((a**2 + d**2 - e**2) / (2 * a * d))
+        inside, outside = q_lim + np.array([1e-6, 1e-9, 1e-12]), q_lim - np.array([1e-6, 1e-3])
+    else:
+        a, b, e = 1.0, 0.5, 0.8  # the rod reaches the line y = 0.8 while A_y >= 0.3
+        mech = assurjax.scene_from_dict(slider_crank_dict(a, b, e, kind=kind)).mechanism
+        q_lim = np.arcsin(e - b)
+        inside, outside = q_lim + np.array([1e-6, 1e-9, 1e-12]), q_lim - np.array([1e-6, 1e-3])
+    pose, dpose, grad = pose_and_derivatives(mech, jnp.asarray(np.concatenate([inside, outside])))
+    ok = np.asarray(pose.ok).all(-1)
+    assert ok[:3].all() and not ok[3:].any()
+    assert all(np.isfinite(np.asarray(v)).all() for v in (*pose.points.values(), *dpose.points.values()))
+    assert np.isfinite(np.asarray(grad)).all()
+
+
+# ----------------------------------------------------------------------------- random mechanisms of every kind
+
+
+def _unit(angle):
+    return np.array([np.cos(angle), np.sin(angle)])
+
+
+def _cross(u, v):
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def random_dyad(kind: str, rng, mode: str) -> tuple[dict, float, dict]:
+    """A random crank + dyad of ``kind`` that assembles at a random q with a margin
+    from its singular configurations (checked here with numpy only). Returns the
+    scene tables, q and the data the residual check needs. ``mode``: +1 or -1."""
+    while True:
+        a, q = rng.uniform(0.5, 2.0), rng.uniform(-np.pi, np.pi)
+        A = a * _unit(q)
+        if kind == "RRR":
+            b, c, d = rng.uniform(0.5, 2.0, 3)
+            dist = np.linalg.norm(A - [d, 0.0])
+            if abs(b - c) + 0.05 < dist < b + c - 0.05:
+                return four_bar_dict(a, b, c, d, mode=mode), q, dict(b=b, c=c, d=d)
+        elif kind in ("RRP", "PRR"):
+            b, e, phi = rng.uniform(0.5, 2.0), rng.uniform(-0.5, 0.5), rng.uniform(-np.pi, np.pi)
+            G = rng.uniform(-1.0, 1.0, 2)
+            u = _unit(phi)
+            if abs(_cross(u, A - G) - e) < b - 0.05:
+                t = slider_crank_dict(a, b, e, kind=kind)
+                t["ground"]["G"] = list(G)
+                t["formation"][1].update(direction=list(u), mode=mode)
+                return t, q, dict(b=b, e=e, G=G, u=u)
+        elif kind == "RPR":
+            d, e = rng.uniform(0.5, 2.0), rng.uniform(-0.5, 0.5)
+            if np.linalg.norm(A - [d, 0.0]) > abs(e) + 0.05:
+                t = inverted_dict(a, d, e)
+                t["formation"][1]["mode"] = mode
+                return t, q, dict(d=d, e=e)
+        elif kind == "PRP":
+            psi, phi = rng.uniform(-np.pi, np.pi, 2)
+            if abs(np.sin(q + psi - phi)) > 0.2:  # guides not near parallel
+                G = rng.uniform(-1.0, 1.0, 2)
+                t = {
+                    "scene": {"name": "prp"},
+                    "ground": {"O2": [0.0, 0.0], "G": list(G)},
+                    "links": {"crank": bar("O2", "A", a),
+                              "s1": {"points": {"J": [0.0, 0.0]}, "mass": 0.2, "inertia": 0.01},
+                              "s2": {"points": {"J": [0.0, 0.0]}, "mass": 0.2, "inertia": 0.01}},
+                    "formation": [{"group": "crank", "link": "crank", "pivot": "O2"},
+                                  {"group": "PRP", "name": "dyad", "links": ["s1", "s2"], "joint": "J", "guide_points": ["A", "G"],
+                                   "directions": [list(_unit(psi)), list(_unit(phi))], "offsets": [0.0, 0.0]}],
+                }
+                return t, q, dict(G=G, psi=psi, phi=phi)
+
+
+def residuals(kind: str, pose, q, data) -> np.ndarray:
+    """Closure residuals (m) of one assembled pose, from the link geometry alone."""
+    p = {k: np.asarray(v) for k, v in pose.points.items()}
+    if kind == "RRR":
+        return np.array([np.linalg.norm(p["B"] - p["A"]) - data["b"], np.linalg.norm(p["B"] - [data["d"], 0.0]) - data["c"]])
+    if kind in ("RRP", "PRR"):
+        return np.array([np.linalg.norm(p["B"] - p["A"]) - data["b"], _cross(data["u"], p["B"] - data["G"]) - data["e"]])
+    if kind == "RPR":
+        guide = _unit(float(pose.angles["guide"]))
+        return np.array([_cross(guide, p["A"] - [data["d"], 0.0]) - data["e"], np.linalg.norm(p["O4"] - [data["d"], 0.0])])
+    u1, u2 = _unit(q + data["psi"]), _unit(data["phi"])
+    return np.array([_cross(u1, p["J"] - p["A"]), _cross(u2, p["J"] - data["G"])])
+
+
+@pytest.fixture(scope="module")
+def analyse():
+    """Pose, dpose/dq (jvp), d/dq by central differences, and the gradient of a scalar
+    of the pose with respect to every parameter of the mechanism (reverse mode)."""
+
+    def one(mech, q):
+        f = lambda m, qq: assurjax.positions(m, qq)  # noqa: E731
+        pose, dpose = jax.jvp(lambda qq: f(mech, qq), (q,), (jnp.ones_like(q),))
+        h = 1e-6
+        fd = jax.tree.map(lambda a, b: (a - b) / (2 * h), f(mech, q + h).points, f(mech, q - h).points)
+        scalar = lambda m: sum(jnp.sum(jnp.sin(v)) for v in f(m, q).points.values())  # noqa: E731
+        grads = eqx.filter_grad(scalar)(mech)
+        return pose, dpose, fd, grads
+
+    return eqx.filter_jit(eqx.filter_vmap(one))
+
+
+@pytest.mark.parametrize("kind", ["RRR", "RRP", "PRR", "RPR", "PRP"])
+def test_random_geometries(kind, analyse):
+    """16 random valid geometries per kind: closure residuals at rounding level, no
+    NaN, velocities equal to central differences, finite parameter gradients."""
+    rng = np.random.default_rng(sum(map(ord, kind)))
+    mode = ["+", "-"][rng.integers(2)]  # one mode per batch: the structure is shared
+    cases = [random_dyad(kind, rng, mode) for _ in range(16)]
+    mechs = stack_mechanisms([assurjax.scene_from_dict(t).mechanism for t, _, _ in cases])
+    qs = jnp.asarray([q for _, q, _ in cases])
+    pose, dpose, fd, grads = analyse(mechs, qs)
+    assert np.asarray(pose.ok).all()
+    for i, (_, q, data) in enumerate(cases):
+        one = jax.tree.map(lambda x: x[i], pose)
+        assert np.abs(residuals(kind, one, q, data)).max() < 1e-12
+    for name in dpose.points:
+        v, ref = np.asarray(dpose.points[name]), np.asarray(fd[name])
+        assert np.isfinite(v).all()
+        np.testing.assert_allclose(v, ref, atol=1e-6 * (1 + np.abs(ref).max()))
+    leaves = [np.asarray(x) for x in jax.tree.leaves(eqx.filter(grads, eqx.is_inexact_array))]
+    assert leaves and all(np.isfinite(x).all() for x in leaves)
