@@ -66,5 +66,14 @@ from .groups import Link as Link
 from .groups._newton import positions_along as positions_along
 from .scene._load import bundled_scenes as bundled_scenes, load_scene as load_scene, scene_from_dict as scene_from_dict
 from .scene._scene import Scene as Scene
+from ._sweep import (
+    batch_kinematics as batch_kinematics,
+    batch_mesh as batch_mesh,
+    perturb as perturb,
+    shard_batch as shard_batch,
+    stack_mechanisms as stack_mechanisms,
+    sweep as sweep,
+)
+from . import synthesis as synthesis
 
 __version__ = "0.1.0"

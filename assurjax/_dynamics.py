@@ -37,7 +37,7 @@ from jaxtyping import Array
 from ._errors import AssurjaxError
 from ._loads import Damper, RotaryDamper, any_velocity_dependent, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
-from ._reduction import coefficients, kinematics_from_coefficients, reduce_single
+from ._reduction import coefficients, kinematics_from_coefficients, reduce_single, reduce_with_pose
 from ._tracking import branch_angles, branch_rates, branch_state
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
@@ -223,6 +223,16 @@ def _controller(settings: Settings):
     return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol)
 
 
+def _initial_step(settings, dt, t0, t1):
+    """The fixed step, or a small first step for the controller: diffrax's automatic
+    choice costs two more right-hand-side evaluations in the compiled program."""
+    if dt is not None:
+        return jnp.asarray(dt, dtype=float)
+    if settings.fixed_step:
+        raise AssurjaxError("fixed_step needs a step dt")
+    return 1e-3 * (t1 - t0)
+
+
 def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, dt=None, *, settings: Settings = Settings()) -> Solution:
     """The pure, jittable simulation (no Python-side checks or trimming).
 
@@ -247,8 +257,10 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     if settings.branch == "tracked":  # the branch travels with the state, starting on the fixed modes
         y0 = y0 + (branch_angles(mechanism, positions(mechanism, q0)),)
     # Initial direction of motion: of the velocity, or from rest of the acceleration.
-    a0 = _acceleration(mechanism, gravity, loads, t0, q0, omega0)
-    direction = jnp.where(omega0 != 0, jnp.sign(omega0), jnp.sign(a0))
+    direction = jnp.sign(omega0)
+    if settings.standstill:  # from rest, the direction the acceleration starts it in
+        a0 = _acceleration(mechanism, gravity, loads, t0, q0, omega0)
+        direction = jnp.where(omega0 != 0, direction, jnp.sign(a0))
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
     args = (mechanism, gravity, loads, track_work, direction, user_signs)
     sol = diffrax.diffeqsolve(
@@ -256,7 +268,7 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         _solver(settings),
         t0=t0,
         t1=t1,
-        dt0=None if dt is None else jnp.asarray(dt, dtype=float),
+        dt0=_initial_step(settings, dt, t0, t1),
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True),
@@ -328,23 +340,33 @@ def _failed_group(mechanism, q_final, w_final, event, near=None):
 
 def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
-    ``near``: saved link angles of a tracked branch (None: the fixed modes)."""
+    ``near``: saved link angles of a tracked branch (None: the fixed modes).
+    One vmapped evaluation per saved time: the reduction gives dw/dt and J_red
+    (T = J_red w^2 / 2), its position analysis gives points, angles and V."""
     out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
-    if settings.domega:
-        out["domega"] = jax.vmap(lambda t, q, w, z: _acceleration(mechanism, gravity, loads, t, q, w, z))(t, q, w, near)
-    if settings.angles:  # angles of any link: the full position analysis
-        pose = jax.vmap(lambda q, z: positions(mechanism, q, near=z))(q, near)
-    elif settings.points:  # only the groups the points need
-        pose = jax.vmap(lambda q, z: positions(mechanism, q, points=settings.points, near=z))(q, near)
-    if settings.points:
-        out["points"] = {p: pose.points[p] for p in settings.points}
-    if settings.angles:
-        out["angles"] = {a: pose.angles[a] for a in settings.angles}
+    if not (settings.domega or settings.energies or settings.points or settings.angles):
+        return out
+
+    def sample(t, q, w, z):
+        values = {}
+        if settings.domega or settings.energies:
+            red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z)
+            if settings.domega:
+                values["domega"] = (red.effort + red.torque - 0.5 * red.dinertia * w**2) / red.inertia
+            if settings.energies:
+                values["kinetic"] = 0.5 * red.inertia * w**2
+                values["potential"] = potential_energy(mechanism, gravity, loads, pose)
+        elif settings.angles:  # angles of any link: the full position analysis
+            pose = positions(mechanism, q, near=z)
+        else:  # only the groups the points need
+            pose = positions(mechanism, q, points=settings.points, near=z)
+        values["points"] = {p: pose.points[p] for p in settings.points}
+        values["angles"] = {a: pose.angles[a] for a in settings.angles}
+        return values
+
+    out.update(jax.vmap(sample)(t, q, w, near))
     if settings.energies:
-        red = jax.vmap(lambda q, z: reduce_single(mechanism, gravity, (), q, 0.0, 0.0, velocities=False, near=z))(q, near)
-        kinetic = 0.5 * red.inertia * w**2
-        potential = jax.vmap(lambda q, z: potential_energy(mechanism, gravity, loads, positions(mechanism, q, near=z)))(q, near)
-        out.update(kinetic=kinetic, potential=potential, total=kinetic + potential)
+        out["total"] = out["kinetic"] + out["potential"]
     return out
 
 

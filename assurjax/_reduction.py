@@ -30,7 +30,7 @@ from jaxtyping import Array
 from ._geometry import dot
 from ._kinematics import Kinematics
 from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
-from ._mechanism import Mechanism, positions
+from ._mechanism import Mechanism, Pose, positions
 
 
 class Reduction(eqx.Module):
@@ -110,6 +110,11 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
     """The reduction at one configuration (pure, jittable). ``velocities``: build the
     velocity-dependent part (None: only when some load depends on velocity).
     ``near``: link angles (rad) selecting the branch; then ``angle_rates`` is filled."""
+    return reduce_with_pose(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)[0]
+
+
+def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> tuple[Reduction, Pose]:
+    """:func:`reduce_single` and the :class:`Pose` it was computed at (one position analysis for both)."""
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     if velocities is None:
         velocities = any_velocity_dependent(loads)
@@ -123,7 +128,7 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
         gj[group.name] = sum((p[0] for p in parts), zero)
         gdj[group.name] = sum((p[1] for p in parts), zero)
         gt[group.name] = sum((p[2] for p in parts), zero)
-    return Reduction(
+    reduction = Reduction(
         inertia=sum(gj.values(), zero),
         dinertia=sum(gdj.values(), zero),
         torque=sum(gt.values(), zero),
@@ -131,6 +136,7 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
         group_inertia=gj, group_dinertia=gdj, group_torque=gt,
         ok=ok, angle_rates=None if near is None else dx[2],
     )
+    return reduction, Pose(points=x[0], coms=x[1], angles=x[2], ok=ok)
 
 
 @eqx.filter_jit

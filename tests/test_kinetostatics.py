@@ -12,6 +12,7 @@
 
 import os
 import sys
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +22,11 @@ import pytest
 import assurjax
 from assurjax._geometry import cross
 from assurjax._kinetostatics import SingularConfigurationError, joint_names, reactions, static_reactions, static_torque
+from assurjax._kinematics import _kinematics_single
 from assurjax._kinetostatics import _api as kinetostatics_api
+from assurjax._kinetostatics._api import from_kinematics
+from assurjax._kinetostatics._layout import group_pairs
+from assurjax._reduction import reduce_single
 
 sys.path.insert(0, os.path.dirname(__file__))
 import joint_reference as jr  # noqa: E402
@@ -124,15 +129,52 @@ def _states(scene, seed):
     return q, w, a, t
 
 
+class Solved(NamedTuple):
+    forces: dict
+    couples: dict
+    driving: object
+    ok: object
+    pairs: tuple
+
+    def __getitem__(self, name):
+        return self.forces[name]
+
+
+def _by_moments(scene, kin, t):
+    """The modular solve traced with the class-IV normal components always taken from
+    moments about the closure links' joints (the branch for near-parallel normals)."""
+    from assurjax._kinetostatics import _class4
+
+    saved, _class4.NORMALS_BY_FORCES = _class4.NORMALS_BY_FORCES, 2.0
+    try:
+        return from_kinematics(scene, kin, t, method="modular")
+    finally:
+        _class4.NORMALS_BY_FORCES = saved
+
+
+def evaluate(scene, state, methods=("modular",)):
+    """Kinematics, the reactions by each method and the reduction at a batch of states,
+    in one compiled function (one compile per scene keeps the suite fast)."""
+    pairs = tuple(p for ps in group_pairs(scene.mechanism) for p in ps)
+
+    def one(q, w, a, t):
+        kin = _kinematics_single(scene.mechanism, q, w, a, None, 2)
+        found = {m: _by_moments(scene, kin, t) if m == "by_moments" else from_kinematics(scene, kin, t, method=m) for m in methods}
+        return kin, found, reduce_single(scene.mechanism, scene.gravity, scene.loads, q, w, t)
+
+    kin, found, red = jax.jit(jax.vmap(one))(*(jnp.asarray(v, dtype=float) for v in state))
+    return kin, {m: Solved(*found[m], pairs) for m in methods}, red
+
+
 @pytest.fixture(scope="module")
 def solved():
-    """Per scene: states, reactions (one compile each) and kinematics."""
+    """Per scene: states, kinematics, reactions and reduction."""
     out = {}
     for k, (name, scene) in enumerate(SCENES.items()):
-        q, w, a, t = _states(scene, k)
-        r = reactions(scene, (q, w, a, t))
-        kin = assurjax.kinematics(scene.mechanism, q, w, a)
-        out[name] = (scene, (q, w, a, t), r, kin)
+        state = _states(scene, k)
+        methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular",)
+        kin, found, red = evaluate(scene, state, methods)
+        out[name] = (scene, state, found, kin, red)
     return out
 
 
@@ -173,7 +215,8 @@ def newton_euler_residuals(scene, kin, r, t):
 
 @pytest.mark.parametrize("name", list(SCENES))
 def test_every_link_in_equilibrium(solved, name):
-    scene, (q, w, a, t), r, kin = solved[name]
+    scene, (q, w, a, t), found, kin, _ = solved[name]
+    r = found["modular"]
     assert np.all(np.asarray(r.ok))
     for i in range(N_STATES):
         residual = newton_euler_residuals(scene, _single(kin, i), _single(r, i), t[i])
@@ -182,17 +225,17 @@ def test_every_link_in_equilibrium(solved, name):
 
 @pytest.mark.parametrize("name", list(SCENES))
 def test_driving_effort_is_the_virtual_work_of_the_reduction(solved, name):
-    scene, (q, w, a, t), r, _ = solved[name]
-    red = assurjax.reduce(scene, q, w, t)
+    scene, (q, w, a, t), found, _, red = solved[name]
+    r = found["modular"]
     expected = red.inertia * a + 0.5 * red.dinertia * w**2 - red.torque
     np.testing.assert_allclose(r.driving, expected, rtol=0, atol=1e-10)
 
 
-@pytest.mark.parametrize("name", ["watt_sixbar"])
-def test_group_by_group_equals_dense_and_global_solves(solved, name):
-    scene, state, r, _ = solved[name]
+def test_group_by_group_equals_dense_and_global_solves(solved):
+    _, _, found, _, _ = solved["watt_sixbar"]
+    r = found["modular"]
     for method in ("dense", "global"):
-        other = reactions(scene, state, method=method)
+        other = found[method]
         for joint in r.forces:
             np.testing.assert_allclose(other[joint], r[joint], rtol=0, atol=1e-9, err_msg=f"{method} {joint}")
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
@@ -208,7 +251,8 @@ def test_prr_is_rrp_listed_from_the_other_end(solved):
     data["formation"][1] = dict(group="RRP", name="rod_slider", links=["rod", "slider"], joints=["A", "B"], guide_point="O",
                                 direction=[1.0, 0.2], offset=0.02, mode="forward")
     rrp = scene_from_dict(data, source="rrp")
-    _, state, prr, _ = solved["slider_crank_prr"]
+    _, state, found, _, _ = solved["slider_crank_prr"]
+    prr = found["modular"]
     other = reactions(rrp, state)
     np.testing.assert_allclose(other["B"], -prr["B"], atol=1e-10)
     for joint in ("O", "A", "slider/ground"):
@@ -350,33 +394,19 @@ def seed003():
     loads += tuple(assurjax.Couple(link, m) for link, m in SEED003_COUPLES.items())
     scene = dataclasses.replace(scene, loads=loads)
     rng = np.random.default_rng(3)
-    state = (q0 + np.r_[0.0, rng.uniform(-0.2, 0.2, 2)], np.r_[0.0, rng.normal(size=2)], np.r_[0.0, rng.normal(size=2)])
-    return scene, ref, at, state
+    state = (q0 + np.r_[0.0, rng.uniform(-0.2, 0.2, 2)], np.r_[0.0, rng.normal(size=2)], np.r_[0.0, rng.normal(size=2)], np.zeros(3))
+    _, found, _ = evaluate(scene, state, ("modular", "dense", "by_moments"))
+    return scene, ref, at, found
 
 
-def test_class4_special_points_agree_with_the_12x12_solve(seed003):
-    scene, _, _, state = seed003
-    special = reactions(scene, state)
-    dense = reactions(scene, state, method="dense")
+@pytest.mark.parametrize("variant", ["modular", "by_moments"])
+def test_class4_special_points_agree_with_the_12x12_solve(seed003, variant):
+    _, _, _, found = seed003
+    special, dense = found[variant], found["dense"]
+    assert np.all(np.asarray(special.ok))
     for joint in ("A", "B", "G", "C", "D", "E", "F"):
         np.testing.assert_allclose(special[joint], dense[joint], rtol=0, atol=1e-10, err_msg=joint)
     np.testing.assert_allclose(special.driving, dense.driving, atol=1e-10)
-
-
-def test_class4_normal_components_from_moments_match(seed003, monkeypatch):
-    """The branch used when a closure link's normals are near parallel (moments about
-    its joints instead of its force sum) gives the same reactions."""
-    from assurjax._kinetostatics import _class4
-
-    scene, _, _, state = seed003
-    monkeypatch.setattr(_class4, "NORMALS_BY_FORCES", 2.0)  # never by forces
-    q, w, a = (jnp.asarray(v) for v in state)
-    single = jax.jit(jax.vmap(lambda q, w, a: kinetostatics_api._single(scene, q, w, a, 0.0, "modular", None, False)))
-    forces, _, driving, ok = single(q, w, a)
-    dense = reactions(scene, state, method="dense")
-    assert np.all(np.asarray(ok))
-    for joint in ("B", "G", "C", "D", "E", "F"):
-        np.testing.assert_allclose(forces[joint], dense[joint], rtol=0, atol=1e-10, err_msg=joint)
 
 
 def test_seed003_group_statics_and_the_papers_numbers(seed003):
@@ -384,12 +414,13 @@ def test_seed003_group_statics_and_the_papers_numbers(seed003):
     with F12 (at B, on link 2 by link 1) and F64 (at G, on link 4 by the frame).
     The paper's own F12 + F64 + F2 + F3 + F4 + F5 is (-4, 0) N, not zero: its
     numbers cannot both hold for the stated loads, whatever the geometry."""
-    scene, ref, at, state = seed003
-    r = reactions(scene, state)
+    scene, ref, at, found = seed003
+    r = found["modular"]  # state 0: the seed's configuration, at rest
     f12, f64 = np.asarray(r["B"][0]), np.asarray(r["G"][0])
     applied = sum(np.asarray(f) for f, *_ in SEED003_FORCES.values())
     np.testing.assert_allclose(f12 + f64 + applied, 0.0, atol=1e-10)
-    moment_about_g = np.cross(ref["B"] - ref["G"], f12) + sum(np.cross(at[k] - ref["G"], f) for k, (f, *_) in SEED003_FORCES.items())
+    cross2 = lambda a, b: a[0] * b[1] - a[1] * b[0]  # noqa: E731
+    moment_about_g = cross2(ref["B"] - ref["G"], f12) + sum(cross2(at[k] - ref["G"], f) for k, (f, *_) in SEED003_FORCES.items())
     assert abs(moment_about_g + sum(SEED003_COUPLES.values())) < 1e-10
     np.testing.assert_allclose(SEED003_F12 + SEED003_F64 + applied, [-4.0, 0.0], atol=1e-9)
     # the reconstruction carries the seed's special-point distances to within 2 mm (Table I)

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 import assurjax
+import assurjax._examples
 from assurjax._sweep import stack_mechanisms
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -160,13 +161,17 @@ def test_accuracy_near_singular_points(near_singular, q_singular):
 # ----------------------------------------------------------------------------- N-four-bar: dynamics
 
 
+def simulate_four_bar(scene, t1):
+    """A tracked simulation with fixed options, so that every four-bar built on the
+    N = 1 N-four-bar's structure shares one compiled function."""
+    return assurjax.simulate(scene, branch="tracked", t1=t1, saveat=np.linspace(0.0, t1, 301), rtol=1e-10, atol=1e-10,
+                             energies=True, points=["B0", "B1"], angles=["coupler0"])
+
+
 @pytest.fixture(scope="module")
 def nfb_motion():
-    n, t1 = 2, 6.0
-    ts = np.linspace(0.0, t1, 301)
-    sol = assurjax.simulate(assurjax.n_four_bar(n, t1=t1), branch="tracked", saveat=ts, rtol=1e-10, atol=1e-10,
-                            energies=True, points=["B0", f"B{n}"], angles=[f"coupler{n - 1}"])
-    return n, sol
+    n, t1 = 1, 6.0
+    return n, simulate_four_bar(assurjax.n_four_bar(n, t1=t1), t1)
 
 
 def test_tracked_motion_matches_exact_solution(nfb_motion):
@@ -213,8 +218,15 @@ def limit_angle(a, b, c, d):
 
 @pytest.fixture(scope="module")
 def non_grashof():
-    # the crank swings in |q| <= q_lim ~ 0.985 rad; start inside, moving towards +q_lim
-    return assurjax.scene_from_dict(four_bar_dict(1.0, 1.0, 0.5, 1.8, q0=0.5, omega0=3.0, t1=1.0))
+    """Crank 1, coupler 1, rocker 0.5, ground 1.8 (m), uniform bars of 1 kg/m, on the
+    N-four-bar's structure (names, mode) so its simulation reuses that compile.
+    The crank swings in |q| <= q_lim ~ 0.985 rad; it starts inside, moving towards +q_lim."""
+    tables = assurjax._examples.n_four_bar_dict(1)
+    tables["ground"]["O1"] = [1.8, 0.0]
+    for link, length in (("rocker0", 1.0), ("coupler0", 1.0), ("rocker1", 0.5)):
+        tables["links"][link] = bar(*tables["links"][link]["points"], length, length)
+    tables["state"].update(q0=0.5, omega0=3.0, t1=1.0)
+    return assurjax.scene_from_dict(tables)
 
 
 @pytest.fixture(scope="module")
@@ -242,7 +254,7 @@ def test_limit_position_kinematics(non_grashof, pose_and_derivatives):
     for tree in (pose.points, dpose.points):
         assert all(np.isfinite(np.asarray(v)).all() for v in tree.values())
     assert np.isfinite(np.asarray(grad)).all()
-    B, A = np.asarray(pose.points["B"])[:3], np.asarray(pose.points["A"])[:3]
+    B, A = np.asarray(pose.points["B1"])[:3], np.asarray(pose.points["B0"])[:3]
     np.testing.assert_allclose(np.linalg.norm(B - A, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(B - [1.8, 0.0], axis=-1), 0.5, atol=1e-12)
 
@@ -253,9 +265,9 @@ def test_limit_position_simulation_stops_cleanly(non_grashof):
     (With the fixed mode the integrator may instead step over the singular point and
     bounce back on the same branch, unphysically: the tracked branch sees the dyad
     pass its stretched configuration, where the crank cannot follow.)"""
-    sol = assurjax.simulate(non_grashof, branch="tracked", rtol=1e-8, atol=1e-8, energies=True)
+    sol = simulate_four_bar(non_grashof, 1.0)
     q_lim = limit_angle(1.0, 1.0, 0.5, 1.8)
-    assert sol.failed_group == "dyad" and "can no longer assemble" in sol.status
+    assert sol.failed_group == "window0" and "can no longer assemble" in sol.status
     q = np.asarray(sol.q)
     assert np.isfinite(q).all() and np.isfinite(np.asarray(sol.omega)).all()
     assert q.max() <= q_lim + 1e-9 and float(sol.q_final) > q_lim - 1e-6
@@ -326,12 +338,12 @@ def _cross(u, v):
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
-def random_dyad(kind: str, rng, mode: str) -> tuple[dict, float, dict]:
+def random_dyad(kind: str, rng, mode: str, *, a: float, q: float) -> tuple[dict, float | None, dict]:
     """A random crank + dyad of ``kind`` that assembles at a random q with a margin
     from its singular configurations (checked here with numpy only). Returns the
-    scene tables, q and the data the residual check needs. ``mode``: +1 or -1."""
-    while True:
-        a, q = rng.uniform(0.5, 2.0), rng.uniform(-np.pi, np.pi)
+    scene tables, q and the data the residual check needs (q None: no luck).
+    ``mode``: "+" or "-"; the crank has length ``a`` and angle ``q``."""
+    for _ in range(1000):
         A = a * _unit(q)
         if kind == "RRR":
             b, c, d = rng.uniform(0.5, 2.0, 3)
@@ -368,6 +380,7 @@ def random_dyad(kind: str, rng, mode: str) -> tuple[dict, float, dict]:
                                    "directions": [list(_unit(psi)), list(_unit(phi))], "offsets": [0.0, 0.0]}],
                 }
                 return t, q, dict(G=G, psi=psi, phi=phi)
+    return {}, None, {}
 
 
 def residuals(kind: str, pose, q, data) -> np.ndarray:
@@ -384,40 +397,138 @@ def residuals(kind: str, pose, q, data) -> np.ndarray:
     return np.array([_cross(u1, p["J"] - p["A"]), _cross(u2, p["J"] - data["G"])])
 
 
+KINDS = ("RRR", "RRP", "PRR", "RPR", "PRP")
+SHARED = {"crank", "O2", "A"}
+
+
+def renamed(tree, prefix: str):
+    """The scene tables with every name but the crank's prefixed (strings and keys)."""
+    if isinstance(tree, dict):
+        return {renamed(k, prefix) if k not in ("points",) else k: renamed(v, prefix) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [renamed(v, prefix) for v in tree]
+    if isinstance(tree, str) and tree in NAMES:
+        return prefix + tree
+    return tree
+
+
+NAMES = {"B", "O4", "G", "J", "T", "coupler", "rocker", "rod", "slider", "block", "guide", "s1", "s2", "dyad"}
+
+
+def random_mechanism(rng, modes: dict) -> tuple[dict, float, dict]:
+    """One crank carrying one random dyad of every kind (each assembled with a margin)."""
+    a, q = rng.uniform(0.5, 2.0), rng.uniform(-np.pi, np.pi)
+    tables = {"scene": {"name": "all_kinds"}, "ground": {"O2": [0.0, 0.0]}, "links": {"crank": bar("O2", "A", a)},
+              "formation": [{"group": "crank", "link": "crank", "pivot": "O2"}]}
+    data = {}
+    for kind in KINDS:
+        while True:  # same crank: redraw the dyad until it assembles at this q
+            t, q_k, d = random_dyad(kind, rng, modes[kind], a=a, q=q)
+            if q_k is not None:
+                break
+        t = renamed(t, kind + "_")
+        tables["ground"].update({k: v for k, v in t["ground"].items() if k not in SHARED})
+        tables["links"].update({k: v for k, v in t["links"].items() if k not in SHARED})
+        tables["formation"].append(t["formation"][1])
+        data[kind] = d
+    return tables, q, data
+
+
+class Prefixed:
+    """A pose seen through one dyad's own names (prefix removed)."""
+
+    def __init__(self, pose, prefix):
+        self.points = {k[len(prefix):] if k.startswith(prefix) else k: v for k, v in pose.points.items()}
+        self.angles = {k[len(prefix):] if k.startswith(prefix) else k: v for k, v in pose.angles.items()}
+
+
 @pytest.fixture(scope="module")
 def analyse():
-    """Pose, dpose/dq (jvp), d/dq by central differences, and the gradient of a scalar
-    of the pose with respect to every parameter of the mechanism (reverse mode)."""
+    """Pose, dpose/dq (jvp), d/dq by central differences, and the forward-mode
+    derivative of every point along a random direction in parameter space."""
 
-    def one(mech, q):
+    def one(mech, q, direction):
         f = lambda m, qq: assurjax.positions(m, qq)  # noqa: E731
         pose, dpose = jax.jvp(lambda qq: f(mech, qq), (q,), (jnp.ones_like(q),))
         h = 1e-6
         fd = jax.tree.map(lambda a, b: (a - b) / (2 * h), f(mech, q + h).points, f(mech, q - h).points)
-        scalar = lambda m: sum(jnp.sum(jnp.sin(v)) for v in f(m, q).points.values())  # noqa: E731
-        grads = eqx.filter_grad(scalar)(mech)
-        return pose, dpose, fd, grads
+        params, static = eqx.partition(mech, eqx.is_inexact_array)
+        _, dparams = jax.jvp(lambda p: f(eqx.combine(p, static), q).points, (params,), (direction,))
+        return pose, dpose, fd, dparams
 
     return eqx.filter_jit(eqx.filter_vmap(one))
 
 
-@pytest.mark.parametrize("kind", ["RRR", "RRP", "PRR", "RPR", "PRP"])
-def test_random_geometries(kind, analyse):
-    """16 random valid geometries per kind: closure residuals at rounding level, no
-    NaN, velocities equal to central differences, finite parameter gradients."""
-    rng = np.random.default_rng(sum(map(ord, kind)))
-    mode = ["+", "-"][rng.integers(2)]  # one mode per batch: the structure is shared
-    cases = [random_dyad(kind, rng, mode) for _ in range(16)]
+def test_random_geometries_of_every_kind(analyse):
+    """16 random mechanisms, each a crank carrying one random dyad of every kind
+    (RRR, RRP, PRR, RPR, PRP; one compile): closure residuals at rounding level, no
+    NaN, velocities equal to central differences, finite parameter derivatives."""
+    rng = np.random.default_rng(20240501)
+    modes = {k: ["+", "-"][rng.integers(2)] for k in KINDS}  # one mode per kind: the structure is shared
+    cases = [random_mechanism(rng, modes) for _ in range(16)]
     mechs = stack_mechanisms([assurjax.scene_from_dict(t).mechanism for t, _, _ in cases])
     qs = jnp.asarray([q for _, q, _ in cases])
-    pose, dpose, fd, grads = analyse(mechs, qs)
+    params = eqx.filter(mechs, eqx.is_inexact_array)
+    direction = jax.tree.map(lambda x: jnp.asarray(rng.normal(size=x.shape)), params)
+    pose, dpose, fd, dparams = analyse(mechs, qs, direction)
     assert np.asarray(pose.ok).all()
     for i, (_, q, data) in enumerate(cases):
         one = jax.tree.map(lambda x: x[i], pose)
-        assert np.abs(residuals(kind, one, q, data)).max() < 1e-12
+        for kind in KINDS:
+            assert np.abs(residuals(kind, Prefixed(one, kind + "_"), q, data[kind])).max() < 1e-12, kind
     for name in dpose.points:
         v, ref = np.asarray(dpose.points[name]), np.asarray(fd[name])
         assert np.isfinite(v).all()
-        np.testing.assert_allclose(v, ref, atol=1e-6 * (1 + np.abs(ref).max()))
-    leaves = [np.asarray(x) for x in jax.tree.leaves(eqx.filter(grads, eqx.is_inexact_array))]
-    assert leaves and all(np.isfinite(x).all() for x in leaves)
+        np.testing.assert_allclose(v, ref, atol=1e-6 * (1 + np.abs(ref).max()), err_msg=name)
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(dparams))
+
+
+# ----------------------------------------------------------------------------- float32
+
+
+FLOAT32_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax, jax.numpy as jnp
+    import assurjax
+    mech = assurjax.load_scene("watt_sixbar").mechanism
+    q = jnp.linspace(-3.0, 3.0, 61)
+    kin = assurjax.kinematics(mech, q, order=1)
+    print(json.dumps({"dtype": str(kin.points["E"].dtype), "x64": bool(jax.config.jax_enable_x64),
+                      "E": kin.points["E"].tolist(), "vE": kin.velocities["E"].tolist()}))
+    """
+)
+
+
+def test_float32_positions_error():
+    """With ASSURJAX_FLOAT32=1 the package computes in float32; the Watt six-bar's
+    point E then errs by a few float32 ulps of its ~2 m coordinates (reference: the
+    independent float64 closed form of tests/joint_reference.py)."""
+    env = {**os.environ, "ASSURJAX_FLOAT32": "1", "JAX_ENABLE_X64": "0"}
+    out = subprocess.run([sys.executable, "-c", FLOAT32_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    data = json.loads(out.stdout.strip().splitlines()[-1])
+    assert data["dtype"] == "float32" and not data["x64"]
+    q = np.linspace(-3.0, 3.0, 61)
+    exact = np.array([jr.watt_sixbar_points(x)[0]["E"] for x in q])
+    err = np.abs(np.asarray(data["E"]) - exact).max()
+    assert err < 50 * np.finfo(np.float32).eps * 2.0  # a few ulps of 2 m
+    h = 1e-6
+    v_fd = np.array([(jr.watt_sixbar_points(x + h)[0]["E"] - jr.watt_sixbar_points(x - h)[0]["E"]) / (2 * h) for x in q])
+    assert np.abs(np.asarray(data["vE"]) - v_fd).max() < 1e-4 * (1 + np.abs(v_fd).max())
+
+
+# ----------------------------------------------------------------------------- long horizon
+
+
+@pytest.mark.slow
+def test_watt_sixbar_1000_s_energy_drift():
+    """1000 s of the conservative Watt six-bar (no stop, gravity only) at tight
+    tolerances: relative energy drift below 1e-8."""
+    scene = assurjax.load_scene("watt_sixbar")
+    sol = assurjax.simulate(scene, stop=None, t1=1000.0, rtol=1e-12, atol=1e-12, max_steps=2_000_000, samples=2001,
+                            energies=True, points=[], angles=[])
+    assert sol.status.startswith("reached t1"), sol.status
+    total = np.asarray(sol.total)
+    scale = np.abs(np.asarray(sol.kinetic)).max() + np.abs(np.asarray(sol.potential)).max()
+    assert np.ptp(total) / scale < 1e-8

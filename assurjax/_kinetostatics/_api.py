@@ -161,11 +161,17 @@ def _static_kinematics(mechanism, q, t):
 
 def _single(scene, q, omega, alpha, t, method: str, groups, static: bool):
     TRACE_COUNT[0] += 1
-    mechanism = scene.mechanism
     if static:
-        kin = _static_kinematics(mechanism, q, t)
+        kin = _static_kinematics(scene.mechanism, q, t)
     else:
-        kin = _kinematics_single(mechanism, q, omega, alpha, None, 2)
+        kin = _kinematics_single(scene.mechanism, q, omega, alpha, None, 2)
+    return from_kinematics(scene, kin, t, method=method, groups=groups)
+
+
+def from_kinematics(scene, kin: Kinematics, t, *, method: str = "modular", groups=None):
+    """Reactions at one state given its kinematics (order 2, or order 0 with zero
+    velocities for statics): (forces, couples, driving effort, ok per group)."""
+    mechanism = scene.mechanism
     known = _known_wrenches(mechanism, kin, applied_wrenches(mechanism, scene.gravity, scene.loads, kin, t))
     geom = _geometry(kin)
     if method == "global":

@@ -20,10 +20,16 @@ VELOCITY_COLOR = "crimson"
 
 
 def _hull_order(local: dict[str, np.ndarray]) -> list[str]:
-    """Point names of a link ordered by angle around their centroid (a tidy polygon)."""
+    """Point names of a link ordered by angle around their centroid (a tidy polygon);
+    for points on one line, the two end points (the link is drawn as a bar)."""
     names = list(local)
     xy = np.array([np.asarray(local[n], dtype=float) for n in names])
     c = xy.mean(axis=0)
+    if len(names) >= 3:
+        _, sv, vt = np.linalg.svd(xy - c)
+        if sv[1] <= 1e-9 * max(sv[0], 1e-300):  # collinear: a bar between its extreme points
+            along = (xy - c) @ vt[0]
+            return [names[int(np.argmin(along))], names[int(np.argmax(along))]]
     order = np.argsort(np.arctan2(xy[:, 1] - c[1], xy[:, 0] - c[0]))
     return [names[i] for i in order]
 
@@ -89,6 +95,8 @@ class MechanismDrawing:
         self.joints = ax.plot([], [], "o", ms=6, mfc="white", mec="black", mew=1.5, zorder=5)[0]
         self.labels = {p: ax.annotate(p, (0, 0), xytext=(4, 4), textcoords="offset points", fontsize=8, zorder=6) for p in mechanism.point_names} if labels else {}
         self.arrows = {p: ax.annotate("", (0, 0), xytext=(0, 0), arrowprops=dict(arrowstyle="->", color=VELOCITY_COLOR, lw=1.5), zorder=7) for p in self.velocity_points}
+        if self.velocity_points:  # a legend entry saying how long the arrows are
+            ax.plot([], [], color=VELOCITY_COLOR, lw=1.5, label=f"velocity ({self.velocity_scale * self.scale:.3g} {unit} per m/s)")
         self.update(self._first_ok())
 
     def _first_ok(self) -> int:
@@ -98,8 +106,9 @@ class MechanismDrawing:
     def _auto_velocity_scale(self) -> float:
         if not self.velocity_points:
             return 1.0
-        speeds = [np.hypot(*self.frames.velocities[p][self.frames.ok].T) for p in self.velocity_points]
-        vmax = max((float(np.max(s)) for s in speeds if s.size), default=0.0)
+        # a high percentile, not the maximum: speeds blow up near singular positions
+        speeds = np.concatenate([np.hypot(*self.frames.velocities[p][self.frames.ok].T) for p in self.velocity_points])
+        vmax = float(np.percentile(speeds, 90)) if speeds.size else 0.0
         return 0.25 * self.size / vmax if vmax > 0 else 1.0
 
     def _setup_axes(self, lo, hi, unit):
@@ -198,7 +207,13 @@ def draw_mechanism(
         _, ax = plt.subplots(figsize=(6, 5))
     q_all = np.concatenate([[q], np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)]) if trace else np.array([q], dtype=float)
     frames = mechanism_frames(mechanism, q_all, omega, velocities=bool(tuple(velocities)))
+    if velocities and velocity_scale is None:  # scale the arrows for the configuration shown
+        shown = mechanism_frames(mechanism, [q], omega, velocities=True)
+        vmax = max(float(np.hypot(*shown.velocities[p][0])) for p in velocities)
+        lo, hi = extent(frames)
+        velocity_scale = 0.25 * float(np.max(hi - lo)) / vmax if vmax > 0 else 1.0
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels, velocity_scale=velocity_scale)
     drawing.update(0)
     ax.set_title(f"{mechanism.name} at q = {q:.4g}")
+    ax.legend(loc="upper right", fontsize=7)
     return drawing

@@ -1,0 +1,485 @@
+"""The ``assurjax`` command: run scenes, check them, sweep their kinematics, compute reactions.
+
+    assurjax run [SCENE] [--out DIR]      simulate (default scene: watt_sixbar): CSV, plots, GIF, summary
+    assurjax validate SCENE               check a scene file (exit status 2 when it is bad)
+    assurjax scenes                       list the bundled scenes
+    assurjax kinematics SCENE [--out DIR] sweep the driving coordinate: coupler curves, angular velocities
+    assurjax reactions SCENE [--out DIR]  joint reactions and driving effort along the motion (or at rest)
+
+Exit status: 0 success, 2 bad input (scene, file, arguments), 1 anything else.
+Errors print one line; ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+DEFAULT_SCENE = "watt_sixbar"
+USER_ERROR, INTERNAL_ERROR = 2, 1
+
+
+class UserError(Exception):
+    """A mistake in the command line or its files (exit status 2)."""
+
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def _progress(total: int, desc: str, quiet: bool):
+    """A tqdm bar on stderr; silent when stderr is not a terminal or with --quiet."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, disable=quiet or not sys.stderr.isatty(), leave=False)
+
+
+def _load(scene: str):
+    import assurjax
+
+    return assurjax.load_scene(scene)
+
+
+def _out_dir(path: str | None, scene) -> Path:
+    out = Path(path) if path else Path("assurjax-out") / scene.name
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot create output directory {out}: {e.strerror}") from None
+    return out
+
+
+def _driver_kind(mechanism) -> str:
+    return mechanism.driver.kind
+
+
+def _write_csv(path: Path, columns: dict) -> Path:
+    """One column per entry (equal lengths); numbers written with full precision."""
+    import numpy as np
+
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float).reshape(-1) for n in names])
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(names)
+        writer.writerows([[repr(float(x)) for x in row] for row in data])
+    return path
+
+
+def _savefig(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _units(kind: str) -> dict:
+    slider = kind == "slider"
+    return dict(q="m" if slider else "rad", omega="m/s" if slider else "rad/s", domega="m/s^2" if slider else "rad/s^2", driving="N" if slider else "N m")
+
+
+# ---------------------------------------------------------------------------- scenes / validate
+
+
+def cmd_scenes(args) -> int:
+    import assurjax
+
+    for name in assurjax.bundled_scenes():
+        scene = assurjax.load_scene(name)
+        print(f"{name:20s} {scene.description}")
+    return 0
+
+
+def cmd_validate(args) -> int:
+    import assurjax
+    import numpy as np
+
+    scene = _load(args.scene)
+    mech = scene.mechanism
+    pose = assurjax.pose_at(mech, scene.state["q0"])  # raises AssemblyError naming the group
+    print(f"{scene.name}: OK ({scene.source})")
+    if scene.description:
+        print(f"  {scene.description}")
+    print(f"  links: {', '.join(mech.links)}")
+    print(f"  formation: {' -> '.join(f'{g.name} ({g.kind})' for g in mech.groups)}")
+    print(f"  loads: {len(scene.loads)}, gravity: {np.asarray(scene.gravity).tolist()} m/s^2")
+    print(f"  assembles at q0 = {scene.state['q0']:.6g} ({len(pose.points)} points)")
+    return 0
+
+
+# ---------------------------------------------------------------------------- kinematics
+
+
+def _sweep_range(scene, start, stop) -> tuple[float, float]:
+    import numpy as np
+
+    q0 = scene.state["q0"]
+    if _driver_kind(scene.mechanism) == "slider":
+        pts = np.concatenate([np.atleast_2d(np.asarray(p)) for link in scene.mechanism.links.values() for p in link.points.values()])
+        reach = float(np.max(np.ptp(pts, axis=0))) or 1.0  # the links' size: the slider cannot go much further
+        default = (q0 - reach, q0 + reach)
+    else:
+        default = (q0 - np.pi, q0 + np.pi)
+    lo = default[0] if start is None else start
+    hi = default[1] if stop is None else stop
+    if not hi > lo:
+        raise UserError(f"--stop ({hi}) must be greater than --start ({lo})")
+    return lo, hi
+
+
+def sweep_kinematics(mechanism, q, *, chunk: int = 256, quiet: bool = True):
+    """Kinematics (order 1, omega = 1) at every q, in chunks of one compiled shape, with a progress bar."""
+    import jax
+    import numpy as np
+
+    import assurjax
+
+    parts = []
+    with _progress(len(q), "kinematics", quiet) as bar:
+        for start in range(0, len(q), chunk):
+            piece = q[start : start + chunk]
+            padded = np.concatenate([piece, np.full(chunk - len(piece), piece[-1])])
+            kin = assurjax.kinematics(mechanism, padded, order=1, check=False)
+            parts.append(jax.tree.map(lambda x: np.asarray(x)[: len(piece)], kin))
+            bar.update(len(piece))
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def cmd_kinematics(args) -> int:
+    import numpy as np
+
+    from . import viz
+
+    scene = _load(args.scene)
+    mech = scene.mechanism
+    if args.samples < 2:
+        raise UserError(f"--samples must be at least 2, got {args.samples}")
+    lo, hi = _sweep_range(scene, args.start, args.stop)
+    q = np.linspace(lo, hi, args.samples)
+    t0 = time.perf_counter()
+    frames = viz.frames_from_kinematics(sweep_kinematics(mech, q, quiet=args.quiet))
+    elapsed = time.perf_counter() - t0
+    if not frames.ok.any():
+        raise UserError(f"{scene.name}: the mechanism assembles nowhere in q = [{lo:.6g}, {hi:.6g}]")
+    out = _out_dir(args.out, scene)
+    points = list(scene.outputs["points"]) or [p for p in mech.point_names if p not in mech.ground]
+    units = _units(_driver_kind(mech))
+    cols = {"q": q, "ok": frames.ok}
+    for p in points:
+        cols |= {f"x_{p}": frames.points[p][:, 0], f"y_{p}": frames.points[p][:, 1]}
+        cols |= {f"dx_{p}/dq": frames.velocities[p][:, 0], f"dy_{p}/dq": frames.velocities[p][:, 1]}
+    for link in mech.links:
+        cols |= {f"theta_{link}": frames.angles[link], f"dtheta_{link}/dq": frames.angular_velocities[link]}
+    files = [_write_csv(out / "kinematics.csv", cols)]
+    ax = viz.plot_coupler_curves(frames, points)
+    files.append(_savefig(ax.figure, out / "coupler_curves.png"))
+    ax = viz.plot_angular_velocities(frames, driver_kind=_driver_kind(mech))
+    ax.set_ylabel(f"angular velocity for unit driving speed (rad/s per {units['omega']})")
+    files.append(_savefig(ax.figure, out / "angular_velocities.png"))
+    q_show = float(q[np.flatnonzero(frames.ok)[np.argmin(np.abs(q[frames.ok] - scene.state["q0"]))]])
+    drawing = viz.draw_mechanism(mech, q_show, velocities=points[:3], trace=points, trace_q=q)
+    files.append(_savefig(drawing.ax.figure, out / "mechanism.png"))
+    ok_q = q[frames.ok]
+    print(f"{scene.name}: {args.samples} configurations of q in [{lo:.6g}, {hi:.6g}] {units['q']} in {elapsed:.2f} s")
+    print(f"  assembles at {int(frames.ok.sum())} of them (q from {ok_q.min():.6g} to {ok_q.max():.6g})")
+    for link in mech.links:
+        w = frames.angular_velocities[link][frames.ok]
+        print(f"  dtheta_{link}/dq in [{w.min():.4g}, {w.max():.4g}]")
+    _print_files(files)
+    return 0
+
+
+# ---------------------------------------------------------------------------- run
+
+
+def _simulate(scene, quiet: bool):
+    """Simulate twice: the first call includes compilation, the second is the run time."""
+    import assurjax
+
+    t0 = time.perf_counter()
+    sol = assurjax.simulate(scene)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sol = assurjax.simulate(scene)
+    return sol, first, time.perf_counter() - t0
+
+
+def _reactions_along(scene, sol, joints):
+    import numpy as np
+
+    import assurjax
+
+    t0 = time.perf_counter()
+    r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
+    forces = {k: np.asarray(v) for k, v in r.forces.items()}
+    return forces, np.asarray(r.driving), np.asarray(r.ok).all(axis=-1), time.perf_counter() - t0
+
+
+def _solution_columns(scene, sol, forces, driving) -> dict:
+    import numpy as np
+
+    cols = {"t": sol.t, "q": sol.q, "omega": sol.omega}
+    if sol.domega is not None:
+        cols["domega"] = sol.domega
+    for name, field in (("T", "kinetic"), ("V", "potential"), ("E", "total"), ("W_dissipated", "dissipated")):
+        if getattr(sol, field) is not None:
+            cols[name] = getattr(sol, field)
+    for p, xy in sol.points.items():
+        cols |= {f"x_{p}": np.asarray(xy)[:, 0], f"y_{p}": np.asarray(xy)[:, 1]}
+    for link, theta in sol.angles.items():
+        cols[f"theta_{link}"] = theta
+    for joint, f in forces.items():
+        cols |= {f"Fx_{joint}": f[:, 0], f"Fy_{joint}": f[:, 1], f"F_{joint}": np.hypot(f[:, 0], f[:, 1])}
+    if driving is not None:
+        cols["driving"] = driving
+    return cols
+
+
+def _history_figure(scene, sol, forces, units):
+    import matplotlib.pyplot as plt
+
+    from . import viz
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
+    viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
+    if sol.kinetic is not None:
+        viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=None if sol.dissipated is None else -sol.dissipated)
+    else:
+        axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
+    if forces:
+        viz.plot_reactions(sol.t, forces, ax=axes[1, 1])
+    else:
+        axes[1, 1].text(0.5, 0.5, "no reactions requested ([outputs] reactions)", ha="center", transform=axes[1, 1].transAxes)
+    fig.suptitle(f"{scene.name}: {sol.status}")
+    return fig
+
+
+def _reduced_figure(scene, sol, units):
+    import numpy as np
+
+    import assurjax
+
+    from . import viz
+
+    lo, hi = float(np.min(sol.q)), float(np.max(sol.q))
+    pad = 0.05 * (hi - lo) if hi > lo else 0.1
+    q = np.linspace(lo - pad, hi + pad, 200)
+    red = assurjax.reduce(scene, q)
+    ok = np.asarray(red.ok).all(axis=-1)
+    j = np.where(ok, np.asarray(red.inertia), np.nan)
+    tau = np.where(ok, np.asarray(red.torque), np.nan)
+    axes = viz.plot_reduced(q, j, tau, driver_kind=_driver_kind(scene.mechanism))
+    return axes[0].figure
+
+
+def _animation(scene, sol, path: Path, frames: int, quiet: bool) -> Path:
+    import numpy as np
+
+    from . import viz
+
+    t = np.linspace(float(sol.t[0]), float(sol.t[-1]), frames)
+    q, w = np.interp(t, sol.t, sol.q), np.interp(t, sol.t, sol.omega)
+    points = list(scene.outputs["points"])
+    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, velocities=points[:3])
+    with _progress(frames, "animation", quiet) as bar:
+        viz.save_gif(anim, path, fps=20, progress=lambda i, n: bar.update(1))
+    return path
+
+
+def _energy_drift(sol):
+    import numpy as np
+
+    if sol.total is None:
+        return None
+    total = np.asarray(sol.total) + (0 if sol.dissipated is None else np.asarray(sol.dissipated))
+    drift = float(np.max(np.abs(total - total[0])))
+    scale = float(np.max(np.abs(sol.kinetic))) or 1.0
+    return drift, drift / scale
+
+
+def cmd_run(args) -> int:
+    from . import viz  # noqa: F401  (fail early if matplotlib is missing)
+
+    t0 = time.perf_counter()
+    scene = _load(args.scene)
+    load_time = time.perf_counter() - t0
+    if args.frames < 2:
+        raise UserError(f"--frames must be at least 2, got {args.frames}")
+    out = _out_dir(args.out, scene)
+    units = _units(_driver_kind(scene.mechanism))
+    steps = 4 + (not args.no_animation)
+    with _progress(steps, f"run {scene.name}", args.quiet) as bar:
+        sol, first, second = _simulate(scene, args.quiet)
+        bar.update(1)
+        joints = scene.outputs["reactions"]
+        forces, driving, rx_time = {}, None, None
+        if joints:
+            forces, driving, _, rx_time = _reactions_along(scene, sol, joints)
+        bar.update(1)
+        files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving))]
+        files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
+        bar.update(1)
+        files.append(_savefig(_reduced_figure(scene, sol, units), out / "reduced.png"))
+        if scene.outputs["points"]:
+            from . import viz
+
+            frames = viz.mechanism_frames(scene.mechanism, sol.q)
+            files.append(_savefig(viz.plot_coupler_curves(frames, list(scene.outputs["points"])).figure, out / "coupler_curves.png"))
+        bar.update(1)
+        if not args.no_animation:
+            files.append(_animation(scene, sol, out / "animation.gif", args.frames, args.quiet))
+            bar.update(1)
+    summary = dict(
+        scene=scene.name, status=sol.status, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(sol.num_steps),
+        t_final=float(sol.t[-1]), q_final=float(sol.q[-1]), timings_s=dict(load=load_time, simulate_first_call=first, simulate_compiled=second, reactions=rx_time),
+        units=dict(t="s", **units, energies="J", positions="m", angles="rad", forces="N"),
+    )
+    drift = _energy_drift(sol)
+    if drift is not None:
+        summary["energy_drift_J"], summary["energy_drift_relative"] = drift
+    files.append(out / "summary.json")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"{scene.name}: {sol.status}")
+    print(f"  standstill time: {sol.t_stop:.6f} s" if sol.t_stop is not None and "standstill" in sol.status else "  standstill: none before t1")
+    if drift is not None:
+        print(f"  energy drift: max |E(t) - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest kinetic energy)")
+    print(f"  {len(sol.t)} samples, {int(sol.num_steps)} solver steps")
+    print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
+          + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
+    _print_files(files)
+    return 0
+
+
+# ---------------------------------------------------------------------------- reactions
+
+
+def cmd_reactions(args) -> int:
+    import numpy as np
+
+    import assurjax
+
+    from . import viz
+
+    scene = _load(args.scene)
+    out = _out_dir(args.out, scene)
+    units = _units(_driver_kind(scene.mechanism))
+    joints = list(scene.outputs["reactions"]) or None
+    if args.static:
+        q0 = scene.state["q0"]
+        r = assurjax.static_reactions(scene, q0, joints=joints)
+        print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}")
+        _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
+        return 0
+    sol, _, _ = _simulate(scene, args.quiet)
+    forces, driving, ok, elapsed = _reactions_along(scene, sol, joints)
+    files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": ok}
+                        | {k: v for k, v in _solution_columns(scene, sol, forces, driving).items() if k.startswith(("F", "driving"))})]
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    viz.plot_reactions(sol.t, forces, ax=axes[0])
+    viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
+    files.append(_savefig(fig, out / "reactions.png"))
+    print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
+    print(f"  at t = {float(sol.t[0]):.4g} s:")
+    _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units)
+    peak = {k: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for k, v in forces.items()}
+    print("  peak |F|: " + ", ".join(f"{k} {v:.4g} N" for k, v in peak.items()))
+    _print_files(files)
+    return 0
+
+
+def _print_reaction_table(forces: dict, driving: float, units: dict):
+    import numpy as np
+
+    for k, f in forces.items():
+        print(f"    {k:12s} Fx = {f[0]:+.6g} N, Fy = {f[1]:+.6g} N, |F| = {np.hypot(*f):.6g} N")
+    print(f"    driving effort = {driving:+.6g} {units['driving']}")
+
+
+def _print_files(files):
+    print("  wrote: " + ", ".join(str(f) for f in files))
+
+
+# ---------------------------------------------------------------------------- argument parsing
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
+    common.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress bars")
+    parser = argparse.ArgumentParser(prog="assurjax", description="Dynamics of planar one-DOF linkages built from Assur groups.", parents=[common])
+    parser.set_defaults(debug=False, quiet=False)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("run", parents=[common], help="simulate a scene: CSV, plots, animation, summary")
+    p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"scene file or bundled name (default: {DEFAULT_SCENE})")
+    p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
+    p.add_argument("--frames", type=int, default=60, help="frames of the animation (default: 60)")
+    p.add_argument("--no-animation", action="store_true", help="skip the GIF")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", parents=[common], help="check a scene (exit status 2 if it is bad)")
+    p.add_argument("scene")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("scenes", parents=[common], help="list the bundled scenes")
+    p.set_defaults(func=cmd_scenes)
+
+    p = sub.add_parser("kinematics", parents=[common], help="sweep the driving coordinate: coupler curves, angular velocities")
+    p.add_argument("scene")
+    p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
+    p.add_argument("--samples", type=int, default=361, help="configurations in the sweep (default: 361)")
+    p.add_argument("--start", type=float, help="first driving coordinate (rad or m; default q0 - pi for a crank)")
+    p.add_argument("--stop", type=float, help="last driving coordinate (rad or m; default q0 + pi for a crank)")
+    p.set_defaults(func=cmd_kinematics)
+
+    p = sub.add_parser("reactions", parents=[common], help="joint reactions and driving effort along the simulated motion")
+    p.add_argument("scene")
+    p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
+    p.add_argument("--static", action="store_true", help="the mechanism held at rest at q0 instead (printed only)")
+    p.set_defaults(func=cmd_reactions)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``assurjax`` command; returns the exit status."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only: works without a display
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # argparse already printed its usage message
+        return int(e.code or 0)
+    try:
+        return args.func(args)
+    except Exception as e:  # one line for the user, the traceback with --debug
+        if args.debug:
+            raise
+        return _report(e)
+
+
+def _report(e: Exception) -> int:
+    from ._errors import AssurjaxError
+
+    if isinstance(e, (AssurjaxError, UserError)):
+        status = USER_ERROR
+    elif isinstance(e, OSError):
+        status, e = USER_ERROR, f"{e.strerror or e}: {e.filename}" if e.filename else e
+    else:
+        status = INTERNAL_ERROR
+        e = f"internal error ({type(e).__name__}): {e} (run again with --debug for the traceback)"
+    print(f"assurjax: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
