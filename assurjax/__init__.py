@@ -69,6 +69,7 @@ from .scene._scene import Scene as Scene
 from ._sweep import (
     batch_kinematics as batch_kinematics,
     batch_mesh as batch_mesh,
+    batch_simulate as batch_simulate,
     perturb as perturb,
     shard_batch as shard_batch,
     stack_mechanisms as stack_mechanisms,

@@ -37,7 +37,7 @@ from jaxtyping import Array
 from ._errors import AssurjaxError
 from ._loads import Damper, RotaryDamper, any_velocity_dependent, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
-from ._reduction import coefficients, kinematics_from_coefficients, reduce_single, reduce_with_pose
+from ._reduction import coefficients, generalized_force, kinematics_from_coefficients, reduce_single, reduce_with_pose
 from ._tracking import branch_angles, branch_rates, branch_state
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
@@ -224,13 +224,13 @@ def _controller(settings: Settings):
 
 
 def _initial_step(settings, dt, t0, t1):
-    """The fixed step, or a small first step for the controller: diffrax's automatic
-    choice costs two more right-hand-side evaluations in the compiled program."""
+    """The fixed step, or the controller's first step (None: diffrax's automatic choice,
+    two right-hand-side evaluations; a small guess costs more steps to grow)."""
     if dt is not None:
         return jnp.asarray(dt, dtype=float)
     if settings.fixed_step:
         raise AssurjaxError("fixed_step needs a step dt")
-    return 1e-3 * (t1 - t0)
+    return None
 
 
 def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, dt=None, *, settings: Settings = Settings()) -> Solution:
@@ -258,9 +258,8 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         y0 = y0 + (branch_angles(mechanism, positions(mechanism, q0)),)
     # Initial direction of motion: of the velocity, or from rest of the acceleration.
     direction = jnp.sign(omega0)
-    if settings.standstill:  # from rest, the direction the acceleration starts it in
-        a0 = _acceleration(mechanism, gravity, loads, t0, q0, omega0)
-        direction = jnp.where(omega0 != 0, direction, jnp.sign(a0))
+    if settings.standstill:  # from rest, the direction the applied loads start it in
+        direction = jnp.where(omega0 != 0, direction, jnp.sign(generalized_force(mechanism, gravity, loads, q0, omega0, t0)))
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
     args = (mechanism, gravity, loads, track_work, direction, user_signs)
     sol = diffrax.diffeqsolve(
@@ -296,13 +295,14 @@ def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> 
     near = branch_state(sol.ys)  # saved link angles (tracked branch) or None
     near_final = None if near is None else jax.tree.map(lambda z: z[last], near)
     near = None if near is None else jax.tree.map(lambda z: jnp.where(reached, z[:-1], z[last]), near)
-    event = _which_event(sol, settings, args, last, near_final)
+    ok_final = _assembles(mechanism, q_final, w_final, near_final) if settings.check_assembly else None
+    event = _which_event(sol, settings, args, last, ok_final)
     outputs = _outputs(mechanism, gravity, loads, t, q, w, settings, near)
     dissipated = None
     if track_work:
         work = sol.ys[2]
         dissipated = jnp.where(reached, work[:-1], work[last])
-    failed = _failed_group(mechanism, q_final, w_final, event, near_final)
+    failed = jnp.asarray(-1) if ok_final is None else jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
     return Solution(
         t=t, q=q, omega=w, **outputs, dissipated=dissipated, valid=valid,
         t_final=t_final, q_final=q_final, omega_final=w_final,
@@ -311,7 +311,7 @@ def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> 
     )
 
 
-def _which_event(sol, settings, args, last, near_final):
+def _which_event(sol, settings, args, last, ok_final):
     """The code of the stop condition that fired (the smallest margin at the stop), or -1.
     The assembly condition is read at and just past the final state, since bisection
     may leave that state on the assembled side."""
@@ -321,8 +321,7 @@ def _which_event(sol, settings, args, last, near_final):
     y_final = jax.tree.map(lambda y: y[last], sol.ys)
     margins = _margins(settings, sol.ts[last], y_final, args)
     if settings.check_assembly:
-        ok = _assembles(args[0], y_final[0], y_final[1], near_final)
-        margins[codes.index(LOCKUP)] = jnp.where(jnp.all(ok), 1.0, -1.0)
+        margins[codes.index(LOCKUP)] = jnp.where(jnp.all(ok_final), 1.0, -1.0)
     return jnp.where(sol.event_mask, jnp.asarray(codes)[jnp.argmin(jnp.stack(margins))], NO_EVENT)
 
 
@@ -330,12 +329,6 @@ def _assembles(mechanism, q_final, w_final, near=None):
     """Per group: assembled at the final state and just past it (in the direction of motion)."""
     nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
     return positions(mechanism, q_final + nudge, near=near).ok & positions(mechanism, q_final, near=near).ok
-
-
-def _failed_group(mechanism, q_final, w_final, event, near=None):
-    """Index of the first group that cannot assemble just past the final state (-1: none)."""
-    ok = _assembles(mechanism, q_final, w_final, near)
-    return jnp.where((event == LOCKUP) & ~jnp.all(ok), jnp.argmin(ok), -1)
 
 
 def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:

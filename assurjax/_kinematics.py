@@ -50,8 +50,9 @@ def _stack(values: list) -> Array | None:
 
 def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tuple[bool, bool], names: dict) -> Callable:
     """q -> ((points (n, 2), coms (m, 2), angles (m,)), ok), each kind stacked into one
-    array (one output stream instead of one per name: XLA writes it from a single
-    fused loop). The names in stacking order are recorded in ``names`` at trace time."""
+    array: the vmapped function has a few outputs instead of one per name, and the
+    dicts are built after the vmap. The names in stacking order are recorded in
+    ``names`` at trace time."""
     want_coms, want_angles = what
 
     def coords(q):

@@ -79,6 +79,22 @@ def coefficients(mechanism: Mechanism, q, *, near=None):
     return x, dx, d2x, ok
 
 
+def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Array:
+    """tau + tau_red (N m or N) from first-order kinematic coefficients only (no dJ/dq):
+    at rest (omega = 0) its sign is the direction the mechanism starts to move in."""
+    q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
+
+    def coords(q):
+        pose = positions(mechanism, q)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
+    x, dx, ok = jax.jvp(coords, (q,), (jnp.ones_like(q),), has_aux=True)
+    kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=any_velocity_dependent(loads))
+    wrenches = applied_wrenches(mechanism, gravity, loads, kin, t)
+    torque = sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
+    return torque + driver_effort(mechanism, loads, q, omega, t)
+
+
 def kinematics_from_coefficients(q, omega, x, dx, ok, *, velocities: bool = True) -> Kinematics:
     """A single-configuration :class:`Kinematics` (order 1) built from the coefficients:
     v = dx/dq w. Without ``velocities`` only positions are filled (loads that do not

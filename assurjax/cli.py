@@ -73,7 +73,8 @@ def _write_csv(path: Path, columns: dict) -> Path:
 def _savefig(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -162,12 +163,12 @@ def cmd_kinematics(args) -> int:
         raise UserError(f"--samples must be at least 2, got {args.samples}")
     lo, hi = _sweep_range(scene, args.start, args.stop)
     q = np.linspace(lo, hi, args.samples)
+    out = _out_dir(args.out, scene)
     t0 = time.perf_counter()
     frames = viz.frames_from_kinematics(sweep_kinematics(mech, q, quiet=args.quiet))
     elapsed = time.perf_counter() - t0
     if not frames.ok.any():
         raise UserError(f"{scene.name}: the mechanism assembles nowhere in q = [{lo:.6g}, {hi:.6g}]")
-    out = _out_dir(args.out, scene)
     points = list(scene.outputs["points"]) or [p for p in mech.point_names if p not in mech.ground]
     units = _units(_driver_kind(mech))
     cols = {"q": q, "ok": frames.ok}
@@ -305,7 +306,7 @@ def _energy_drift(sol):
 
 
 def cmd_run(args) -> int:
-    from . import viz  # noqa: F401  (fail early if matplotlib is missing)
+    import numpy as np
 
     t0 = time.perf_counter()
     scene = _load(args.scene)
@@ -327,11 +328,12 @@ def cmd_run(args) -> int:
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene, sol, units), out / "reduced.png"))
-        if scene.outputs["points"]:
+        if sol.points:  # the simulation already traced them
             from . import viz
 
-            frames = viz.mechanism_frames(scene.mechanism, sol.q)
-            files.append(_savefig(viz.plot_coupler_curves(frames, list(scene.outputs["points"])).figure, out / "coupler_curves.png"))
+            frames = viz.Frames(q=np.asarray(sol.q), points={k: np.asarray(v) for k, v in sol.points.items()}, angles={},
+                                velocities=None, angular_velocities=None, ok=np.ones(len(sol.q), dtype=bool))
+            files.append(_savefig(viz.plot_coupler_curves(frames).figure, out / "coupler_curves.png"))
         bar.update(1)
         if not args.no_animation:
             files.append(_animation(scene, sol, out / "animation.gif", args.frames, args.quiet))

@@ -207,7 +207,9 @@ def _watt_reference_at(t1, theta0=0.3):
 
 
 @pytest.mark.parametrize("solver, order, steps", [
-    ("heun", 2, (0.02, 0.01, 0.005)), ("bosh3", 3, (0.04, 0.02, 0.01)), ("dopri5", 5, (0.08, 0.04, 0.02)),
+    ("heun", 2, (0.02, 0.01, 0.005)),
+    pytest.param("bosh3", 3, (0.04, 0.02, 0.01), marks=pytest.mark.slow),
+    pytest.param("dopri5", 5, (0.08, 0.04, 0.02), marks=pytest.mark.slow),
 ])
 def test_fixed_step_solvers_show_their_order(watt, solver, order, steps):
     """Error at t = 1.2 s against the reference, halving the (traced) step: one compile per solver."""

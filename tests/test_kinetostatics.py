@@ -73,6 +73,45 @@ mode = "forward"
 q0 = 0.5
 """
 
+# the slider-driven rocker of tests/joint_reference.py (slider_driven): the driver is a slider
+SLIDER_DRIVEN = """
+[scene]
+name = "slider_driven"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+O3 = [0.0, 0.3]
+[links.slider]
+points = { B = [0.0, 0.0] }
+com = [0.0, 0.0]
+mass = 0.5
+inertia = 0.0
+[links.rod]
+points = { B = [0.0, 0.0], C = [0.25, 0.0] }
+com = [0.125, 0.0]
+mass = 0.3
+inertia = 0.0015625
+[links.rocker]
+points = { O3 = [0.0, 0.0], C = [0.2, 0.0] }
+com = [0.1, 0.0]
+mass = 0.4
+inertia = 0.0013333333333333333
+[[formation]]
+group = "slider"
+link = "slider"
+point = "B"
+guide_point = "O"
+direction = [1.0, 0.0]
+[[formation]]
+group = "RRR"
+name = "dyad"
+links = ["rod", "rocker"]
+joints = ["B", "O3", "C"]
+mode = "left"
+[state]
+q0 = 0.2
+"""
+
 # a four-bar whose output dyad is exactly collinear (A, B, O4 on the x axis) at q = 0,
 # where |A O4| = 4 is at its largest and equals coupler + rocker: it assembles for every q
 TOGGLE_FOUR_BAR = """
@@ -113,6 +152,7 @@ def _scenes():
 
     scenes = {name: assurjax.load_scene(name) for name in assurjax.bundled_scenes()}
     scenes["slider_crank_prr"] = scene_from_dict(tomllib.loads(PRR_SLIDER_CRANK), source="prr")
+    scenes["slider_driven"] = scene_from_dict(tomllib.loads(SLIDER_DRIVEN), source="slider_driven")
     return scenes
 
 
@@ -258,6 +298,27 @@ def test_prr_is_rrp_listed_from_the_other_end(solved):
     for joint in ("O", "A", "slider/ground"):
         np.testing.assert_allclose(other[joint], prr[joint], atol=1e-10)
     np.testing.assert_allclose(other.couples["slider/ground"], prr.couples["slider/ground"], atol=1e-10)
+
+
+def test_slider_driver_matches_the_joint_reference(solved):
+    """Reactions and driving force of a slider-driven rocker against the reference's
+    inverse dynamics at the same (q, w, dw/dt). The reference gives P on the ground by
+    the slider (and its couple), B on the slider by the rod, C on the rod by the
+    rocker, O3 on the rocker by the ground."""
+    _, (q, w, a, t), found, _, _ = solved["slider_driven"]
+    r = found["modular"]
+    flip = {"slider/ground": ("P", -1), "B": ("B", -1), "C": ("C", -1), "O3": ("O3", 1)}
+    for k in range(N_STATES):
+        model = jr.slider_driven(float(q[k]), float(w[k]))
+        s = model.system
+        z = s.newton(float(q[k]), s.to_internal(model.initial.coords))
+        z = z[0] if isinstance(z, tuple) else z
+        tau, lam, _, _ = s.inverse_dynamics(z, float(w[k]), float(a[k]))
+        forces, couples = s.reactions(z, lam)
+        assert abs(float(r.driving[k]) - tau) < 1e-10
+        for ours, (theirs, sign) in flip.items():
+            np.testing.assert_allclose(r[ours][k], sign * forces[theirs], rtol=0, atol=1e-10, err_msg=ours)
+        assert abs(float(r.couples["slider/ground"][k]) + couples["P"]) < 1e-10
 
 
 def _reference_watt(q, w):

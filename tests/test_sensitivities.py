@@ -187,3 +187,53 @@ def test_no_nan_gradients_on_random_valid_configurations(roberts, watt):
             leaf = np.asarray(leaf)
             assert np.all(np.isfinite(leaf[ok])), "NaN/inf gradient on an assembled configuration"
             assert np.all(np.isfinite(leaf)), "NaN/inf gradient where assembly fails"
+
+
+# ----------------------------------------------------------------------------- through the simulation (diffrax)
+
+SIM = dict(solver="tsit5", rtol=1e-10, atol=1e-10, max_steps=1024)
+
+
+def _directional_fd(f, theta, v, h):
+    d = lambda s: (f(theta + s * v) - f(theta - s * v)) / (2 * s)  # noqa: E731
+    return (4 * d(h / 2) - d(h)) / 3
+
+
+@pytest.fixture(scope="module")
+def watt_flat(watt):
+    theta, unflatten = syn.flatten_parameters(watt, select=lambda s: (s.mechanism, s.gravity))
+    v = jax.random.normal(jax.random.key(0), theta.shape)
+    return theta, unflatten, v / jnp.linalg.norm(v)
+
+
+def test_final_angle_directional_derivative_forward_mode(watt_flat):
+    """theta(T) of the falling Watt six-bar: jvp through diffrax (ForwardMode) along a random
+    direction in the space of all 50 scene parameters equals the central difference."""
+    theta, unflatten, v = watt_flat
+    f = lambda th: syn.final_state(unflatten(th), 0.3, adjoint="forward", **SIM)[0]  # noqa: E731
+    jvp = jax.jit(lambda th: jax.jvp(f, (th,), (v,))[1])(theta)
+    fd = _directional_fd(jax.jit(f), theta, v, 1e-4)
+    assert abs(jvp - fd) <= RTOL * abs(fd), (float(jvp), float(fd))
+
+
+@pytest.mark.slow  # reverse mode through diffrax: minutes of compilation on a busy 2-core machine
+def test_final_angle_gradient_reverse_mode_every_parameter(watt_flat):
+    theta, unflatten, v = watt_flat
+    f = jax.jit(lambda th: syn.final_state(unflatten(th), 0.3, **SIM)[0])
+    grad = jax.jit(jax.grad(lambda th: syn.final_state(unflatten(th), 0.3, **SIM)[0]))(theta)
+    fd = central_difference(f, theta, 1e-4)
+    assert_close_jacobian(grad, fd)
+
+
+@pytest.mark.slow  # the standstill event: minutes of compilation on a busy 2-core machine
+def test_standstill_time_gradient(watt_flat):
+    """Seed 000's standstill time: the implicit-function derivative, forward and reverse, vs central differences."""
+    theta, unflatten, v = watt_flat
+    t_stop = lambda th, adj="recursive": syn.standstill_time(unflatten(th), t1=2.0, adjoint=adj, **SIM)  # noqa: E731
+    value, ok = jax.jit(t_stop)(theta)
+    assert bool(ok) and 1.0 < float(value) < 2.0
+    fd = _directional_fd(jax.jit(lambda th: t_stop(th)[0]), theta, v, 1e-4)
+    jvp = jax.jit(lambda th: jax.jvp(lambda t: t_stop(t, "forward")[0], (th,), (v,))[1])(theta)
+    grad = jax.jit(jax.grad(lambda th: t_stop(th)[0]))(theta)
+    assert abs(jvp - fd) <= RTOL * abs(fd)
+    assert abs(jnp.dot(grad, v) - fd) <= RTOL * abs(fd)

@@ -58,13 +58,17 @@ def _tolerances(dtype) -> tuple[float, float]:
     return 100.0 * eps, max(1e-9, 1e3 * eps)
 
 
-def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int) -> tuple[Array, Array]:
+def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, loose: bool = False) -> tuple[Array, Array]:
     """Root of ``residual(z, args)`` by optimistix's Newton from ``z0``.
 
     ``residual`` must be a global function (no closed-over arrays: everything
     differentiable goes through ``args``). Differentiation is implicit.
+    ``loose``: stop at 1e-8 rad (closure 1e-6), enough for an intermediate
+    continuation step whose only job is to stay on the branch.
     Returns (z, ok); z is finite even when the solve fails (then z0 is returned)."""
     step_tol, f_tol = _tolerances(z0.dtype)
+    if loose:
+        step_tol, f_tol = max(step_tol, 1e-8), max(f_tol, 1e-6)
     solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=lx.LU())
     adjoint = optx.ImplicitAdjoint(linear_solver=lx.LU())
     sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
@@ -76,11 +80,15 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int) ->
 
 
 def _tangent(residual: Callable, z: Array, args_at: Callable, q: Array) -> Array:
-    """dz/dq = -F_z^-1 dF/dq along the motion (zero where F_z is singular)."""
+    """dz/dq = -F_z^-1 dF/dq along the motion for two unknowns (zero where F_z is singular)."""
     f_q = jax.jvp(lambda qq: residual(z, args_at(qq)), (q,), (jnp.ones_like(q),))[1]
-    f_z = jax.jacfwd(residual)(z, args_at(q))
-    t = -jnp.linalg.solve(f_z, f_q)
-    return jnp.where(jnp.all(jnp.isfinite(t)), t, jnp.zeros_like(t))
+    (a, b), (c, d) = jax.jacfwd(residual)(z, args_at(q))
+    det = a * d - b * c
+    ok = jnp.abs(det) > 1e-300
+    det = jnp.where(ok, det, 1.0)
+    # 2x2 inverse written out: a batched LAPACK call costs more than the whole residual
+    t = -jnp.stack([d * f_q[0] - b * f_q[1], a * f_q[1] - c * f_q[0]]) / det
+    return jnp.where(ok & jnp.all(jnp.isfinite(t)), t, jnp.zeros_like(t))
 
 
 def continuation(residual: Callable, z_start: Array, args_at: Callable, q_start: Array, q_end: Array, *, substeps: int, max_steps: int):
@@ -94,7 +102,7 @@ def continuation(residual: Callable, z_start: Array, args_at: Callable, q_start:
         # step 0 corrects the starting guess in place; later steps predict along the tangent first
         z, _, ok = carry
         q_k = q_start + k * dq
-        z_new, ok_new = newton_solve(residual, z, args_at(q_k), max_steps=max_steps)
+        z_new, ok_new = newton_solve(residual, z, args_at(q_k), max_steps=max_steps, loose=True)
         t = _tangent(residual, z_new, args_at, q_k)
         return z_new + t * dq, z_new, ok & ok_new
 

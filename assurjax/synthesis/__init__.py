@@ -4,16 +4,14 @@
 
 >>> import optax, assurjax
 >>> from assurjax import synthesis as syn
->>> mech = syn.roberts_like(syn.roberts_lengths() * 1.05)
->>> design = syn.Design(mech, lambda m: (m.ground["D"], m.links["link4"].points["P"]), absolute=0.03)
->>> def objective(m):
-...     line = syn.straight_line_deviation(m, "P", stroke=0.26, q0=1.23)
-...     return line.smooth, {"ok": line.ok, "deviation": line.deviation}
->>> result = syn.optimize(design, objective, optax.adam(1e-2), 200, has_aux=True)
->>> result.status, result.history.loss[-1]
+>>> lengths = syn.roberts_lengths() * jnp.array([1.05, 0.95, 1.08, 0.93, 1.02, 0.97])
+>>> design, objective = syn.straight_line_problem(lengths)   # lengths + stroke centre, bounded
+>>> result = syn.optimize(design, objective, optax.adam(0.05), 300, has_aux=True)
+>>> result.history.aux["deviation"][-1]   # m, below the Roberts linkage's 0.67 mm
 """
 
 from ._design import Design as Design
+from ._dynamic import final_state as final_state, standstill_time as standstill_time
 from ._linkages import (
     four_bar as four_bar,
     roberts_lengths as roberts_lengths,
@@ -30,6 +28,7 @@ from ._objectives import (
     straight_line_deviation as straight_line_deviation,
     transmission_angles as transmission_angles,
 )
+from ._problems import ROBERTS_Q0 as ROBERTS_Q0, straight_line_problem as straight_line_problem
 from ._optimize import History as History, SynthesisResult as SynthesisResult, assembles as assembles, optimize as optimize
 from ._parameters import (
     flatten_parameters as flatten_parameters,

@@ -11,7 +11,7 @@ import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
 
 from .._mechanism import Mechanism
-from ._draw import MechanismDrawing
+from ._draw import MechanismDrawing, place_legend
 from ._frames import mechanism_frames
 
 
@@ -42,11 +42,11 @@ def animate(
     velocities = tuple(velocities)
     frames = mechanism_frames(mechanism, q, omega, velocities=bool(velocities))
     if ax is None:
-        _, ax = plt.subplots(figsize=(6, 5))
+        _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit)
     times = None if t is None else np.asarray(t, dtype=float)
     head = title or mechanism.name
-    ax.legend(loc="upper right", fontsize=7)
+    place_legend(ax)
 
     def show(i):
         artists = drawing.update(i)

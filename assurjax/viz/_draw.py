@@ -132,9 +132,10 @@ class MechanismDrawing:
 
     def _draw_traces(self, names):
         s, ok = self.scale, self.frames.ok
-        for name in names:
+        shades = plt.get_cmap("Greys")(np.linspace(0.9, 0.5, max(len(names), 1)))
+        for name, shade in zip(names, shades):
             xy = np.where(ok[:, None], self.frames.points[name], np.nan) * s
-            self.ax.plot(xy[:, 0], xy[:, 1], lw=1, ls=":", color="black", alpha=0.7, zorder=2, label=f"path of {name}")
+            self.ax.plot(xy[:, 0], xy[:, 1], lw=1, ls=":", color=shade, zorder=2, label=f"path of {name}")
 
     def _make_links(self) -> dict:
         artists = {}
@@ -180,6 +181,11 @@ class MechanismDrawing:
         return [a for a, _ in self.link_artists.values()] + [self.joints, *self.labels.values(), *self.arrows.values()]
 
 
+def place_legend(ax):
+    """The legend outside the drawing, on its right, so it never hides the mechanism."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, borderaxespad=0.0)
+
+
 def draw_mechanism(
     mechanism: Mechanism,
     q: float,
@@ -204,7 +210,7 @@ def draw_mechanism(
     >>> drawing = assurjax.viz.draw_mechanism(mech, 1.0, velocities=["P"], trace=["P"], unit="mm")
     """
     if ax is None:
-        _, ax = plt.subplots(figsize=(6, 5))
+        _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     q_all = np.concatenate([[q], np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)]) if trace else np.array([q], dtype=float)
     frames = mechanism_frames(mechanism, q_all, omega, velocities=bool(tuple(velocities)))
     if velocities and velocity_scale is None:  # scale the arrows for the configuration shown
@@ -215,5 +221,5 @@ def draw_mechanism(
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels, velocity_scale=velocity_scale)
     drawing.update(0)
     ax.set_title(f"{mechanism.name} at q = {q:.4g}")
-    ax.legend(loc="upper right", fontsize=7)
+    place_legend(ax)
     return drawing

@@ -1,0 +1,250 @@
+"""The `assurjax` command end to end, in temporary directories.
+
+``main([...])`` runs in-process (one compilation for the whole module); one
+subprocess smoke test covers the installed script. Numbers in the files are
+checked against closed forms, the energy balance and the independent joint-based
+reference (tests/joint_reference.py)."""
+
+import csv
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import assurjax
+from assurjax.cli import DEFAULT_SCENE, build_parser, main
+
+sys.path.insert(0, os.path.dirname(__file__))
+import joint_reference as jr  # noqa: E402
+
+
+def read_csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+@pytest.fixture(scope="module")
+def watt_run(tmp_path_factory):
+    """`assurjax run` with no scene (the bundled default), once for the module."""
+    out = tmp_path_factory.mktemp("run")
+    status = main(["run", "--out", str(out), "--frames", "4", "--quiet"])
+    return status, out
+
+
+def test_run_defaults_to_the_watt_sixbar():
+    assert DEFAULT_SCENE == "watt_sixbar"
+    assert build_parser().parse_args(["run"]).scene == "watt_sixbar"
+
+
+def test_run_writes_every_file(watt_run):
+    status, out = watt_run
+    assert status == 0
+    for name in ("solution.csv", "histories.png", "reduced.png", "coupler_curves.png", "animation.gif", "summary.json"):
+        assert (out / name).stat().st_size > 0, name
+    with Image.open(out / "animation.gif") as im:
+        assert im.n_frames == 4
+
+
+def test_run_csv_columns_and_values(watt_run):
+    _, out = watt_run
+    cols = read_csv(out / "solution.csv")
+    expected = {"t", "q", "omega", "domega", "T", "V", "E", "x_A", "y_A", "x_B", "y_B", "x_E", "y_E", "theta_link2", "driving"}
+    expected |= {f"{c}_{j}" for j in ("O2", "A", "E") for c in ("Fx", "Fy", "F")}
+    assert expected <= set(cols)
+    # A is on the unit crank: closed form x_A = cos q, y_A = sin q
+    np.testing.assert_allclose(cols["x_A"], np.cos(cols["q"]), atol=1e-12)
+    np.testing.assert_allclose(cols["y_A"], np.sin(cols["q"]), atol=1e-12)
+    # closed-form positions of E from the reference's circle intersections
+    for k in (0, len(cols["q"]) // 2):
+        points, _ = jr.watt_sixbar_points(cols["q"][k])
+        np.testing.assert_allclose([cols["x_E"][k], cols["y_E"][k]], points["E"], atol=1e-9)
+    # energy balance (no loads but gravity): E = T + V stays at its initial value
+    assert np.max(np.abs(cols["E"] - cols["E"][0])) < 1e-5 * np.max(cols["T"])
+    # |F| column is the magnitude of its components
+    np.testing.assert_allclose(cols["F_A"], np.hypot(cols["Fx_A"], cols["Fy_A"]), rtol=1e-12)
+    # kinetostatics agrees with the dynamics: the free fall needs no driving torque
+    assert np.max(np.abs(cols["driving"])) < 1e-6 * np.max(np.abs(cols["F_O2"]))
+
+
+def test_run_reactions_at_release_match_the_joint_reference(watt_run):
+    """At t = 0 the six-bar is released from rest: compare |F| with the joint-based Lagrange multipliers."""
+    _, out = watt_run
+    cols = read_csv(out / "solution.csv")
+    ref = jr.watt_sixbar(0.0, 0.0).simulate(1e-9, t_eval=[0.0])
+    for joint in ("O2", "A", "E"):
+        np.testing.assert_allclose(cols[f"F_{joint}"][0], np.hypot(*ref.reactions[joint][0]), rtol=1e-6)
+    np.testing.assert_allclose(cols["domega"][0], ref.wdot[0], rtol=1e-8)
+
+
+def test_run_summary_standstill(watt_run, capsys):
+    _, out = watt_run
+    import json
+
+    summary = json.loads((out / "summary.json").read_text())
+    cols = read_csv(out / "solution.csv")
+    assert summary["t_stop"] == pytest.approx(cols["t"][-1])
+    assert abs(cols["omega"][-1]) < 1e-6 * np.max(np.abs(cols["omega"]))  # at rest again
+    assert summary["energy_drift_J"] < 1e-5 * np.max(cols["T"])
+    assert {"simulate_first_call", "simulate_compiled"} <= set(summary["timings_s"])
+
+
+def test_scenes_lists_bundled_with_descriptions(capsys):
+    assert main(["scenes"]) == 0
+    text = capsys.readouterr().out
+    for name in assurjax.bundled_scenes():
+        line = next(line for line in text.splitlines() if line.startswith(name))
+        assert assurjax.load_scene(name).description in line
+
+
+def test_validate_good_scene(capsys):
+    assert main(["validate", "roberts"]) == 0
+    assert "OK" in capsys.readouterr().out
+
+
+BAD_SCENES = {
+    "not toml": ("x = ", "not valid TOML"),
+    "unknown group": (
+        """
+        [ground]
+        O = [0.0, 0.0]
+        [links.crank]
+        points = { O = [0.0, 0.0], A = [1.0, 0.0] }
+        [[formation]]
+        group = "RRRR"
+        """,
+        "unknown group kind",
+    ),
+    "unknown output point": (
+        """
+        [ground]
+        O = [0.0, 0.0]
+        [links.crank]
+        points = { O = [0.0, 0.0], A = [1.0, 0.0] }
+        [[formation]]
+        group = "crank"
+        link = "crank"
+        pivot = "O"
+        [outputs]
+        points = ["Z"]
+        """,
+        "unknown point 'Z'",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_SCENES)
+def test_validate_bad_scene_exits_2_with_one_line(case, write_scene, capsys):
+    text, reason = BAD_SCENES[case]
+    path = write_scene(text)
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("assurjax: error:") and reason in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_validate_scene_that_cannot_assemble_names_the_group(write_scene, capsys):
+    path = write_scene(
+        """
+        [ground]
+        O = [0.0, 0.0]
+        F = [5.0, 0.0]
+        [links.crank]
+        points = { O = [0.0, 0.0], A = [1.0, 0.0] }
+        [links.rod]
+        points = { A = [0.0, 0.0], B = [1.0, 0.0] }
+        [links.rocker]
+        points = { F = [0.0, 0.0], B = [1.0, 0.0] }
+        [[formation]]
+        group = "crank"
+        link = "crank"
+        pivot = "O"
+        [[formation]]
+        group = "RRR"
+        name = "dyad"
+        links = ["rod", "rocker"]
+        joints = ["A", "F", "B"]
+        mode = "left"
+        """
+    )
+    assert main(["validate", str(path)]) == 2
+    assert "dyad" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, reason",
+    [
+        (["validate", "no_such_scene"], "neither a scene file nor a bundled scene"),
+        (["run", "missing.toml"], "no such scene file"),
+        (["kinematics", "roberts", "--samples", "1"], "--samples"),
+        (["kinematics", "roberts", "--start", "2", "--stop", "1"], "--stop"),
+    ],
+)
+def test_user_errors_exit_2(argv, reason, capsys):
+    assert main(argv) == 2
+    assert reason in capsys.readouterr().err
+
+
+def test_unknown_command_and_missing_argument_exit_2(capsys):
+    assert main(["bogus"]) == 2
+    assert main(["validate"]) == 2
+    assert main([]) == 2
+
+
+def test_output_directory_that_is_a_file(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["kinematics", "roberts", "--out", str(blocker / "sub"), "--samples", "5"]) == 2
+    assert "cannot create output directory" in capsys.readouterr().err
+
+
+def test_debug_shows_the_exception():
+    with pytest.raises(assurjax.SceneError):
+        main(["validate", "no_such_scene", "--debug"])
+
+
+def test_kinematics_sweep_roberts(tmp_path, capsys):
+    """Seed 001: y_P (the straight-line error) stays below 1 mm for -130 < x_P < 130 mm,
+    and P is where the circle-intersection closed form puts it."""
+    assert main(["kinematics", "roberts", "--out", str(tmp_path), "--samples", "61", "--start", "0.2", "--stop", "2.9", "--quiet"]) == 0
+    cols = read_csv(tmp_path / "kinematics.csv")
+    assert {"q", "ok", "x_P", "y_P", "dx_P/dq", "theta_link4", "dtheta_link3/dq"} <= set(cols)
+    for name in ("coupler_curves.png", "angular_velocities.png", "mechanism.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    ok = cols["ok"] == 1
+    line = ok & (np.abs(cols["x_P"]) < 0.13)
+    assert line.sum() > 10 and np.max(np.abs(cols["y_P"][line])) < 1e-3
+    for k in np.flatnonzero(ok)[::10]:
+        q = cols["q"][k]
+        b = np.array([-0.12 + 0.18 * np.cos(q), 0.18 * np.sin(q)])
+        c = jr.circle_intersection(b, 0.12, np.array([0.12, 0.0]), 0.18, left=True)
+        m, u = (b + c) / 2, (c - b) / 0.12
+        p = m + np.sqrt(0.18**2 - 0.06**2) * np.array([u[1], -u[0]])  # seed 001 eq. (7)
+        np.testing.assert_allclose([cols["x_P"][k], cols["y_P"][k]], p, atol=1e-9)
+
+
+def test_reactions_static_matches_the_joint_reference(capsys):
+    """Watt six-bar held at rest at q0 = 0: the driving torque by inverse dynamics of the reference."""
+    assert main(["reactions", "watt_sixbar", "--static"]) == 0
+    text = capsys.readouterr().out
+    torque = float(re.search(r"driving effort = ([-+0-9.e]+)", text).group(1))
+    model = jr.watt_sixbar(0.0, 0.0)
+    z, _ = model.system.newton(0.0, model.system.to_internal(model.initial.coords))
+    expected = model.system.inverse_dynamics(z, 0.0, 0.0)[0]
+    assert torque == pytest.approx(expected, rel=1e-5)
+
+
+def test_installed_script_smoke(tmp_path):
+    exe = shutil.which("assurjax")
+    assert exe, "the assurjax script is not installed (pip install -e .)"
+    done = subprocess.run([exe, "scenes"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "watt_sixbar" in done.stdout
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[scene\n")
+    done = subprocess.run([exe, "validate", str(bad)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr and "bad.toml" in done.stderr

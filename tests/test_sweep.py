@@ -1,0 +1,157 @@
+"""Batches of mechanisms: vmapped kinematics and simulation, chunking, sharding over devices."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax import AssurjaxError
+from joint_reference import circle_intersection
+
+Q = np.linspace(0.7, 1.5, 9)
+
+
+@pytest.fixture(scope="module")
+def roberts():
+    return assurjax.load_scene("roberts").mechanism
+
+
+@pytest.fixture(scope="module")
+def batch(roberts):
+    return assurjax.perturb(roberts, jax.random.key(3), 10, relative=0.03)
+
+
+@pytest.fixture(scope="module")
+def batch_kin(batch):
+    return assurjax.batch_kinematics(batch, Q, points=["P"], order=1)
+
+
+def _rot(a):
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def reference_coupler_point(m, q):
+    """Coupler point of a four-bar (crank link2 about A, rocker link3 about D, coupler link4 BCP, C left
+    of B -> D) from the numpy joint reference's circle intersection."""
+    g = {k: np.asarray(v) for k, v in m.ground.items()}
+    l2, l3, l4 = ({k: np.asarray(v) for k, v in m.links[n].points.items()} for n in ("link2", "link3", "link4"))
+    b = g["A"] + _rot(q) @ (l2["B"] - l2["A"])
+    c = circle_intersection(b, np.linalg.norm(l4["C"] - l4["B"]), g["D"], np.linalg.norm(l3["C"] - l3["D"]), left=True)
+    frame = np.arctan2(*(c - b)[::-1]) - np.arctan2(*(l4["C"] - l4["B"])[::-1])
+    return b + _rot(frame) @ (l4["P"] - l4["B"])
+
+
+def test_batch_kinematics_matches_joint_reference(batch, batch_kin):
+    assert batch_kin.points["P"].shape == (10, 9, 2)
+    assert batch_kin.ok.shape == (10, 9, 2)
+    for i in range(10):
+        m = jax.tree.map(lambda x: x[i], batch)
+        for j, q in enumerate(Q):
+            if batch_kin.ok[i, j].all():
+                np.testing.assert_allclose(batch_kin.points["P"][i, j], reference_coupler_point(m, q), atol=1e-12)
+    assert batch_kin.ok.all(axis=-1).sum() >= 60
+
+
+def test_batch_velocities_are_derivatives(batch, batch_kin):
+    """v = dP/dq w with w = 1: central differences of the batched positions."""
+    h = 1e-6
+    plus = assurjax.batch_kinematics(batch, Q + h, points=["P"], order=0)
+    minus = assurjax.batch_kinematics(batch, Q - h, points=["P"], order=0)
+    ok = batch_kin.ok.all(-1) & plus.ok.all(-1) & minus.ok.all(-1)
+    fd = (plus.points["P"] - minus.points["P"]) / (2 * h)
+    np.testing.assert_allclose(batch_kin.velocities["P"][ok], fd[ok], rtol=1e-6, atol=1e-8)
+
+
+def test_chunked_equals_unchunked_and_per_mechanism_q(batch, batch_kin):
+    chunked = assurjax.batch_kinematics(batch, Q, points=["P"], order=1, chunk_size=4)  # 3 chunks, last one padded
+    np.testing.assert_array_equal(chunked.points["P"], batch_kin.points["P"])
+    np.testing.assert_array_equal(chunked.velocities["P"], batch_kin.velocities["P"])
+    np.testing.assert_array_equal(chunked.ok, batch_kin.ok)
+    per = assurjax.batch_kinematics(batch, np.tile(Q, (10, 1)), points=["P"], order=1, q_per_mechanism=True)
+    np.testing.assert_array_equal(per.points["P"], batch_kin.points["P"])
+    with pytest.raises(AssurjaxError, match="leading axis of 10"):
+        assurjax.batch_kinematics(batch, Q, q_per_mechanism=True)
+
+
+def test_sweep_reduce_and_index_batches(batch, batch_kin):
+    """A per-chunk reduction gives the same as reducing the full result; an int batch passes indices."""
+    from assurjax._sweep import _kinematics_item
+
+    item = _kinematics_item(("P",), 0)
+    q_items = np.broadcast_to(Q, (10,) + Q.shape)
+    zeros = np.zeros_like(q_items)
+
+    def peak(carry, kin):
+        y = np.abs(kin.points["P"][..., 1]).max()
+        return y if carry is None else max(carry, y)
+
+    got = assurjax.sweep(item, (batch, q_items, zeros, zeros), chunk_size=3, reduce=peak)
+    assert got == np.abs(batch_kin.points["P"][..., 1]).max()
+    squares = assurjax.sweep(lambda i: i * i, 11, chunk_size=4)
+    np.testing.assert_array_equal(squares, np.arange(11) ** 2)
+
+
+def test_stack_mechanisms(batch, roberts):
+    items = [jax.tree.map(lambda x: x[i], batch) for i in range(10)]
+    stacked = assurjax.stack_mechanisms(items)
+    for a, b in zip(jax.tree.leaves(stacked), jax.tree.leaves(batch)):
+        np.testing.assert_array_equal(a, b)
+    other = assurjax.load_scene("watt_sixbar").mechanism
+    with pytest.raises(AssurjaxError, match="item 1 has a different structure"):
+        assurjax.stack_mechanisms([roberts, other])
+    with pytest.raises(AssurjaxError, match="not a batch"):
+        assurjax.batch_kinematics(roberts, Q)
+
+
+SHARDED = textwrap.dedent(
+    """
+    import os
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
+    import jax, numpy as np, assurjax
+    assert len(jax.devices()) == 4, jax.devices()
+    mech = assurjax.load_scene("roberts").mechanism
+    batch = assurjax.perturb(mech, jax.random.key(5), 10, relative=0.03)
+    q = np.linspace(0.7, 1.5, 6)
+    plain = assurjax.batch_kinematics(batch, q, points=["P"], order=1)
+    mesh = assurjax.batch_mesh()
+    sharded = assurjax.batch_kinematics(batch, q, points=["P"], mesh=mesh, chunk_size=8, order=1)
+    # the inputs really were split over the 4 devices
+    chunk = assurjax.shard_batch(jax.tree.map(lambda x: x[:8], batch), mesh)
+    assert len(chunk.ground["A"].sharding.device_set) == 4
+    for name in ("points", "velocities"):
+        a, b = getattr(plain, name)["P"], getattr(sharded, name)["P"]
+        assert np.max(np.abs(a - b)) <= 1e-12, (name, np.max(np.abs(a - b)))
+    print("EXACT" if all(np.array_equal(getattr(plain, n)["P"], getattr(sharded, n)["P"]) for n in ("points", "velocities")) else "CLOSE")
+    """
+)
+
+
+def test_sharded_equals_unsharded_on_four_cpu_devices(tmp_path):
+    script = tmp_path / "sharded.py"
+    script.write_text(SHARDED)
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] in ("EXACT", "CLOSE")
+
+
+@pytest.mark.slow  # compiles a vmapped diffrax solve: minutes on a busy 2-core machine
+def test_batch_simulate_matches_single_simulations():
+    """Each member of a vmapped batch of Watt six-bars equals its own simulation."""
+    scene = assurjax.load_scene("watt_sixbar")
+    batch = assurjax.perturb(scene.mechanism, jax.random.key(11), 3, relative=0.02,
+                             select=lambda m: tuple(link.mass for link in m.links.values()))
+    sols = assurjax.batch_simulate(scene, batch, t1=0.3, solver="tsit5", samples=4, domega=False, chunk_size=2)
+    assert sols.q.shape == (3, 4)
+    for i in range(3):
+        m = jax.tree.map(lambda x: x[i], batch)
+        one = assurjax.simulate(scene, mechanism=m, t1=0.3, solver="tsit5", samples=4, stop=None,
+                                points=(), angles=(), energies=False)
+        np.testing.assert_allclose(sols.q[i], one.q, rtol=1e-12, atol=1e-12)
+    assert np.all(sols.result == 0)

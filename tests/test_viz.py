@@ -1,0 +1,143 @@
+"""assurjax.viz, headless (Agg): what is drawn is checked against closed-form
+positions (tests/joint_reference.py) and central finite differences."""
+
+import os
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from PIL import Image  # noqa: E402
+
+import assurjax  # noqa: E402
+from assurjax import viz  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(__file__))
+import joint_reference as jr  # noqa: E402
+
+Q_WATT = np.linspace(0.0, 2 * np.pi, 7)
+
+
+@pytest.fixture(scope="module")
+def watt():
+    return assurjax.load_scene("watt_sixbar").mechanism
+
+
+@pytest.fixture(scope="module")
+def watt_frames(watt):
+    return viz.mechanism_frames(watt, Q_WATT, 2.0, velocities=True)
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    plt.close("all")
+
+
+def test_frames_match_closed_form_positions(watt_frames):
+    for i, q in enumerate(Q_WATT):
+        points, _ = jr.watt_sixbar_points(q)
+        for name in ("A", "B", "E"):
+            np.testing.assert_allclose(watt_frames.points[name][i], points[name], atol=1e-12)
+    assert watt_frames.ok.all()
+
+
+def test_drawing_puts_links_and_joints_where_the_closed_form_says(watt, watt_frames):
+    fig, ax = plt.subplots()
+    drawing = viz.MechanismDrawing(ax, watt, watt_frames, velocities=["E"], trace=["E"])
+    i = 3
+    drawing.update(i)
+    points, _ = jr.watt_sixbar_points(Q_WATT[i])
+    crank, _ = drawing.link_artists["link2"]  # a bar O2-A
+    xy = np.column_stack(crank.get_data())
+    expected = {tuple(np.round(points["O2"], 9)), tuple(np.round(points["A"], 9))}
+    assert {tuple(np.round(p, 9)) for p in xy} == expected
+    coupler, order = drawing.link_artists["link3"]  # A, C, B on one line: drawn as a bar A-B
+    assert sorted(order) == ["A", "B"]
+    joints = np.column_stack(drawing.joints.get_data())
+    np.testing.assert_allclose(joints[list(watt.point_names).index("E")], points["E"], atol=1e-12)
+
+
+def test_velocity_arrow_is_the_finite_difference_velocity(watt, watt_frames):
+    """Arrow from E to E + scale * v_E, with v_E = dE/dq * omega by central differences of the closed form."""
+    fig, ax = plt.subplots()
+    drawing = viz.MechanismDrawing(ax, watt, watt_frames, velocities=["E"], velocity_scale=0.1)
+    i, h, omega = 2, 1e-6, 2.0
+    drawing.update(i)
+    e_plus, _ = jr.watt_sixbar_points(Q_WATT[i] + h)
+    e_minus, _ = jr.watt_sixbar_points(Q_WATT[i] - h)
+    v = (e_plus["E"] - e_minus["E"]) / (2 * h) * omega
+    arrow = drawing.arrows["E"]
+    np.testing.assert_allclose(arrow.xyann, watt_frames.points["E"][i], atol=1e-12)
+    np.testing.assert_allclose(np.asarray(arrow.xy) - watt_frames.points["E"][i], 0.1 * v, rtol=1e-6, atol=1e-9)
+
+
+def test_coupler_curve_has_gaps_exactly_where_the_four_bar_cannot_assemble(roberts_scene):
+    """Roberts: the dyad B-C-D assembles iff 0.06 <= |BD| <= 0.30 m (circle intersection)."""
+    q = np.linspace(-np.pi, np.pi, 121)
+    frames = viz.mechanism_frames(roberts_scene.mechanism, q)
+    b = np.column_stack([-0.12 + 0.18 * np.cos(q), 0.18 * np.sin(q)])
+    bd = np.hypot(*(np.array([0.12, 0.0]) - b).T)
+    clear = (bd > 0.06 + 1e-6) & (bd < 0.30 - 1e-6)
+    edge = ~clear & (np.abs(bd - 0.30) > 1e-6) & (np.abs(bd - 0.06) > 1e-6)
+    ax = viz.plot_coupler_curves(frames, ["P"], unit="mm", equal=False)
+    y = ax.lines[0].get_ydata()
+    assert np.all(np.isfinite(y[clear])) and np.all(np.isnan(y[edge]))
+    assert "(mm)" in ax.get_xlabel() and "(mm)" in ax.get_ylabel()
+    assert ax.get_legend() is not None
+
+
+def test_line_plots_carry_units_and_legends(watt_frames):
+    t = np.linspace(0, 1, 11)
+    checks = [
+        (viz.plot_angular_velocities(watt_frames, degrees=True), "deg/s"),
+        (viz.plot_energies(t, t**2, 1 - t**2), "(J)"),
+        (viz.plot_energy_drift(t, 1 + 1e-9 * t), "(J)"),
+        (viz.plot_reactions(t, {"A": np.ones((11, 2))}), "(N)"),
+        (viz.plot_time_histories(t, {"q": t}, ylabel="q (rad)"), "(rad)"),
+    ]
+    for ax, unit in checks:
+        assert unit in ax.get_ylabel()
+        assert ax.get_legend() is not None
+    axes = viz.plot_reduced(t, 1 + t, -t)
+    assert "kg m^2" in axes[0].get_ylabel() and "N m" in axes[1].get_ylabel()
+    # |F| = hypot(Fx, Fy)
+    np.testing.assert_allclose(checks[3][0].lines[0].get_ydata(), np.sqrt(2.0))
+
+
+def test_velocity_polygon_closes(roberts_scene):
+    """v_C = v_B + v_CB (seed 001, eq. 8): the relative arrow joins the two tips."""
+    kin = assurjax.kinematics(roberts_scene.mechanism, 1.0, order=1)
+    v = {p: np.asarray(kin.velocities[p]) for p in ("B", "C", "P")}
+    ax = viz.plot_velocity_polygon(v, relative=[("C", "B")], unit="mm")
+    arrows = [c for c in ax.texts if c.arrow_patch is not None]
+    rel = arrows[-1]
+    np.testing.assert_allclose(rel.xyann, v["B"] * 1e3, atol=1e-9)
+    np.testing.assert_allclose(rel.xy, v["C"] * 1e3, atol=1e-9)
+    assert "mm/s" in ax.get_xlabel()
+
+
+def test_animation_gif_and_html(tmp_path, watt):
+    anim = viz.animate(watt, Q_WATT[:4], trace=["E"], velocities=["E"], t=np.arange(4) * 0.1)
+    path = viz.save_gif(anim, tmp_path / "watt.gif", fps=10)
+    with Image.open(path) as im:
+        assert im.n_frames == 4
+    html = viz.animation_html(viz.animate(watt, Q_WATT[:3]))
+    assert "<script" in html and "img" in html
+
+
+def test_draw_mechanism_slider_and_units(tmp_path):
+    scene = assurjax.load_scene("slider_crank")
+    drawing = viz.draw_mechanism(scene.mechanism, 0.5, velocities=["B"], unit="cm")
+    ax = drawing.ax
+    assert ax.get_xlabel() == "x (cm)"
+    slider, order = drawing.link_artists["slider"]
+    corners = slider.get_xy()[:4] / 100  # a block centred on B
+    b = np.array([0.1 * np.cos(0.5) + np.sqrt(0.3**2 - (0.1 * np.sin(0.5)) ** 2), 0.0])
+    np.testing.assert_allclose(corners.mean(axis=0), b, atol=1e-12)
+    ax.figure.savefig(tmp_path / "slider.png")
+    assert (tmp_path / "slider.png").stat().st_size > 1000
