@@ -89,8 +89,8 @@ class Solution(eqx.Module):
     saved times. ``kinetic``, ``potential``, ``total`` (J): energies (None unless
     asked); ``dissipated`` (J): work removed by dampers since t0 (None without
     dampers). ``points``: name -> (n, 2) trajectories (m); ``angles``: link -> (n,) (rad).
-    ``t_stop``: time (s) at which a stop event fired (None when none did; an array
-    under jit/vmap, read with ``event``). ``event``: -1 none, 0 standstill, 1 a group
+    ``t_stop``: time (s) at which a stop event fired (None when none did; under
+    jit/vmap an array, +inf when none did). ``event``: -1 none, 0 standstill, 1 a group
     can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
     ``valid``: the saved times reached, then the final state (at ``t_final``); the
     entries after it repeat the final state (under jit/vmap only; :func:`simulate`

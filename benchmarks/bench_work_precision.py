@@ -55,23 +55,33 @@ RESULTS = HERE / "results"
 SOLVERS = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8, "kvaerno5": diffrax.Kvaerno5}
 
 
-def best_time(fn, repeats: int) -> float:
-    """Best wall time of ``repeats`` calls (s); the first call (compile) is not counted."""
+def best_time(fn, repeats: int, budget: float = 3.0) -> float:
+    """Best wall time of up to ``repeats`` calls (s), stopping once ``budget`` seconds
+    are spent; the first call (compile) is not counted."""
     jax.block_until_ready(fn())
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         jax.block_until_ready(fn())
         times.append(time.perf_counter() - t0)
+        if sum(times) > budget:
+            break
     return min(times)
 
 
 # ----------------------------------------------------------------------------- assurjax
 
 
-def lean_runner(scene, solver: str, *, tracked: bool = False, max_steps: int = 200_000):
+_RUNNERS: dict = {}
+
+
+def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = False, max_steps: int = 200_000):
     """The package's reduced equation in the leanest diffrax call: saves q at the grid
-    only, PID controller with traced tolerances (one compile per solver)."""
+    only; PID controller with traced tolerances, or (``fixed``) constant steps whose
+    size is passed in place of rtol (atol unused). One compile per variant (cached)."""
+    key = (scene.name, solver, tracked, fixed)
+    if key in _RUNNERS:
+        return _RUNNERS[key]
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
     term = diffrax.ODETerm(_rhs)
 
@@ -80,14 +90,28 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, max_steps: int = 2
         y0 = (q0, w0)
         if tracked:
             y0 = y0 + (branch_angles(mech, assurjax.positions(mech, q0)),)
+        controller = diffrax.ConstantStepSize() if fixed else diffrax.PIDController(rtol=rtol, atol=atol)
         sol = diffrax.diffeqsolve(
-            term, SOLVERS[solver](), 0.0, ts[-1], None, y0, args=(mech, gravity, loads, False),
-            saveat=diffrax.SaveAt(ts=ts), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
-            max_steps=max_steps, throw=False,
+            term, SOLVERS[solver](), 0.0, ts[-1], rtol if fixed else None, y0, args=(mech, gravity, loads, False),
+            saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller, max_steps=max_steps, throw=False,
         )
         return sol.ys[0], sol.stats["num_steps"], sol.result._value
 
+    _RUNNERS[key] = run
     return run
+
+
+def fixed_step_runs(scene, q0, w0, ts, ref, steps, repeats):
+    """Dopri8 and Tsit5 with constant steps (no controller, no rejections)."""
+    rows = []
+    for name in ("dopri8", "tsit5"):
+        run = lean_runner(scene, name, fixed=True)
+        for dt in steps:
+            a = (jnp.asarray(q0), jnp.asarray(w0), jnp.asarray(ts), jnp.asarray(dt), jnp.asarray(0.0))
+            q, n, result = run(*a)
+            err = float(np.max(np.abs(np.asarray(q) - ref))) if int(result) == 0 else None
+            rows.append(dict(method=f"assurjax {name} fixed dt", setting=dt, error=err, time=best_time(lambda: run(*a), repeats), steps=int(n)))
+    return rows
 
 
 def assurjax_runs(scene, q0, w0, ts, ref, tolerances, repeats, *, tracked=False, compile_times=None):
@@ -113,7 +137,8 @@ def seed_euler_runs(scene, q0, w0, ts, ref, steps, repeats):
     rows = []
     for dq in steps:
         def run():
-            return assurjax.simulate_seed_euler(scene.mechanism, scene.gravity, scene.loads, q0, w0, t1=ts[-1], dq=dq,
+            # a little past the last grid time: the scheme takes whole steps of q, not of t
+            return assurjax.simulate_seed_euler(scene.mechanism, scene.gravity, scene.loads, q0, w0, t1=ts[-1] + 0.05, dq=dq,
                                                 standstill=False, max_steps=int(40.0 / dq))
         sol = run()
         t, q = np.asarray(sol.t), np.asarray(sol.q)
@@ -189,6 +214,7 @@ def watt(theta0, T, args, compile_times):
     if args.quick:
         tols = tols[::3]
     rows = assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times)
+    rows += fixed_step_runs(scene, theta0, 0.0, ts, ref, [0.1, 0.05, 0.025, 0.0125] if not args.quick else [0.05], args.repeats)
     rows += seed_euler_runs(scene, theta0, 0.0, ts, ref, [1e-2, 1e-3, 1e-4] + ([] if args.quick else [1e-5]), args.repeats)
     rows += joint_based_runs(lambda: jr.watt_sixbar(theta0), ts, ref, tols[::2], args.repeats)
     mj_steps = [1e-3, 1e-4] + ([] if args.quick else [3e-5, 1e-5])

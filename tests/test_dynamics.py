@@ -11,7 +11,7 @@ from assurjax._dynamics import LOCKUP, STANDSTILL
 
 import joint_reference as ref
 
-TIGHT = dict(rtol=1e-12, atol=1e-12, max_steps=20000)
+TIGHT = dict(rtol=1e-12, atol=1e-12, max_steps=20000, check_assembly=False)  # lock-up has its own test
 TS = np.linspace(0.0, 2.0, 21)
 
 
@@ -254,3 +254,30 @@ def test_seed_euler_baseline_converges_with_order_one(watt):
         errors.append(abs(np.interp(q_target, q[::-1], np.abs(w[::-1])) - exact))
     slopes = np.diff(np.log(errors)) / np.diff(np.log(steps))
     assert np.all(np.abs(slopes - 1.0) < 0.25), (errors, slopes)
+
+
+# ----------------------------------------------------------------------------- user events, retracing
+
+
+def test_user_event_stops_where_its_condition_changes_sign(watt):
+    lean = dict(energies=False, points=(), angles=(), check_assembly=False, rtol=1e-12, atol=1e-12)
+    sol = aj.simulate(watt, q0=0.0, stop=None, t1=2.0, events=[lambda t, q, w: q + 1.0], **lean)
+    assert sol.event == aj._dynamics.USER and sol.t_stop is not None
+    assert abs(sol.q[-1] + 1.0) < 1e-9
+    r = ref.watt_sixbar(0.0).simulate(2.0, t_eval=[sol.t_stop])
+    assert abs(r.q[-1] + 1.0) < 1e-8  # the reference is at q = -1 at that time too
+
+
+def test_no_retrace_for_new_initial_state_or_horizon(watt):
+    traces = []
+
+    def effort(q, w, t):
+        traces.append(1)  # runs only while tracing
+        return 0.0 * q
+
+    loads = (aj.Drive(effort, velocity_dependent=False),)
+    lean = dict(energies=False, points=(), angles=(), check_assembly=False, samples=5, stop=None)
+    aj.simulate(watt, loads=loads, q0=0.1, t1=0.2, **lean)
+    first = len(traces)
+    aj.simulate(watt, loads=loads, q0=0.3, omega0=1.0, t1=0.3, **lean)
+    assert first > 0 and len(traces) == first

@@ -12,6 +12,7 @@
 
 import os
 import sys
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import jax
@@ -338,7 +339,8 @@ def test_watt_reactions_match_the_joint_reference_along_its_motion():
     coupler, E on link5 by link6: each is minus ours (on the later link)."""
     scene = SCENES["watt_sixbar"]
     run = jr.watt_sixbar(0.0, 0.0).simulate(1.5, t_eval=np.linspace(0.0, 1.5, 16))
-    r = reactions(scene, (run.q, run.w, run.wdot, run.t), joints=["O2", "A", "E"])
+    solution_like = SimpleNamespace(t=run.t, q=run.q, omega=run.w, domega=run.wdot)  # what a Solution carries
+    r = reactions(scene, solution_like, joints=["O2", "A", "E"])
     for joint in ("O2", "A", "E"):
         np.testing.assert_allclose(r[joint], -run.reactions[joint], rtol=0, atol=1e-6, err_msg=joint)
     np.testing.assert_allclose(r.driving, run.tau_needed, atol=1e-9)  # free fall: no driving torque needed
@@ -488,3 +490,14 @@ def test_seed003_group_statics_and_the_papers_numbers(seed003):
     mm = lambda a, b: 1000 * np.linalg.norm(ref[a] - ref[b])  # noqa: E731
     for (a, b), value in {("B", "S3"): 248.060, ("D", "S3"): 481.985, ("F", "S5"): 436.292, ("E", "S5"): 155.112}.items():
         assert abs(mm(a, b) - value) < 2.0
+
+
+def test_scene_asking_for_an_unknown_reaction_is_a_scene_error():
+    import tomllib
+
+    from assurjax.scene._load import scene_from_dict, scene_path
+
+    data = tomllib.loads(scene_path("watt_sixbar").read_text())
+    data["outputs"]["reactions"] = ["O2", "Z"]
+    with pytest.raises(assurjax.SceneError, match=r"\[outputs\], field 'reactions': unknown joint 'Z'"):
+        scene_from_dict(data, source="watt.toml")

@@ -88,7 +88,7 @@ def test_bounded_reparametrization_round_trip():
     built = design.build(jax.tree.map(lambda z: z + 0.3, z0))
     assert float(built.ground["D"][0]) > 0.12
     # one-sided bounds use softplus: inside and invertible
-    half = syn.Design(mech, lambda m: m.links["link2"].points["B"], lower=0.0, upper=jnp.inf)
+    half = syn.Design(mech, lambda m: m.links["link2"].points["B"], lower=-1.0, upper=jnp.inf)
     np.testing.assert_allclose(half.values(half.init()), mech.links["link2"].points["B"] + 0.0, atol=1e-10)
     with pytest.raises(AssurjaxError, match="not strictly inside"):
         syn.Design(mech, lambda m: m.ground["D"], lower=0.2, upper=0.3)

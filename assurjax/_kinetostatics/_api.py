@@ -15,12 +15,11 @@ from .._geometry import rotation
 from .._kinematics import Kinematics, _kinematics_single
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
-from ..groups._base import GROUND
 from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
 from ._dyads import solve_dyad_dense, solve_rrr
 from ._layout import Pair, group_pairs, groups_for
-from ._system import Geometry, Reaction, driver_column, hand_back, known_vector, pair_columns, solve_dense, solve_flagged, unpack
+from ._system import Geometry, driver_column, hand_back, known_vector, pair_columns, solve_dense, solve_flagged, unpack
 from ._triad import solve_triad
 
 

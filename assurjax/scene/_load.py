@@ -283,6 +283,13 @@ def _outputs(f: Fields, mechanism: Mechanism) -> dict:
         if a not in mechanism.links:
             f.fail("angles", f"unknown link '{a}' (known: {sorted(mechanism.links)})")
     reactions = f.names("reactions") if f.has("reactions") else ()
+    if reactions:
+        from .._kinetostatics import joint_names  # imported only when a scene asks for reactions
+
+        known_joints = joint_names(mechanism)
+        for j in reactions:
+            if j not in known_joints:
+                f.fail("reactions", f"unknown joint '{j}' (joints: {list(known_joints)})")
     values = dict(points=points, angles=angles, reactions=reactions, energies=f.boolean("energies", True))
     extra = {k: v for k, v in f.table.items() if k not in values}
     return {**values, **extra}

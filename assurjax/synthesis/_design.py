@@ -86,12 +86,14 @@ def _bound(x0, bound, default, which: str):
 
 
 def _check_inside(x0, lower, upper):
-    for x, lo, hi in zip(jax.tree.leaves(x0), jax.tree.leaves(lower), jax.tree.leaves(upper)):
+    paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(x0)[0]]
+    for name, x, lo, hi in zip(paths, jax.tree.leaves(x0), jax.tree.leaves(lower), jax.tree.leaves(upper)):
         x, lo, hi = np.asarray(x), np.asarray(lo), np.asarray(hi)
+        where = f"selected parameter {name or '(the selection)'}"
         if np.any(lo > hi) or np.any(~np.isinf(lo) & ~np.isinf(hi) & (lo == hi)):
-            raise AssurjaxError(f"Design: empty bounds (lower {lo} must be below upper {hi})")
+            raise AssurjaxError(f"Design: {where}: empty bounds (lower {lo} must be below upper {hi})")
         if np.any(x <= lo) or np.any(x >= hi):
-            raise AssurjaxError(f"Design: the starting value {x} is not strictly inside its bounds [{lo}, {hi}]")
+            raise AssurjaxError(f"Design: {where}: the starting value {x} is not strictly inside its bounds [{lo}, {hi}]")
 
 
 def _kinds(lo, hi):

@@ -52,9 +52,11 @@ def parameter_names(tree: Any, *, select: Callable | None = None) -> list[str]:
     """A readable name for every entry of :func:`flatten_parameters`' vector,
     e.g. ``".links['link4'].points['P'][1]"``."""
     params, _ = _selected(tree, select)
+    # a selected array is named by where it sits in the whole tree (found by identity)
+    where = {id(leaf): jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
     names = []
     for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
-        base = jax.tree_util.keystr(path)
+        base = where.get(id(leaf), jax.tree_util.keystr(path))
         shape = np.shape(leaf)
         names += [base] if not shape else [base + str(list(i)) .replace(", ", "][") for i in np.ndindex(shape)]
     return names
@@ -78,9 +80,9 @@ def jacobian(
     flat, unflatten = flatten_parameters(tree, select=select)
     g = lambda v: jnp.asarray(fn(unflatten(v)))  # noqa: E731
     if mode == "reverse":
-        return jax.jacrev(g)(flat)
+        return jax.jit(jax.jacrev(g))(flat)
     if mode == "forward":
-        return jax.jacfwd(g)(flat)
+        return jax.jit(jax.jacfwd(g))(flat)
     raise AssurjaxError(f"mode must be 'reverse' or 'forward', got {mode!r}")
 
 
@@ -88,4 +90,4 @@ def gradient(fn: Callable[[Any], Any], tree: Any, *, select: Callable | None = N
     """d fn / d parameters of a scalar ``fn``, as a pytree shaped like the selection
     (like ``eqx.filter_grad``, but for any selection)."""
     params, put_back = _selected(tree, select)
-    return jax.grad(lambda p: fn(put_back(p)))(params)
+    return jax.jit(jax.grad(lambda p: fn(put_back(p))))(params)

@@ -66,6 +66,7 @@ class MechanismDrawing:
       default: the fastest arrow is a quarter of the drawing's size.
     - ``unit``: length unit of the axes ("m", "cm" or "mm").
     - ``labels``: write point names next to the joints.
+    - ``trace_frames``: configurations for the traced paths, if not ``frames``.
     """
 
     def __init__(
@@ -79,13 +80,18 @@ class MechanismDrawing:
         velocity_scale: float | None = None,
         unit: str = "m",
         labels: bool = True,
+        trace_frames: Frames | None = None,
     ):
         self.ax, self.mechanism, self.frames = ax, mechanism, frames
+        self.trace_frames = frames if trace_frames is None else trace_frames
         self.scale = length_scale(unit)
         self.velocity_points = tuple(velocities)
         if self.velocity_points and frames.velocities is None:
             raise ValueError("velocity arrows need frames computed with velocities=True")
         lo, hi = extent(frames)
+        if trace_frames is not None and trace:
+            t_lo, t_hi = extent(trace_frames, trace)
+            lo, hi = np.minimum(lo, t_lo), np.maximum(hi, t_hi)
         self.size = float(np.max(hi - lo)) or 1.0
         self.velocity_scale = velocity_scale if velocity_scale is not None else self._auto_velocity_scale()
         self._setup_axes(lo, hi, unit)
@@ -125,16 +131,16 @@ class MechanismDrawing:
         s, h = self.scale, 0.04 * self.size * self.scale
         for name, xy in self.mechanism.ground.items():
             x, y = np.asarray(xy, dtype=float) * s
-            self.ax.add_patch(Polygon([[x, y], [x - h, y - 1.5 * h], [x + h, y - 1.5 * h]], closed=True, fc="lightgray", ec="black", hatch="///", zorder=1))
+            self.ax.add_patch(Polygon([[x, y], [x - h, y - 1.5 * h], [x + h, y - 1.5 * h]], closed=True, fc="lightgray", ec="black", hatch="///", zorder=3))
         for base, u in _ground_guides(self.mechanism):
             ends = np.array([base - 2 * self.size * u, base + 2 * self.size * u]) * s
             self.ax.plot(ends[:, 0], ends[:, 1], color="gray", lw=1, ls="--", zorder=1)
 
     def _draw_traces(self, names):
-        s, ok = self.scale, self.frames.ok
+        s, ok = self.scale, self.trace_frames.ok
         shades = plt.get_cmap("Greys")(np.linspace(0.9, 0.5, max(len(names), 1)))
         for name, shade in zip(names, shades):
-            xy = np.where(ok[:, None], self.frames.points[name], np.nan) * s
+            xy = np.where(ok[:, None], self.trace_frames.points[name], np.nan) * s
             self.ax.plot(xy[:, 0], xy[:, 1], lw=1, ls=":", color=shade, zorder=2, label=f"path of {name}")
 
     def _make_links(self) -> dict:
@@ -143,10 +149,10 @@ class MechanismDrawing:
             color = LINK_COLORS[i % len(LINK_COLORS)]
             order = _hull_order(link.points)
             if len(order) == 2:  # a bar
-                artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3, label=name)[0]
+                artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3.5, label=name)[0]
             else:  # a plate through its points, or a slider block around its only point
                 corners = np.zeros((4 if len(order) == 1 else len(order), 2))
-                artist = self.ax.add_patch(Polygon(corners, closed=True, fc=color, ec=color, lw=2, zorder=3, label=name))
+                artist = self.ax.add_patch(Polygon(corners, closed=True, fc=color, ec=color, lw=2, zorder=2.5, label=name))
             artists[name] = (artist, order)
         return artists
 
@@ -211,14 +217,14 @@ def draw_mechanism(
     """
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
-    q_all = np.concatenate([[q], np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)]) if trace else np.array([q], dtype=float)
-    frames = mechanism_frames(mechanism, q_all, omega, velocities=bool(tuple(velocities)))
-    if velocities and velocity_scale is None:  # scale the arrows for the configuration shown
-        shown = mechanism_frames(mechanism, [q], omega, velocities=True)
-        vmax = max(float(np.hypot(*shown.velocities[p][0])) for p in velocities)
-        lo, hi = extent(frames)
-        velocity_scale = 0.25 * float(np.max(hi - lo)) / vmax if vmax > 0 else 1.0
-    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels, velocity_scale=velocity_scale)
+    velocities, trace = tuple(velocities), tuple(trace)
+    frames = mechanism_frames(mechanism, [q], omega, velocities=bool(velocities))
+    trace_frames = None
+    if trace:
+        trace_q = np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)
+        trace_frames = mechanism_frames(mechanism, trace_q)
+    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels,
+                               velocity_scale=velocity_scale, trace_frames=trace_frames)
     drawing.update(0)
     ax.set_title(f"{mechanism.name} at q = {q:.4g}")
     place_legend(ax)

@@ -1,0 +1,65 @@
+"""Run every benchmark, one after the other (each in its own process, so that
+compile caches and memory do not leak between them), and print their tables.
+
+    pip install ".[bench]"
+    python benchmarks/run_all.py [--quick] [--only work_precision throughput ...]
+
+Results: benchmarks/results/*.json (+ *.png); a summary of the run (each script's
+wall time and exit status) in benchmarks/results/run_all.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+# name -> (script, extra arguments for --quick); scripts that are not there yet are skipped
+BENCHMARKS = {
+    "kinematics": ("bench_kinematics.py", ["--n", "10000", "--repeats", "3"]),
+    "dynamics": ("bench_dynamics.py", ["--quick"]),
+    "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
+    "synthesis": ("bench_synthesis.py", ["--quick"]),
+    "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
+    "gradients": ("bench_gradients.py", ["--repeats", "3"]),
+    "work_precision": ("bench_work_precision.py", ["--quick", "--repeats", "2"]),
+    "throughput": ("bench_throughput.py", ["--max", "10000"]),
+    "scaling": ("bench_scaling.py", ["--sizes", "1", "2", "5", "--repeats", "3"]),
+    "float32": ("bench_float32.py", []),
+}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller runs (a smoke test of every script)")
+    parser.add_argument("--only", nargs="+", choices=sorted(BENCHMARKS), help="run only these")
+    args = parser.parse_args()
+    summary = {}
+    for name, (script, quick_args) in BENCHMARKS.items():
+        if args.only and name not in args.only:
+            continue
+        path = HERE / script
+        if not path.exists():
+            summary[name] = dict(status="missing", script=script)
+            print(f"== {name}: {script} not found, skipped", flush=True)
+            continue
+        cmd = [sys.executable, str(path)] + (quick_args if args.quick else [])
+        print(f"\n== {name}: {' '.join(cmd[1:])}", flush=True)
+        t0 = time.perf_counter()
+        code = subprocess.call(cmd, cwd=HERE)
+        summary[name] = dict(status="ok" if code == 0 else f"exit code {code}", script=script, wall_s=time.perf_counter() - t0)
+    (HERE / "results").mkdir(exist_ok=True)
+    (HERE / "results" / "run_all.json").write_text(json.dumps(summary, indent=1))
+    print("\n== summary")
+    for name, s in summary.items():
+        print(f"  {name:15s} {s['status']:12s} {s.get('wall_s', 0.0):8.1f} s")
+    sys.exit(0 if all(s["status"] in ("ok", "missing") for s in summary.values()) else 1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,38 @@
+"""The notebooks are part of the product: each one is executed (nbclient, kernel
+python3) and must run without error. They check their own numbers with asserts
+against closed forms and the joint-based reference. Notebooks that take more than
+about 40 s are marked slow (run with ``pytest -m slow``)."""
+
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+SLOW = {
+    "02_watt_sixbar_dynamics.ipynb",
+    "03_class4_kinetostatics.ipynb",
+    "04_synthesis_and_sensitivities.ipynb",
+    "05_vmapped_sweeps.ipynb",
+}
+
+
+def _params():
+    for path in sorted(NOTEBOOKS.glob("*.ipynb")):
+        marks = [pytest.mark.slow] if path.name in SLOW else []
+        yield pytest.param(path, id=path.stem, marks=marks)
+
+
+@pytest.mark.parametrize("path", list(_params()))
+def test_notebook_runs(path):
+    nb = nbformat.read(path, as_version=4)
+    assert all(not cell.get("outputs") for cell in nb.cells if cell.cell_type == "code"), "store notebooks without outputs"
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}})
+    client.execute()
+
+
+def test_every_notebook_is_tested():
+    names = {p.name for p in NOTEBOOKS.glob("*.ipynb")}
+    assert "01_roberts_straight_line.ipynb" in names and "02_watt_sixbar_dynamics.ipynb" in names
