@@ -69,6 +69,7 @@ class Settings(NamedTuple):
     rtol: float = DEFAULT_RTOL
     atol: float = DEFAULT_ATOL
     fixed_step: bool = False  # True: constant steps of the traced ``dt``; False: adaptive (PID controller)
+    dt: float | None = None  # a static fixed step (s): compiles per value; prefer simulate_core's traced ``dt``
     max_steps: int = DEFAULT_MAX_STEPS
     standstill: bool = False
     check_assembly: bool = True
@@ -218,7 +219,7 @@ def _adjoint(settings: Settings):
 
 
 def _controller(settings: Settings):
-    if settings.fixed_step:
+    if settings.fixed_step or settings.dt is not None:
         return diffrax.ConstantStepSize()
     return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol)
 
@@ -226,6 +227,8 @@ def _controller(settings: Settings):
 def _initial_step(settings, dt, t0, t1):
     """The fixed step, or the controller's first step (None: diffrax's automatic choice,
     two right-hand-side evaluations; a small guess costs more steps to grow)."""
+    if dt is None:
+        dt = settings.dt
     if dt is not None:
         return jnp.asarray(dt, dtype=float)
     if settings.fixed_step:

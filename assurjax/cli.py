@@ -226,14 +226,14 @@ def _solution_columns(scene, sol, forces, driving) -> dict:
     import numpy as np
 
     cols = {"t": sol.t, "q": sol.q, "omega": sol.omega}
-    if sol.domega is not None:
+    if getattr(sol, "domega", None) is not None:
         cols["domega"] = sol.domega
     for name, field in (("T", "kinetic"), ("V", "potential"), ("E", "total"), ("W_dissipated", "dissipated")):
-        if getattr(sol, field) is not None:
+        if getattr(sol, field, None) is not None:
             cols[name] = getattr(sol, field)
-    for p, xy in sol.points.items():
+    for p, xy in getattr(sol, "points", {}).items():
         cols |= {f"x_{p}": np.asarray(xy)[:, 0], f"y_{p}": np.asarray(xy)[:, 1]}
-    for link, theta in sol.angles.items():
+    for link, theta in getattr(sol, "angles", {}).items():
         cols[f"theta_{link}"] = theta
     for joint, f in forces.items():
         cols |= {f"Fx_{joint}": f[:, 0], f"Fy_{joint}": f[:, 1], f"F_{joint}": np.hypot(f[:, 0], f[:, 1])}
@@ -250,7 +250,7 @@ def _history_figure(scene, sol, forces, units):
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
     viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
-    if sol.kinetic is not None:
+    if getattr(sol, "kinetic", None) is not None:
         viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=None if sol.dissipated is None else -sol.dissipated)
     else:
         axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
@@ -294,10 +294,17 @@ def _animation(scene, sol, path: Path, frames: int, quiet: bool) -> Path:
     return path
 
 
-def _energy_drift(sol):
+CONSERVATIVE_OR_COUNTED = ("Spring", "Damper", "RotaryDamper")  # in the potential, or in the dissipated work
+
+
+def _energy_drift(scene, sol):
+    """max |E(t) + W_dissipated(t) - E(0)| (J) and that over the peak kinetic energy; None when
+    energies were not computed or some load does work that is not accounted (drives, forces)."""
     import numpy as np
 
-    if sol.total is None:
+    if getattr(sol, "total", None) is None:
+        return None
+    if any(type(load).__name__ not in CONSERVATIVE_OR_COUNTED for load in scene.loads):
         return None
     total = np.asarray(sol.total) + (0 if sol.dissipated is None else np.asarray(sol.dissipated))
     drift = float(np.max(np.abs(total - total[0])))
@@ -328,7 +335,7 @@ def cmd_run(args) -> int:
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene, sol, units), out / "reduced.png"))
-        if sol.points:  # the simulation already traced them
+        if getattr(sol, "points", None):  # the simulation already traced them
             from . import viz
 
             frames = viz.Frames(q=np.asarray(sol.q), points={k: np.asarray(v) for k, v in sol.points.items()}, angles={},
@@ -339,11 +346,11 @@ def cmd_run(args) -> int:
             files.append(_animation(scene, sol, out / "animation.gif", args.frames, args.quiet))
             bar.update(1)
     summary = dict(
-        scene=scene.name, status=sol.status, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(sol.num_steps),
+        scene=scene.name, status=sol.status, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
         t_final=float(sol.t[-1]), q_final=float(sol.q[-1]), timings_s=dict(load=load_time, simulate_first_call=first, simulate_compiled=second, reactions=rx_time),
         units=dict(t="s", **units, energies="J", positions="m", angles="rad", forces="N"),
     )
-    drift = _energy_drift(sol)
+    drift = _energy_drift(scene, sol)
     if drift is not None:
         summary["energy_drift_J"], summary["energy_drift_relative"] = drift
     files.append(out / "summary.json")
@@ -352,7 +359,9 @@ def cmd_run(args) -> int:
     print(f"  standstill time: {sol.t_stop:.6f} s" if sol.t_stop is not None and "standstill" in sol.status else "  standstill: none before t1")
     if drift is not None:
         print(f"  energy drift: max |E(t) - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest kinetic energy)")
-    print(f"  {len(sol.t)} samples, {int(sol.num_steps)} solver steps")
+    else:
+        print("  energy drift: not checked (energies not requested, or the loads do work)")
+    print(f"  {len(sol.t)} samples, {summary['steps']} solver steps")
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)

@@ -501,3 +501,21 @@ def test_scene_asking_for_an_unknown_reaction_is_a_scene_error():
     data["outputs"]["reactions"] = ["O2", "Z"]
     with pytest.raises(assurjax.SceneError, match=r"\[outputs\], field 'reactions': unknown joint 'Z'"):
         scene_from_dict(data, source="watt.toml")
+
+
+def test_reactions_are_differentiable_in_the_design():
+    """d(reaction)/d(mass of the coupler) by jax.grad against central differences."""
+    import equinox as eqx
+
+    scene = SCENES["watt_sixbar"]
+
+    @jax.jit
+    def reaction_e(mass):
+        mech = eqx.tree_at(lambda m: m.links["link3"].mass, scene.mechanism, mass)
+        kin = _kinematics_single(mech, jnp.asarray(0.5), jnp.asarray(1.0), jnp.asarray(0.5), None, 2)
+        forces, _, driving, _ = from_kinematics(scene.replace_mechanism(mech), kin, 0.0)
+        return forces["O2"][1] + forces["E"][0] + driving
+
+    m, h = jnp.asarray(1.5), 1e-5
+    fd = (reaction_e(m + h) - reaction_e(m - h)) / (2 * h)
+    np.testing.assert_allclose(jax.grad(reaction_e)(m), fd, rtol=1e-7)

@@ -54,12 +54,14 @@ def reference_straightness(lengths, centre, stroke=0.26, n=40001):
         pts.append(p)
         good.append(np.all(np.isfinite(p)))
     pts, good = np.array(pts), np.array(good)
+    # the stretch through the symmetric position where the linkage assembles and x is monotone
     i0 = n // 2
+    step = np.sign(pts[i0 + 1, 0] - pts[i0, 0])
     lo = i0
-    while lo > 0 and good[lo - 1]:
+    while lo > 0 and good[lo - 1] and np.sign(pts[lo, 0] - pts[lo - 1, 0]) == step:
         lo -= 1
     hi = i0
-    while hi < n - 1 and good[hi + 1]:
+    while hi < n - 1 and good[hi + 1] and np.sign(pts[hi + 1, 0] - pts[hi, 0]) == step:
         hi += 1
     seg = pts[lo : hi + 1]
     inside = np.abs(seg[:, 0] - centre) <= stroke / 2
@@ -112,7 +114,7 @@ def test_straight_line_synthesis_beats_roberts(straight_line_run):
     lengths, design, result = straight_line_run
     roberts = reference_straightness(np.asarray(syn.roberts_lengths()), 0.0)
     assert 0.5e-3 < roberts < 1e-3  # seed 001: error below 1 mm over -130 < x < 130 mm
-    start = reference_straightness(lengths, float(design.init()[1] * 0 + design.values(design.init())[1]))
+    start = reference_straightness(lengths, float(design.values(design.init())[1]))
     final_lengths, centre = (np.asarray(v) for v in result.values)
     final = reference_straightness(final_lengths, float(centre))
     assert start > 2 * roberts  # the perturbed start is clearly worse than Roberts
@@ -212,20 +214,20 @@ def test_steps_that_break_assembly_are_halved_never_scored():
 
 
 def test_counterweight_lowers_peak_driving_torque():
-    """Watt six-bar driven at a constant 3 rad/s: move the crank's centre of mass (a counterweight)
-    and its mass to minimize the peak driving torque (inverse dynamics via the reduction). The
-    peak of the result is checked by an energy balance, tau w = d/dt (J_red w^2/2 + V)."""
+    """Watt six-bar driven at a constant 1 rad/s over a full turn: move the crank's centre of mass
+    (a counterweight) and its mass to minimize the peak driving torque (inverse dynamics via the
+    reduction). The peaks are checked by an energy balance, tau w = d/dt (J_red w^2/2 + V)."""
     scene = assurjax.load_scene("watt_sixbar")
-    w = 3.0
-    q = jnp.linspace(-0.8, 0.8, 33)
+    w = 1.0
+    q = jnp.linspace(-np.pi, np.pi, 72, endpoint=False)
     sel = lambda m: (m.links["link2"].com, m.links["link2"].mass)  # noqa: E731
     design = syn.Design(scene.mechanism, sel, lower=(jnp.array([-1.0, -1.0]), 0.2), upper=(jnp.array([1.0, 1.0]), 5.0))
 
     def objective(m):
         tau, ok = syn.driving_torque(m, q, w, gravity=scene.gravity)
-        return syn.smooth_max(jnp.abs(tau), 20.0), {"ok": ok}
+        return syn.smooth_max(jnp.abs(tau), 1.0), {"ok": ok}
 
-    result = syn.optimize(design, objective, optax.adam(0.05), 150, has_aux=True)
+    result = syn.optimize(design, objective, optax.adam(0.1), 80, has_aux=True)
 
     def peak_by_energy(m):
         def energy(qi):
@@ -240,4 +242,4 @@ def test_counterweight_lowers_peak_driving_torque():
         return float(np.max(np.abs((jax.vmap(energy)(q + h) - jax.vmap(energy)(q - h)) / (2 * h))))
 
     before, after = peak_by_energy(scene.mechanism), peak_by_energy(result.mechanism)
-    assert after < 0.5 * before, (before, after)
+    assert after < 0.6 * before, (before, after)

@@ -112,6 +112,15 @@ class ClassIV(IterativeGroup):
             l5: frame_through(geo["e_5"], geo["f_5"], e, f),
         }
 
+    def special_points(self, points: dict[str, Array]) -> dict[str, Array]:
+        """The special Assur points of seed 003 from global joint positions (m), e.g. a
+        ``Pose.points``: S3 (of closure link 3) = intersection of lines BC and GD,
+        S5 (of closure link 5) = intersection of lines BE and GF. The normal components
+        of the internal joint forces point at them. Far away (or inf) when the lines
+        are parallel."""
+        b, g, c, d, e, f = (points[p] for p in self.joints)
+        return {"S3": _line_intersection(b, c - b, g, d - g), "S5": _line_intersection(b, e - b, g, f - g)}
+
     def angles_from_guess(self, guess, ext, geo):
         """Starting angles from the guessed C, D, E, F: each ternary's angle is the
         circular mean of the angles implied by its two internal joints."""
@@ -127,6 +136,13 @@ class ClassIV(IterativeGroup):
         phi2 = mean_angle(b, geo["b_2"], ((geo["c_2"], c), (geo["e_2"], e)))
         phi4 = mean_angle(g, geo["g_4"], ((geo["d_4"], d), (geo["f_4"], f)))
         return jnp.stack([phi2, phi4])
+
+
+def _line_intersection(p, u, r, v):
+    """Intersection of the lines p + s u and r + t v (Cramer's rule)."""
+    w = r - p
+    s = (w[..., 0] * v[..., 1] - w[..., 1] * v[..., 0]) / (u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+    return p + s[..., None] * u
 
 
 def parse_class4(fields, name: str) -> ClassIV:

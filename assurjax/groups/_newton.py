@@ -253,6 +253,14 @@ def resolve_guess_q(mechanism, q0: float):
 # -- sweeps ------------------------------------------------------------------------
 
 
+def iterative_unknowns(mechanism) -> tuple[str, ...]:
+    """Names of the links whose angles (rad) the iterative groups solve for, two per
+    group, in formation order. Their angles, e.g. carried from one time step or
+    sample to the next, are what ``positions(..., near=...)`` takes as predictor."""
+    return tuple(link for g in mechanism.groups if isinstance(g, IterativeGroup) for link in g.unknown_links())
+
+
+
 def positions_along(mechanism, qs, *, points: Iterable[str] | None = None):
     """Positions at a sequence of driving coordinates ``qs`` (1-D, along a path),
     each iterative group starting from the previous sample's link angles.
