@@ -44,6 +44,13 @@ class Kinematics(eqx.Module):
     ok: Array
 
 
+def _many_outputs(mechanism: Mechanism, points, what: tuple[bool, bool]) -> bool:
+    """More than two output arrays: then each group's frames are materialized once
+    (see :func:`positions`); one or two outputs fuse best into one loop."""
+    n_points = len(mechanism.point_names) if points is None else len(points)
+    return n_points + len(mechanism.links) * (int(what[0]) + int(what[1])) > 2
+
+
 def _stack(values: list) -> Array | None:
     return jnp.stack(values) if values else None
 
@@ -54,9 +61,10 @@ def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tup
     dicts are built after the vmap. The names in stacking order are recorded in
     ``names`` at trace time."""
     want_coms, want_angles = what
+    materialize = _many_outputs(mechanism, points, what)
 
     def coords(q):
-        pose = positions(mechanism, q, points=points)
+        pose = positions(mechanism, q, points=points, materialize=materialize)
         names["points"] = tuple(pose.points)
         names["coms"] = tuple(pose.coms) if want_coms else ()
         names["angles"] = tuple(pose.angles) if want_angles else ()

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -94,7 +95,9 @@ class Mechanism(eqx.Module):
         return tuple(sorted(needed))
 
 
-def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None, near: Mapping | None = None) -> Pose:
+def positions(
+    mechanism: Mechanism, q, *, points: Iterable[str] | None = None, near: Mapping | None = None, materialize: bool = True
+) -> Pose:
     """Position analysis at the driving coordinate ``q`` (rad for a crank, m for a slider).
 
     Groups are solved one by one in formation order. With ``points`` given, only
@@ -105,6 +108,12 @@ def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None, n
     makes every closed-form group take the root nearest to those angles instead
     of its fixed mode (branch continuity through singular configurations, see
     ``assurjax.groups._branch``).
+
+    ``materialize`` (default True) makes XLA keep each group's frames in memory once
+    under ``jit``; without it every output's fused loop re-derives all the groups it
+    depends on, which is fastest for one or two outputs (e.g. a coupler point) and
+    very slow for many outputs of a deep mechanism (see benchmarks/bench_kinematics.py).
+    The values are the same either way.
     """
     q = jnp.asarray(q, dtype=float)
     links = mechanism.all_links()
@@ -120,6 +129,8 @@ def positions(mechanism: Mechanism, q, *, points: Iterable[str] | None = None, n
     oks = [jnp.array(True)] * len(mechanism.groups)
     for i in wanted_groups:
         new_frames, oks[i] = solve_near(mechanism.groups[i], links, placed, q)  # fixed mode unless near is given
+        if materialize:  # keep each group's frames in memory once (see the docstring)
+            new_frames, oks[i] = jax.lax.optimization_barrier((new_frames, oks[i]))
         frames.update(new_frames)
     moving = [name for name in frames if name != GROUND]
     return Pose(

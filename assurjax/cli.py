@@ -254,10 +254,12 @@ def _history_figure(scene, sol, forces, units):
         viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=None if sol.dissipated is None else -sol.dissipated)
     else:
         axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
+        axes[1, 0].axis("off")
     if forces:
         viz.plot_reactions(sol.t, forces, ax=axes[1, 1])
     else:
         axes[1, 1].text(0.5, 0.5, "no reactions requested ([outputs] reactions)", ha="center", transform=axes[1, 1].transAxes)
+        axes[1, 1].axis("off")
     fig.suptitle(f"{scene.name}: {sol.status}")
     return fig
 
@@ -340,7 +342,9 @@ def cmd_run(args) -> int:
 
             frames = viz.Frames(q=np.asarray(sol.q), points={k: np.asarray(v) for k, v in sol.points.items()}, angles={},
                                 velocities=None, angular_velocities=None, ok=np.ones(len(sol.q), dtype=bool))
-            files.append(_savefig(viz.plot_coupler_curves(frames).figure, out / "coupler_curves.png"))
+            ax = viz.plot_coupler_curves(frames)
+            ax.set_title(f"{scene.name}: paths of the output points during the motion")
+            files.append(_savefig(ax.figure, out / "coupler_curves.png"))
         bar.update(1)
         if not args.no_animation:
             files.append(_animation(scene, sol, out / "animation.gif", args.frames, args.quiet))
