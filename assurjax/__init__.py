@@ -63,7 +63,6 @@ from ._loads import (
     potential_energy as potential_energy,
 )
 from .groups import Link as Link
-from .groups._newton import positions_along as positions_along
 from .scene._load import bundled_scenes as bundled_scenes, load_scene as load_scene, scene_from_dict as scene_from_dict
 from .scene._scene import Scene as Scene
 from ._sweep import (

@@ -290,7 +290,7 @@ def _animation(scene, sol, path: Path, frames: int, quiet: bool) -> Path:
     t = np.linspace(float(sol.t[0]), float(sol.t[-1]), frames)
     q, w = np.interp(t, sol.t, sol.q), np.interp(t, sol.t, sol.omega)
     points = list(scene.outputs["points"])
-    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, velocities=points[:3])
+    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=np.asarray(sol.q), velocities=points[:3])
     with _progress(frames, "animation", quiet) as bar:
         viz.save_gif(anim, path, fps=20, progress=lambda i, n: bar.update(1))
     return path

@@ -94,6 +94,7 @@ def main(quick: bool = False):
             med, best = median_time(lambda: fn(q0).q, 20 if quick else 100)
             results["runs"].append(dict(solver=solver, tol=tol, lean=lean, steps=int(sol.num_steps), max_abs_error_rad=err,
                                         warm_median_s=med, warm_min_s=best))
+            print(f"  {solver} {tol:.0e} {'lean' if lean else 'events'}: {1e3 * med:.3f} ms, error {err:.2e}", flush=True)
 
     # 10 000 vmapped simulations, different starting angles, default settings, lean outputs
     n = 1000 if quick else 10000

@@ -6,8 +6,9 @@ Variants, for the bundled ``triad_mechanism`` and ``class4_seed003`` scenes:
 - ``positions`` of n crank angles in one jitted, vmapped call: every angle is continued
   independently from the group's reference (``substeps`` tangent-predicted Newton
   corrections, then the final implicitly differentiated solve); substeps 4, 8 (default), 16;
-- ``positions_along``: the same n angles as one sweep (``lax.scan``), each solve started
-  from the previous sample's angles (one Newton solve per sample, sequential);
+- ``positions_tracked``: the same n angles as one sweep (``lax.scan``), each solve started
+  from the secant prediction of the previous samples' angles (one Newton solve per sample,
+  sequential);
 - ``kinematics`` (positions, velocities, accelerations: nested jvp through the
   implicit solve), vmapped, on n / 10 angles.
 
@@ -50,9 +51,8 @@ def batch_positions(mech, q):
     return jax.vmap(lambda q: assurjax.positions(mech, q))(q)
 
 
-@eqx.filter_jit
 def sweep(mech, q):
-    return assurjax.positions_along(mech, q)
+    return assurjax.positions_tracked(mech, q)  # jitted itself
 
 
 @eqx.filter_jit
@@ -84,7 +84,7 @@ def main():
         mech = assurjax.load_scene(name).mechanism
         q = jnp.linspace(-np.pi, np.pi, args.n)
         variants = [(f"positions, vmapped, substeps={s}", batch_positions, with_substeps(mech, s), q) for s in (4, 8, 16)]
-        variants.append(("positions_along (scan sweep)", sweep, mech, q))
+        variants.append(("positions_tracked (scan sweep)", sweep, mech, q))
         variants.append(("kinematics order 2, vmapped (n/10)", batch_kinematics, mech, q[:: 10]))
         for label, run, m, qq in variants:
             r = dict(scene=name, variant=label, n=int(qq.size), **measure(run, m, qq, args.repeats))

@@ -122,29 +122,21 @@ def test_link_angles_gradient(watt):
     _flat_check(angles, watt.mechanism, 1e-5)
 
 
-def test_reduced_inertia_gradient(watt):
-    """J_red(q), dJ_red/dq and tau_red (gravity) w.r.t. every length, mass, inertia and gravity."""
+def test_reduction_and_peak_torque_gradients(watt):
+    """J_red(q), dJ_red/dq, tau_red (gravity) at three crank angles, and the peak driving torque at
+    constant crank speed (inverse dynamics via the reduction), w.r.t. every length, centre of mass,
+    mass, inertia and gravity: one function, reverse and forward mode."""
     q = jnp.array([0.0, 0.3, -0.4])
+    q_peak = jnp.linspace(-0.6, 0.6, 25)
+    tau, ok = syn.driving_torque(watt.mechanism, q_peak, 3.0, gravity=watt.gravity)
+    assert np.all(ok) and np.sum(np.asarray(tau) == np.max(np.asarray(tau))) == 1  # a unique, smooth peak
 
     def reduced(scene):
         red = jax.vmap(lambda qi: reduce_single(scene.mechanism, scene.gravity, scene.loads, qi, 0.0, 0.0))(q)
-        return jnp.stack([red.inertia, red.dinertia, red.torque])
+        tau, _ = syn.driving_torque(scene.mechanism, q_peak, 3.0, gravity=scene.gravity)
+        return jnp.concatenate([red.inertia, red.dinertia, red.torque, jnp.max(tau)[None]])
 
-    # reverse mode here; the peak-torque test below runs the same reduction in forward mode
-    _flat_check(reduced, watt, 1e-5, select=lambda s: (s.mechanism, s.gravity), modes=("reverse",))
-
-
-def test_peak_driving_torque_gradient(watt):
-    """Peak driving torque at constant crank speed (inverse dynamics via the reduction)."""
-    q = jnp.linspace(-0.6, 0.6, 25)
-
-    def peak(m):
-        tau, ok = syn.driving_torque(m, q, 3.0, gravity=watt.gravity)
-        return jnp.max(tau)
-
-    tau, ok = syn.driving_torque(watt.mechanism, q, 3.0, gravity=watt.gravity)
-    assert np.all(ok) and np.sum(np.asarray(tau) == np.max(np.asarray(tau))) == 1  # a unique, smooth peak
-    _flat_check(lambda m: peak(m)[None], watt.mechanism, 1e-5, modes=("forward",))
+    _flat_check(reduced, watt, 1e-5, select=lambda s: (s.mechanism, s.gravity))
 
 
 def test_driving_torque_matches_energy_balance(watt):
@@ -162,7 +154,8 @@ def test_driving_torque_matches_energy_balance(watt):
         return 0.5 * j_red * w**2 + potential
 
     h = 1e-5
-    de_dq = (jax.vmap(energy)(q + h) - jax.vmap(energy)(q - h)) / (2 * h)
+    energies = jax.jit(jax.vmap(energy))
+    de_dq = (energies(q + h) - energies(q - h)) / (2 * h)
     np.testing.assert_allclose(tau, de_dq, rtol=1e-7, atol=1e-8)
 
 
@@ -209,6 +202,7 @@ def watt_flat(watt):
     return theta, unflatten, v / jnp.linalg.norm(v)
 
 
+@pytest.mark.slow  # forward mode through diffrax: minutes of compilation on a busy 2-core machine
 def test_final_angle_directional_derivative_forward_mode(watt_flat):
     """theta(T) of the falling Watt six-bar: jvp through diffrax (ForwardMode) along a random
     direction in the space of all 50 scene parameters equals the central difference."""

@@ -16,13 +16,16 @@ group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
    is the one reached continuously from the reference. For a crank the step
    q - guess_q is wrapped to (-pi, pi].
    With ``positions(..., near=angles)`` (e.g. the previous sample of a sweep, see
-   :func:`positions_along`) the given link angles are the predictor instead and
+   :func:`assurjax.positions_tracked`) the given link angles are the predictor instead and
    stages 1-2 are skipped: the cheapest way to stay on a branch along a path.
 3. **Final solve** at q from that predictor. Stages 1-2 run under
    ``stop_gradient``; only this solve is differentiated, implicitly
    (``optimistix.ImplicitAdjoint``: dz = -F_z^-1 F_p dp), so forward mode,
    nested forward mode (accelerations) and reverse mode never go through the
-   iterations.
+   iterations. Nested jvp works because optimistix's jvp rule re-enters its own
+   implicit solve (its tangent is again implicitly differentiable), so no
+   hand-written ``custom_jvp`` is needed; tests/test_iterative_groups.py checks
+   second derivatives and reverse-over-forward gradients against finite differences.
 
 A group that cannot assemble returns ``ok`` False (a sub-step or the final solve
 did not converge, or the closure residual stays above tolerance); its values are
@@ -259,32 +262,6 @@ def iterative_unknowns(mechanism) -> tuple[str, ...]:
     sample to the next, are what ``positions(..., near=...)`` takes as predictor."""
     return tuple(link for g in mechanism.groups if isinstance(g, IterativeGroup) for link in g.unknown_links())
 
-
-
-def positions_along(mechanism, qs, *, points: Iterable[str] | None = None):
-    """Positions at a sequence of driving coordinates ``qs`` (1-D, along a path),
-    each iterative group starting from the previous sample's link angles.
-
-    The first sample is continued from the groups' reference; every later one
-    is a single Newton solve from the previous solution (``lax.scan``), which is
-    the cheapest way to sweep a motion and keeps the branch as long as
-    consecutive samples are close. Returns a :class:`Pose` with a leading axis.
-    Derivatives are implicit, as for :func:`assurjax.positions`.
-
-    >>> pose = positions_along(mech, jnp.linspace(0.0, 2 * jnp.pi, 361))
-    """
-    from .._mechanism import positions
-
-    qs = jnp.asarray(qs, dtype=float)
-    pts = None if points is None else tuple(points)
-    first = positions(mechanism, qs[0], points=pts)
-
-    def step(angles, q):
-        pose = positions(mechanism, q, points=pts, near=angles)
-        return pose.angles, pose
-
-    _, rest = jax.lax.scan(step, first.angles, qs[1:])
-    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
 
 
 def frame_at_angle(local_point: Array, global_point: Array, angle: Array) -> Frame:

@@ -22,6 +22,7 @@ def animate(
     *,
     t=None,
     trace: Iterable[str] = (),
+    trace_q=None,
     velocities: Iterable[str] = (),
     unit: str = "m",
     interval_ms: float = 50.0,
@@ -32,7 +33,8 @@ def animate(
 
     ``omega`` (rad/s or m/s per frame, default 1) scales the velocity arrows of
     ``velocities``; ``t`` (s) is shown in the title when given (a simulation);
-    ``trace`` points get their whole path drawn. Frames where the mechanism does
+    ``trace`` points get their whole path drawn, over ``trace_q`` when given (e.g.
+    every sample of a simulation: smoother than the frames alone). Frames where the mechanism does
     not assemble are drawn faded.
 
     **Example:**
@@ -43,7 +45,8 @@ def animate(
     frames = mechanism_frames(mechanism, q, omega, velocities=bool(velocities))
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
-    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit)
+    trace_frames = None if trace_q is None or not tuple(trace) else mechanism_frames(mechanism, trace_q)
+    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, trace_frames=trace_frames)
     times = None if t is None else np.asarray(t, dtype=float)
     head = title or mechanism.name
     place_legend(ax)
