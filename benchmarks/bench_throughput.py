@@ -2,7 +2,8 @@
 
 Each simulation: 1 s of motion from rest at a starting crank angle spread over
 [-0.3, 0.3] rad, Dopri8 at rtol = atol = 1e-8 (the package's right-hand side in
-the lean diffrax call of bench_work_precision.py, saving only q(1 s)). One
+the lean diffrax call of bench_work_precision.py, saving only q(1 s), forward-mode
+adjoint). One
 compile per batch size (reported apart); run time is the best warm call; peak
 memory is XLA's own accounting of the compiled call (arguments + outputs +
 temporaries) and the process's peak resident set.
@@ -44,6 +45,7 @@ def batch_runner(scene, solver: str, tol: float):
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(_rhs), SOLVERS[solver](), 0.0, 1.0, None, (q0, jnp.zeros_like(q0)), args=(mech, gravity, loads, False),
             saveat=diffrax.SaveAt(t1=True), stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol), max_steps=4096, throw=False,
+            adjoint=diffrax.ForwardMode(),  # no reverse-mode checkpointing: a plain while loop, cheaper under vmap
         )
         return sol.ys[0][-1], sol.stats["num_steps"], sol.result._value
 
