@@ -57,6 +57,7 @@ from ._loads import (
     RotaryDamper as RotaryDamper,
     Spring as Spring,
     Table as Table,
+    Vector as Vector,
     applied_wrenches as applied_wrenches,
     dissipated_power as dissipated_power,
     driver_effort as driver_effort,
