@@ -122,6 +122,25 @@ def test_link_angles_gradient(watt):
     _flat_check(angles, watt.mechanism, 1e-5)
 
 
+def test_reduction_directional_derivative(watt):
+    """J_red, dJ_red/dq and tau_red at one crank angle: a forward-mode derivative along a random
+    direction in the space of all 50 scene parameters, against the central difference (the full
+    Jacobians in both modes are checked by the slow test below)."""
+    theta, unflatten = syn.flatten_parameters(watt, select=lambda s: (s.mechanism, s.gravity))
+    v = jax.random.normal(jax.random.key(1), theta.shape)
+
+    def reduced(th):
+        scene = unflatten(th)
+        red = reduce_single(scene.mechanism, scene.gravity, scene.loads, 0.3, 0.0, 0.0)
+        return jnp.stack([red.inertia, red.dinertia, red.torque])
+
+    jvp = jax.jit(lambda th: jax.jvp(reduced, (th,), (v,))[1])(theta)
+    f = jax.jit(reduced)
+    d = lambda s: (f(theta + s * v) - f(theta - s * v)) / (2 * s)  # noqa: E731
+    assert_close_jacobian(jvp, (4 * d(0.5e-5) - d(1e-5)) / 3)
+
+
+@pytest.mark.slow  # reverse over nested jvp of a six-bar, 50 parameters: minutes on a busy 2-core machine
 def test_reduction_and_peak_torque_gradients(watt):
     """J_red(q), dJ_red/dq, tau_red (gravity) at three crank angles, and the peak driving torque at
     constant crank speed (inverse dynamics via the reduction), w.r.t. every length, centre of mass,

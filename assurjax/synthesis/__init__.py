@@ -2,7 +2,7 @@
 
 **Example** (straight-line synthesis, seed 001):
 
->>> import optax, assurjax
+>>> import jax.numpy as jnp, optax, assurjax
 >>> from assurjax import synthesis as syn
 >>> lengths = syn.roberts_lengths() * jnp.array([1.05, 0.95, 1.08, 0.93, 1.02, 0.97])
 >>> design, objective = syn.straight_line_problem(lengths)   # lengths + stroke centre, bounded
