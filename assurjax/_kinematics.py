@@ -197,20 +197,26 @@ def kinematics(
     return kin
 
 
-def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
-    """Raise :class:`AssemblyError` naming the first group that cannot assemble (no-op under tracing)."""
+def first_failure(mechanism: Mechanism, ok, q):
+    """(group, q, count) of the first False flag in ``ok`` (last axis: groups), or
+    None when all are True or the flags are traced."""
     if isinstance(ok, jax.core.Tracer):
-        return
+        return None
     ok = np.asarray(ok)
     if ok.all():
-        return
+        return None
     bad = np.argwhere(~ok)[0]
-    group = mechanism.groups[bad[-1]]
-    q_bad = np.asarray(q)[tuple(bad[:-1])] if np.ndim(q) else float(q)
-    raise AssemblyError(
-        f"{group.describe()} cannot assemble at q = {float(q_bad):.6g} ({int((~ok).any(-1).sum()) if ok.ndim > 1 else 1} "
-        f"configuration(s) fail)", group=group.name
-    )
+    q_bad = float(np.asarray(q)[tuple(bad[:-1])]) if np.ndim(q) else float(q)
+    count = int((~ok).any(-1).sum()) if ok.ndim > 1 else 1
+    return mechanism.groups[bad[-1]], q_bad, count
+
+
+def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
+    """Raise :class:`AssemblyError` naming the first group that cannot assemble (no-op under tracing)."""
+    failure = first_failure(mechanism, ok, q)
+    if failure is not None:
+        group, q_bad, count = failure
+        raise AssemblyError(f"{group.describe()} cannot assemble at q = {q_bad:.6g} ({count} configuration(s) fail)", group=group.name)
 
 
 def pose_at(mechanism: Mechanism, q) -> Pose:

@@ -12,7 +12,7 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._geometry import rotation
-from .._kinematics import Kinematics, _kinematics_single
+from .._kinematics import Kinematics, _kinematics_single, first_failure
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
 from ._class4 import class4_topology, solve_class4_special
@@ -289,17 +289,13 @@ def _run(scene, state, joints, method, check, *, static):
 
 def raise_if_singular(mechanism: Mechanism, ok, q) -> None:
     """Raise naming the first group whose equations are singular (no-op under tracing)."""
-    if isinstance(ok, jax.core.Tracer):
+    failure = first_failure(mechanism, ok, q)
+    if failure is None:
         return
-    ok = np.asarray(ok)
-    if ok.all():
-        return
-    bad = np.argwhere(~ok)[0]
-    group = mechanism.groups[bad[-1]]
-    q_bad = float(np.asarray(q)[tuple(bad[:-1])])
+    group, q_bad, count = failure
     raise SingularConfigurationError(
         f"{group.describe()}: its equilibrium equations are singular (or it cannot assemble) at q = {q_bad:.6g}; "
-        f"{int((~ok).any(-1).sum()) if ok.ndim > 1 else 1} state(s) affected. A singular group (e.g. a dyad with "
+        f"{count} state(s) affected. A singular group (e.g. a dyad with "
         "its links collinear) cannot carry a general load: its reactions are not determined by statics",
         group=group.name,
     )
