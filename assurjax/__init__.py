@@ -46,6 +46,7 @@ from ._dynamics import (
     simulate_core as simulate_core,
     simulate_seed_euler as simulate_seed_euler,
 )
+from ._table import ReducedTable as ReducedTable, build_table as build_table, build_table_core as build_table_core
 from ._loads import (
     AbstractLoad as AbstractLoad,
     Couple as Couple,

@@ -10,6 +10,9 @@ the time form of seed 000 eq. 1, d/dq (J_red w^2 / 2) = tau + tau_red. Every
 right-hand-side evaluation redoes the reduction at (q, w, t), so velocity-dependent
 loads are updated at every stage (the seed's step v); when no load depends on
 velocity the velocity part is never built.
+With ``reduction="table"`` (crank drivers, loads of q only) the right-hand side
+interpolates a :class:`assurjax.ReducedTable` sampled once per crank turn instead
+(see ``_table``); outputs are still computed with the exact analysis.
 
 Events (diffrax.Event, located by an optimistix root finder on the dense output):
 standstill (w crosses 0 against the direction of motion), a group that can no
@@ -38,6 +41,7 @@ from ._errors import AssurjaxError
 from ._loads import Damper, RotaryDamper, any_velocity_dependent, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
 from ._reduction import coefficients, generalized_force, kinematics_from_coefficients, reduce_single, reduce_with_pose
+from ._table import DEFAULT_TABLE_NODES, ReducedTable, build_table, build_table_core
 from ._tracking import branch_angles, branch_rates, branch_state
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
@@ -81,6 +85,8 @@ class Settings(NamedTuple):
     domega: bool = True
     branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
     adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
+    reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
+    table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
 
 
 class Solution(eqx.Module):
@@ -138,6 +144,11 @@ def _rhs(t, y, args):
     dw = (red.effort + red.torque - 0.5 * red.dinertia * w**2) / red.inertia
     out = (w, dw) + ((_dissipation(mechanism, loads, q, w, near),) if track_work else ())
     return out if near is None else out + (branch_rates(red, near, w),)
+
+
+def _rhs_table(t, y, args):
+    """(dq/dt, dw/dt) from the tabulated reduction only (no position analysis)."""
+    return y[1], args[-1].acceleration(y[0], y[1])
 
 
 def _dissipation(mechanism, loads, q, w, near=None):
@@ -236,7 +247,8 @@ def _initial_step(settings, dt, t0, t1):
     return None
 
 
-def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, dt=None, *, settings: Settings = Settings()) -> Solution:
+def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=None, dt=None, *, settings: Settings = Settings(),
+                  table: ReducedTable | None = None) -> Solution:
     """The pure, jittable simulation (no Python-side checks or trimming).
 
     ``q0``, ``omega0``, ``t0``, ``t1`` and the arrays inside ``mechanism`` and
@@ -245,6 +257,13 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     ``dt``: the step (s) when ``settings.fixed_step`` (traced: a step-size sweep
     compiles once); else an optional initial step.
 
+    ``settings.reduction == "table"``: the right-hand side interpolates ``table`` (a
+    :class:`ReducedTable`; None: built here from ``settings.table_nodes`` nodes, traced,
+    so differentiable in the mechanism's arrays but without the host-side checks of
+    :func:`build_table`). For a batch over q0 pass one table built outside the vmap.
+    Outputs are then computed from the saved (q, w) with the exact analysis, and the
+    assembly event is off (the table checked a full turn).
+
     **Example** (10 starting angles at once):
     >>> core = eqx.filter_jit(eqx.filter_vmap(
     ...     lambda q0: assurjax.simulate_core(mech, gravity, (), q0, 0.0, 0.0, 2.0,
@@ -252,6 +271,10 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     >>> sols = core(jnp.linspace(0.0, 1.0, 10))
     """
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    tabulated = _check_reduction(settings)
+    if tabulated:
+        settings = settings._replace(check_assembly=False)
+        table = build_table_core(mechanism, gravity, loads, settings.table_nodes) if table is None else table
     if ts is None:
         ts = jnp.linspace(t0, t1, settings.samples)
     ts = jnp.asarray(ts, dtype=float)
@@ -264,9 +287,9 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     if settings.standstill:  # from rest, the direction the applied loads start it in
         direction = jnp.where(omega0 != 0, direction, jnp.sign(generalized_force(mechanism, gravity, loads, q0, omega0, t0)))
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
-    args = (mechanism, gravity, loads, track_work, direction, user_signs)
+    args = (mechanism, gravity, loads, track_work, direction, user_signs) + ((table,) if tabulated else ())
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(lambda t, y, a: _rhs(t, y, a[:4])),
+        diffrax.ODETerm(_rhs_table if tabulated else (lambda t, y, a: _rhs(t, y, a[:4]))),
         _solver(settings),
         t0=t0,
         t1=t1,
@@ -281,6 +304,15 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         throw=False,
     )
     return _package(mechanism, gravity, loads, sol, ts, args, settings, track_work)
+
+
+def _check_reduction(settings: Settings) -> bool:
+    """True in table mode; clear errors for unknown modes and unsupported combinations."""
+    if settings.reduction not in ("exact", "table"):
+        raise AssurjaxError(f"reduction must be 'exact' or 'table', got {settings.reduction!r}")
+    if settings.reduction == "table" and settings.branch == "tracked":
+        raise AssurjaxError("reduction='table' needs branch='fixed' (the table is sampled on the scene's assembly modes)")
+    return settings.reduction == "table"
 
 
 def _package(mechanism, gravity, loads, sol, ts, args, settings, track_work) -> Solution:
@@ -396,6 +428,8 @@ def simulate(
     angles: Sequence[str] | None = None,
     energies: bool | None = None,
     branch: str | None = None,
+    reduction: str | None = None,
+    table_nodes: int | None = None,
 ) -> Solution:
     """Simulate a scene's motion from its initial state (seed 000's forward dynamics).
 
@@ -408,7 +442,11 @@ def simulate(
     ``"tracked"``: the link angles travel in the ODE state (d theta/dt = d theta/dq w,
     from the same jvp) and every group takes the root nearest to them, which keeps
     the motion on one continuous branch through singular configurations (e.g. the
-    N-four-bar's). ``saveat``: an array of times (s). ``events``: functions
+    N-four-bar's). ``reduction``: ``"exact"`` (default: the reduction at every
+    right-hand side) or ``"table"``: a :class:`ReducedTable` of ``table_nodes``
+    (default 4096) nodes over one crank turn is built and checked first, and the
+    right-hand side interpolates it (crank drivers, loads of q only; see
+    :func:`build_table`). ``saveat``: an array of times (s). ``events``: functions
     ``cond(t, q, omega)``; the motion stops where one changes sign. ``mechanism``,
     ``loads``, ``gravity`` replace the scene's.
 
@@ -441,6 +479,8 @@ def simulate(
         angles=tuple(pick(angles, outs, "angles", ())),
         energies=bool(pick(energies, outs, "energies", False)),
         branch=str(pick(branch, sim, "branch", "fixed")),
+        reduction=str(pick(reduction, sim, "reduction", "exact")),
+        table_nodes=int(pick(table_nodes, sim, "table_nodes", DEFAULT_TABLE_NODES)),
     )
     if settings.branch not in ("fixed", "tracked"):
         raise AssurjaxError(f"branch must be 'fixed' (the scene's assembly modes) or 'tracked' (continuous through singular configurations), got {settings.branch!r}")
@@ -458,7 +498,10 @@ def simulate(
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     step = pick(dt, sim, "dt", None)
     step = None if step is None else jnp.asarray(step, dtype=float)
-    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings)
+    table = None
+    if _check_reduction(settings):  # built and checked on the host, once, outside the jitted core
+        table = build_table(mechanism, gravity, loads, settings.table_nodes)
+    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings, table=table)
     return _trim(sol, mechanism)
 
 
