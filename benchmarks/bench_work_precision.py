@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax
-from assurjax._dynamics import _rhs
+from assurjax._dynamics import _rhs, _rhs_table
 from assurjax._tracking import branch_angles
 
 HERE = Path(__file__).resolve().parent
@@ -75,15 +75,17 @@ def best_time(fn, repeats: int, budget: float = 3.0) -> float:
 _RUNNERS: dict = {}
 
 
-def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = False, max_steps: int = 200_000):
+def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = False, table: bool = False, max_steps: int = 200_000):
     """The package's reduced equation in the leanest diffrax call: saves q at the grid
     only; PID controller with traced tolerances, or (``fixed``) constant steps whose
-    size is passed in place of rtol (atol unused). One compile per variant (cached)."""
-    key = (scene.name, solver, tracked, fixed)
+    size is passed in place of rtol (atol unused). ``table``: the tabulated reduction
+    (built once, outside the timed call). One compile per variant (cached)."""
+    key = (scene.name, solver, tracked, fixed, table)
     if key in _RUNNERS:
         return _RUNNERS[key]
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
-    term = diffrax.ODETerm(_rhs)
+    term = diffrax.ODETerm(_rhs_table if table else _rhs)
+    extra = (assurjax.build_table(mech, gravity, loads),) if table else ()
 
     @eqx.filter_jit
     def run(q0, w0, ts, rtol, atol):
@@ -92,7 +94,7 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = Fals
             y0 = y0 + (branch_angles(mech, assurjax.positions(mech, q0)),)
         controller = diffrax.ConstantStepSize() if fixed else diffrax.PIDController(rtol=rtol, atol=atol)
         sol = diffrax.diffeqsolve(
-            term, SOLVERS[solver](), 0.0, ts[-1], rtol if fixed else None, y0, args=(mech, gravity, loads, False),
+            term, SOLVERS[solver](), 0.0, ts[-1], rtol if fixed else None, y0, args=(mech, gravity, loads, False) + extra,
             saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller, max_steps=max_steps, throw=False,
         )
         return sol.ys[0], sol.stats["num_steps"], sol.result._value
@@ -114,22 +116,23 @@ def fixed_step_runs(scene, q0, w0, ts, ref, steps, repeats):
     return rows
 
 
-def assurjax_runs(scene, q0, w0, ts, ref, tolerances, repeats, *, tracked=False, compile_times=None):
+def assurjax_runs(scene, q0, w0, ts, ref, tolerances, repeats, *, tracked=False, compile_times=None, solvers=None, table=False):
     rows = []
-    for name in SOLVERS:
-        run = lean_runner(scene, name, tracked=tracked)
+    for name in solvers or SOLVERS:
+        run = lean_runner(scene, name, tracked=tracked, table=table)
+        label = " table" if table else ""
         args = lambda tol: (jnp.asarray(q0), jnp.asarray(w0), jnp.asarray(ts), jnp.asarray(tol), jnp.asarray(tol))  # noqa: E731
         t0 = time.perf_counter()
         jax.block_until_ready(run(*args(1e-6)))
         if compile_times is not None:
-            compile_times[name] = time.perf_counter() - t0
+            compile_times[name + label] = time.perf_counter() - t0
         for tol in tolerances:
             q, steps, result = run(*args(tol))
             if int(result) != 0:
-                rows.append(dict(method=f"assurjax {name}", setting=tol, error=None, time=None, steps=int(steps), note="failed"))
+                rows.append(dict(method=f"assurjax {name}{label}", setting=tol, error=None, time=None, steps=int(steps), note="failed"))
                 continue
             err = float(np.max(np.abs(np.asarray(q) - ref)))
-            rows.append(dict(method=f"assurjax {name}", setting=tol, error=err, time=best_time(lambda: run(*args(tol)), repeats), steps=int(steps)))
+            rows.append(dict(method=f"assurjax {name}{label}", setting=tol, error=err, time=best_time(lambda: run(*args(tol)), repeats), steps=int(steps)))
     return rows
 
 
@@ -213,7 +216,9 @@ def watt(theta0, T, args, compile_times):
     tols = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12]
     if args.quick:
         tols = tols[::3]
-    rows = assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times)
+    explicit = [k for k in SOLVERS if k != "kvaerno5"]
+    rows = assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times, solvers=explicit if args.no_implicit else None)
+    rows += assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times, solvers=explicit, table=True)
     rows += fixed_step_runs(scene, theta0, 0.0, ts, ref, [0.1, 0.05, 0.025, 0.0125] if not args.quick else [0.05], args.repeats)
     rows += seed_euler_runs(scene, theta0, 0.0, ts, ref, [1e-2, 1e-3, 1e-4] + ([] if args.quick else [1e-5]), args.repeats)
     rows += joint_based_runs(lambda: jr.watt_sixbar(theta0), ts, ref, tols[::2], args.repeats)
@@ -245,18 +250,23 @@ def n_four_bar(n, T, args):
 # ----------------------------------------------------------------------------- summary
 
 
-def pareto_time(rows, method_prefix, error):
+def pareto_time(rows, method_prefix, error, *, exclude=None):
     """Least time of a method family reaching ``error`` (None if it never does)."""
-    ok = [r["time"] for r in rows if r["method"].startswith(method_prefix) and r["error"] is not None and r["time"] is not None and r["error"] <= error]
+    ok = [
+        r["time"] for r in rows
+        if r["method"].startswith(method_prefix) and not (exclude and exclude in r["method"])
+        and r["error"] is not None and r["time"] is not None and r["error"] <= error
+    ]
     return min(ok) if ok else None
 
 
 def summary(case):
+    """Per error level: best assurjax time (exact reduction, and with the tabulated one), best MuJoCo time."""
     rows = case["rows"]
     out = {}
     for level in (1e-4, 1e-6, 1e-8, 1e-10):
-        a, m = pareto_time(rows, "assurjax", level), pareto_time(rows, "MuJoCo", level)
-        out[f"{level:.0e}"] = dict(assurjax=a, mujoco=m, ratio=(m / a) if a and m else None)
+        exact, a, m = pareto_time(rows, "assurjax", level, exclude="table"), pareto_time(rows, "assurjax", level), pareto_time(rows, "MuJoCo", level)
+        out[f"{level:.0e}"] = dict(assurjax_exact=exact, assurjax=a, mujoco=m, ratio_exact=(m / exact) if exact and m else None, ratio=(m / a) if a and m else None)
     return out
 
 
@@ -272,7 +282,8 @@ def print_case(case):
         a = "-" if s["assurjax"] is None else f"{1e3 * s['assurjax']:.3f} ms"
         m = "-" if s["mujoco"] is None else f"{1e3 * s['mujoco']:.3f} ms"
         ratio = "-" if s["ratio"] is None else f"{s['ratio']:.0f}x"
-        print(f"  error <= {level}: assurjax {a}, MuJoCo {m}, MuJoCo/assurjax {ratio}")
+        ratio_exact = "-" if s["ratio_exact"] is None else f"{s['ratio_exact']:.0f}x"
+        print(f"  error <= {level}: assurjax {a}, MuJoCo {m}, MuJoCo/assurjax {ratio} (exact reduction only: {ratio_exact})")
 
 
 def plot(cases, path):
@@ -304,6 +315,7 @@ def main():
     parser.add_argument("--quick", action="store_true", help="fewer settings (a smoke run)")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--nfb", type=int, default=2, help="N of the N-four-bar case")
+    parser.add_argument("--no-implicit", action="store_true", help="skip Kvaerno5 (it compiles for minutes)")
     args = parser.parse_args()
     compile_times = {}
     cases = [watt(0.0, 1.0, args, compile_times)]
