@@ -40,6 +40,11 @@ def heading(v):
     return jnp.arctan2(v[..., 1], v[..., 0])
 
 
+def wrap_angle(delta):
+    """An angle (difference, rad) wrapped to [-pi, pi)."""
+    return jnp.remainder(delta + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+
+
 def safe_norm(v, eps=1e-300):
     """Euclidean norm whose gradient is finite at zero."""
     sq = dot(v, v)

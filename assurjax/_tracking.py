@@ -18,12 +18,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._geometry import wrap_angle
 from ._mechanism import Mechanism, Pose, positions
-
-
-def _wrap(angle):
-    """Angle wrapped to [-pi, pi) (rad)."""
-    return jnp.remainder(angle + jnp.pi, 2.0 * jnp.pi) - jnp.pi
 
 
 def tracked_links(mechanism: Mechanism) -> tuple[str, ...]:
@@ -71,7 +67,7 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
     def step(carry, q):
         angles, previous_angles, q_prev, dq_prev = carry
         ratio = (q - q_prev) / jnp.where(dq_prev == 0.0, 1.0, dq_prev)
-        predicted = jax.tree.map(lambda a, b: a + _wrap(a - b) * ratio, angles, previous_angles)
+        predicted = jax.tree.map(lambda a, b: a + wrap_angle(a - b) * ratio, angles, previous_angles)
         pose = positions(mechanism, q, near=predicted)
         # a sample that cannot assemble (e.g. exactly at coinciding external joints)
         # must not steer the next prediction: carry the prediction over it instead

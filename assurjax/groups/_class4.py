@@ -7,14 +7,13 @@ joins E and F. 4 links, 6 revolutes (C, D, E, F internal; B, G external)."""
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import dot, rotate, rotation
+from .._geometry import dot, rotate, rotation, wrap_angle
 from .._errors import MechanismError
-from ._base import Link, frame_through
-from ._newton import IterativeGroup, parse_guess, parse_options, angle_of, frame_at_angle, wrap_angle
+from ._base import Link, frame_from_rotation, frame_through
+from ._newton import IterativeGroup, parse_guess, parse_options, angle_of
 
 
 class ClassIV(IterativeGroup):
@@ -44,19 +43,11 @@ class ClassIV(IterativeGroup):
     ``joints = ["B", "G", "C", "D", "E", "F"]``, ``guess = { C = [...], D = [...], E = [...], F = [...] }``.
     """
 
-    name: str = eqx.field(static=True)
-    links: tuple[str, ...] = eqx.field(static=True)
-    joints: tuple[str, ...] = eqx.field(static=True)
-    guess: dict[str, Array]
-    guess_q: float | None = eqx.field(static=True, default=None)
-    substeps: int = eqx.field(static=True, default=8)
-    max_steps: int = eqx.field(static=True, default=32)
     kind = "class4"
 
     def __check_init__(self):
         if len(self.links) != 4 or len(self.joints) != 6:
             raise MechanismError(f"class4 group '{self.name}': needs 4 links (link2, link3, link4, link5) and 6 joints (B, G, C, D, E, F)")
-        self.check_guess()
 
     def external_points(self):
         return self.joints[:2]
@@ -106,9 +97,9 @@ class ClassIV(IterativeGroup):
         b, g = ext
         c, d, e, f = ClassIV.internal_positions(z, ext, geo)
         return {
-            l2: frame_at_angle(geo["b_2"], b, z[0]),
+            l2: frame_from_rotation(geo["b_2"], b, rotation(z[0])),
             l3: frame_through(geo["c_3"], geo["d_3"], c, d),
-            l4: frame_at_angle(geo["g_4"], g, z[1]),
+            l4: frame_from_rotation(geo["g_4"], g, rotation(z[1])),
             l5: frame_through(geo["e_5"], geo["f_5"], e, f),
         }
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._geometry import V2
-from ._base import AbstractGroup, Frame, Link, Placement, frame_from_rotation_xy
+from ._base import AbstractGroup, Link, Placement, frame_from_rotation_xy
 
 
 class Crank(AbstractGroup):

@@ -48,8 +48,8 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import MechanismError
-from .._geometry import heading
-from ._base import AbstractGroup, Frame, Link, Placement
+from .._geometry import heading, wrap_angle
+from ._base import AbstractGroup, Link, Placement
 
 
 def _tolerances(dtype) -> tuple[float, float]:
@@ -117,11 +117,6 @@ def _stop(tree):
     return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
-def wrap_angle(delta):
-    """An angle difference wrapped to [-pi, pi)."""
-    return jnp.remainder(delta + jnp.pi, 2.0 * jnp.pi) - jnp.pi
-
-
 class IterativeGroup(AbstractGroup):
     """Base of the Assur groups solved by Newton iteration (class III triad, class IV).
 
@@ -131,10 +126,23 @@ class IterativeGroup(AbstractGroup):
     m) and local link geometry ``geo``: the static method ``residual(z, (ext, geo))``
     (a global function: optimistix differentiates through ``args`` only, never
     through closures), and the methods ``frames(z, ext, geo)`` and
-    ``angles_from_guess(guess, ext, geo)``. Subclasses also carry the fields
-    ``guess`` (internal joint -> approximate global position, m), ``guess_q``
-    (static float), ``substeps`` and ``max_steps`` (static ints).
+    ``angles_from_guess(guess, ext, geo)``. The fields are shared: ``links`` and
+    ``joints`` (static names, in the subclass's order), ``guess`` (internal joint ->
+    approximate global position, m), ``guess_q`` (static float: the coordinate at
+    which ``guess`` holds), ``substeps`` and ``max_steps`` (static ints).
     """
+
+    name: str = eqx.field(static=True)
+    links: tuple[str, ...] = eqx.field(static=True)
+    joints: tuple[str, ...] = eqx.field(static=True)
+    guess: dict[str, Array]
+    guess_q: float | None = eqx.field(static=True, default=None)
+    substeps: int = eqx.field(static=True, default=8)
+    max_steps: int = eqx.field(static=True, default=32)
+
+    def __check_init__(self):
+        # equinox runs the subclasses' own checks (link and joint counts) first
+        self.check_guess()
 
     @abc.abstractmethod
     def unknown_links(self) -> tuple[str, str]:
@@ -159,7 +167,7 @@ class IterativeGroup(AbstractGroup):
 
     def predictor(self, links: dict[str, Link], placed: Placement, q: Array) -> tuple[Array, Array]:
         """Starting angles for the final solve at q (no gradient flows through them)."""
-        near = getattr(placed, "near", None)
+        near = placed.near
         unknown = self.unknown_links()
         if near is not None and all(k in near for k in unknown):
             return _stop(jnp.stack([jnp.asarray(near[k], dtype=float) for k in unknown])), jnp.array(True)
@@ -167,7 +175,7 @@ class IterativeGroup(AbstractGroup):
 
     def continued(self, links, placed, q):
         """Stages 1-2 of the module docstring: reference solve, then continuation to q."""
-        mechanism = getattr(placed, "mechanism", None)
+        mechanism = placed.mechanism
         if mechanism is None:
             raise MechanismError(f"{self.describe()} is iterative: solve it through assurjax.positions (it needs the whole mechanism for continuation)")
         if self.guess_q is None:
@@ -261,12 +269,3 @@ def iterative_unknowns(mechanism) -> tuple[str, ...]:
     group, in formation order. Their angles, e.g. carried from one time step or
     sample to the next, are what ``positions(..., near=...)`` takes as predictor."""
     return tuple(link for g in mechanism.groups if isinstance(g, IterativeGroup) for link in g.unknown_links())
-
-
-
-def frame_at_angle(local_point: Array, global_point: Array, angle: Array) -> Frame:
-    """The frame of angle ``angle`` (rad) that maps a local point onto its global position."""
-    from .._geometry import rotate, rotation
-
-    rot = rotation(angle)
-    return Frame(global_point - rotate(local_point, rot), rot)

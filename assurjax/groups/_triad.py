@@ -5,14 +5,13 @@ a binary link i whose other end is the external joint Ei (three external joints)
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import dot, rotate, rotation
+from .._geometry import dot, rotate, rotation, wrap_angle
 from .._errors import MechanismError
-from ._base import Link, frame_through
-from ._newton import IterativeGroup, parse_guess, parse_options, wrap_angle, angle_of, frame_at_angle
+from ._base import Link, frame_from_rotation, frame_through
+from ._newton import IterativeGroup, parse_guess, parse_options, angle_of
 
 
 class Triad(IterativeGroup):
@@ -45,19 +44,11 @@ class Triad(IterativeGroup):
     ``guess = { P1 = [0.1, 0.2], P2 = [...], P3 = [...] }``.
     """
 
-    name: str = eqx.field(static=True)
-    links: tuple[str, ...] = eqx.field(static=True)
-    joints: tuple[str, ...] = eqx.field(static=True)
-    guess: dict[str, Array]
-    guess_q: float | None = eqx.field(static=True, default=None)
-    substeps: int = eqx.field(static=True, default=8)
-    max_steps: int = eqx.field(static=True, default=32)
     kind = "triad"
 
     def __check_init__(self):
         if len(self.links) != 4 or len(self.joints) != 6:
             raise MechanismError(f"triad '{self.name}': needs 4 links (T, L1, L2, L3) and 6 joints (E1, E2, E3, P1, P2, P3)")
-        self.check_guess()
 
     def external_points(self):
         return self.joints[:3]
@@ -113,8 +104,8 @@ class Triad(IterativeGroup):
         e1, e2, e3 = ext
         p1, p2, p3 = Triad.internal_positions(z, ext, geo)
         return {
-            l1: frame_at_angle(geo["e1_l1"], e1, z[0]),
-            t: frame_at_angle(geo["p1_t"], p1, z[1]),
+            l1: frame_from_rotation(geo["e1_l1"], e1, rotation(z[0])),
+            t: frame_from_rotation(geo["p1_t"], p1, rotation(z[1])),
             l2: frame_through(geo["e2_l2"], geo["p2_l2"], e2, p2),
             l3: frame_through(geo["e3_l3"], geo["p3_l3"], e3, p3),
         }
