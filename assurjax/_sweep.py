@@ -35,7 +35,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._errors import AssurjaxError
-from ._kinematics import Kinematics, _kinematics_single
+from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
 
 BATCH_AXIS = "batch"
@@ -140,11 +140,12 @@ def shard_batch(batch: Any, mesh: Mesh) -> Any:
 # --------------------------------------------------------------------------- chunked sweeps
 
 
-def _progress_bar(total: int, progress: bool | None, desc: str):
+def _progress_bar(total: int, progress: bool | None, desc: str, unit: str = "item"):
+    """A tqdm bar; by default (``progress=None``) shown only when stderr is a terminal."""
     from tqdm.auto import tqdm
 
     disable = (not sys.stderr.isatty()) if progress is None else not progress
-    return tqdm(total=total, disable=disable, desc=desc, unit="item")
+    return tqdm(total=total, disable=disable, desc=desc, unit=unit)
 
 
 def _pad(chunk: Any, size: int) -> Any:
@@ -289,10 +290,7 @@ def _kinematics_item(points, order):
 
         def item(args):
             mechanism, q, omega, alpha = args
-            shape = q.shape
-            single = lambda q, w, a: _kinematics_single(mechanism, q, w, a, points, order)  # noqa: E731
-            flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), alpha.reshape(-1))
-            return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+            return _kinematics_batch(mechanism, q, omega, alpha, points, order)
 
         _KIN_ITEMS[key] = item
     return _KIN_ITEMS[key]

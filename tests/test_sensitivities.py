@@ -178,6 +178,20 @@ def test_driving_torque_matches_energy_balance(watt):
     np.testing.assert_allclose(tau, de_dq, rtol=1e-7, atol=1e-8)
 
 
+def test_straight_line_objective_gradient():
+    """The smooth straight-line objective (root finds on x(q) = target, least-squares line,
+    soft maxima) of a perturbed Roberts linkage: its gradient over the six lengths and the
+    stroke centre is the derivative of its value (central differences)."""
+    lengths = np.asarray(syn.roberts_lengths()) * (1 + np.random.default_rng(0).uniform(-0.1, 0.1, 6))
+    design, objective = syn.straight_line_problem(lengths)
+    lengths0, centre0 = design.values(design.init())
+    theta = jnp.concatenate([jnp.asarray(lengths0), jnp.atleast_1d(centre0)])
+    f = jax.jit(lambda th: objective((th[:6], th[6]))[0])
+    fd = central_difference(f, theta, 1e-5)
+    grad = jax.jit(jax.grad(f))(theta)
+    assert_close_jacobian(grad, fd, rtol=1e-5)
+
+
 def test_no_nan_gradients_on_random_valid_configurations(roberts, watt):
     """Random perturbed mechanisms at random q: every gradient of an assembled configuration is finite,
     and so is every value where assembly fails (flagged, never NaN)."""

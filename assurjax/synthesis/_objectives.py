@@ -66,7 +66,8 @@ class StraightLine(eqx.Module):
     signed perpendicular distances from that line (the minimum-zone straightness
     for the least-squares direction); ``smooth``: the same with both extremes
     replaced by log-sum-exp soft maxima of sharpness ``p / max|r|`` (a
-    differentiable stand-in, at most ``log(samples) max|r| / p`` above it);
+    differentiable stand-in, at most ``log(samples) max|r| / p`` above it,
+    whose gradient is the derivative of its value);
     ``x``, ``y``: coupler point at the sample positions; ``q``: the driving
     coordinates there; ``residuals``: signed distances from the line; ``ok``:
     every sample assembled and was reached on the branch through ``q0``.
@@ -120,7 +121,9 @@ def straight_line_deviation(
     ok = jnp.all(ok & bracketed & converged)
     x, y = pts[:, 0], pts[:, 1]
     r = _line_residuals(x, y)
-    sharpness = p / jax.lax.stop_gradient(jnp.max(jnp.abs(r)) + 1e-300)
+    # the scale is differentiated too (no stop_gradient), so the gradient of `smooth` is the
+    # derivative of its value (a stopped scale is off by up to ~log(samples)/p, a few per cent)
+    sharpness = p / (jnp.max(jnp.abs(r)) + 1e-300)
     return StraightLine(
         deviation=0.5 * (jnp.max(r) - jnp.min(r)),
         smooth=0.5 * (smooth_max(r, sharpness) + smooth_max(-r, sharpness)),

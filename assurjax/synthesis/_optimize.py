@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -15,6 +14,7 @@ import numpy as np
 import optax
 
 from .._errors import AssemblyError, AssurjaxError
+from .._sweep import _progress_bar
 from ._design import Design
 
 
@@ -133,7 +133,7 @@ def optimize(
     rec.add(loss, grad, time.perf_counter() - start, n_eval, 0, aux)
     best = (float(loss), z)
     status, message = "steps", f"ran {steps} steps"
-    bar = _progress_bar(steps, progress)
+    bar = _progress_bar(steps, progress, "optimize", unit="step")
     for step in range(1, steps + 1):
         updates, new_state = update(grad, opt_state, z)
         for k in range(max_backtracks + 1):
@@ -236,10 +236,3 @@ class _Recorder:
             backtracks=np.asarray(self.backtracks),
             aux=aux,
         )
-
-
-def _progress_bar(total: int, progress: bool | None):
-    from tqdm.auto import tqdm
-
-    disable = (not sys.stderr.isatty()) if progress is None else not progress
-    return tqdm(total=total, disable=disable, desc="optimize", unit="step")
