@@ -199,7 +199,7 @@ def cmd_kinematics(args) -> int:
 # ---------------------------------------------------------------------------- run
 
 
-def _simulate(scene, quiet: bool):
+def _simulate(scene):
     """Simulate twice: the first call includes compilation, the second is the run time."""
     import assurjax
 
@@ -326,7 +326,7 @@ def cmd_run(args) -> int:
     units = _units(_driver_kind(scene.mechanism))
     steps = 4 + (not args.no_animation)
     with _progress(steps, f"run {scene.name}", args.quiet) as bar:
-        sol, first, second = _simulate(scene, args.quiet)
+        sol, first, second = _simulate(scene)
         bar.update(1)
         joints = scene.outputs["reactions"]
         forces, driving, rx_time = {}, None, None
@@ -392,7 +392,7 @@ def cmd_reactions(args) -> int:
         print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}")
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
         return 0
-    sol, _, _ = _simulate(scene, args.quiet)
+    sol = assurjax.simulate(scene)  # once: this command reports no simulation timings
     forces, driving, ok, elapsed = _reactions_along(scene, sol, joints)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": ok}
                         | {k: v for k, v in _solution_columns(scene, sol, forces, driving).items() if k.startswith(("F", "driving"))})]

@@ -107,32 +107,19 @@ def test_validate_good_scene(capsys):
     assert "OK" in capsys.readouterr().out
 
 
+ONE_LINK = """
+[ground]
+O = [0.0, 0.0]
+[links.crank]
+points = { O = [0.0, 0.0], A = [1.0, 0.0] }
+[[formation]]
+"""
+
 BAD_SCENES = {
     "not toml": ("x = ", "not valid TOML"),
-    "unknown group": (
-        """
-        [ground]
-        O = [0.0, 0.0]
-        [links.crank]
-        points = { O = [0.0, 0.0], A = [1.0, 0.0] }
-        [[formation]]
-        group = "RRRR"
-        """,
-        "unknown group kind",
-    ),
+    "unknown group": (ONE_LINK + 'group = "RRRR"\n', "unknown group kind"),
     "unknown output point": (
-        """
-        [ground]
-        O = [0.0, 0.0]
-        [links.crank]
-        points = { O = [0.0, 0.0], A = [1.0, 0.0] }
-        [[formation]]
-        group = "crank"
-        link = "crank"
-        pivot = "O"
-        [outputs]
-        points = ["Z"]
-        """,
+        ONE_LINK + 'group = "crank"\nlink = "crank"\npivot = "O"\n[outputs]\npoints = ["Z"]\n',
         "unknown point 'Z'",
     ),
 }

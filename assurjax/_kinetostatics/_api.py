@@ -17,10 +17,9 @@ from .._loads import applied_wrenches
 from .._mechanism import Mechanism
 from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
-from ._dyads import solve_dyad_dense, solve_rrr
+from ._dyads import solve_rrr
 from ._layout import Pair, group_pairs, groups_for
-from ._system import Geometry, driver_column, hand_back, known_vector, pair_columns, solve_dense, solve_flagged, unpack
-from ._triad import solve_triad
+from ._system import Geometry, hand_back, solve_dense
 
 
 class SingularConfigurationError(AssurjaxError):
@@ -32,16 +31,13 @@ class SingularConfigurationError(AssurjaxError):
         self.group = group
 
 
-# group kind -> solver(group, pairs, geometry, known wrenches) -> (reactions, driving or None, ok)
+# group kind -> solver(group, pairs, geometry, known wrenches) -> (reactions, driving or None, ok).
+# Every other group (the dyads with prismatic pairs, the triad) solves its own
+# 3 n x 3 n system with solve_dense.
 SOLVERS = {
     "crank": solve_crank,
     "slider": solve_slider,
     "RRR": solve_rrr,
-    "RRP": solve_dyad_dense,
-    "PRR": solve_dyad_dense,
-    "RPR": solve_dyad_dense,
-    "PRP": solve_dyad_dense,
-    "triad": solve_triad,
 }
 
 METHODS = ("modular", "dense", "global")
@@ -137,16 +133,11 @@ def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
     """Reference: every equilibrium equation of the mechanism in one linear system
     (3 n x 3 n: 15 x 15 for the Watt six-bar)."""
     pairs = [p for ps in group_pairs(mechanism) for p in ps]
-    links = list(mechanism.links)
-    index = {link: k for k, link in enumerate(links)}
-    size = 3 * len(links)
-    cols = [c for pair in pairs for c in pair_columns(geom, index, pair, size)]
-    cols.append(driver_column(geom, index, mechanism.driver, size))
-    x, ok = solve_flagged(jnp.stack(cols, axis=-1), -known_vector(known, links))
-    return unpack(geom, pairs, x), x[-1], jnp.broadcast_to(ok, (len(mechanism.groups),))
+    found, driving, ok = solve_dense(list(mechanism.links), pairs, geom, known, mechanism.driver)
+    return found, driving, jnp.broadcast_to(ok, (len(mechanism.groups),))
 
 
-def _static_kinematics(mechanism, q, t):
+def _static_kinematics(mechanism, q):
     """Positions only, zero velocities and no inertia (the mechanism at rest)."""
     kin = _kinematics_single(mechanism, q, jnp.zeros_like(q), jnp.zeros_like(q), None, 0)
     zeros = lambda d: jax.tree.map(jnp.zeros_like, d)  # noqa: E731
@@ -161,7 +152,7 @@ def _static_kinematics(mechanism, q, t):
 def _single(scene, q, omega, alpha, t, method: str, groups, static: bool):
     TRACE_COUNT[0] += 1
     if static:
-        kin = _static_kinematics(scene.mechanism, q, t)
+        kin = _static_kinematics(scene.mechanism, q)
     else:
         kin = _kinematics_single(scene.mechanism, q, omega, alpha, None, 2)
     return from_kinematics(scene, kin, t, method=method, groups=groups)

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from .._errors import MechanismError
 from .._geometry import cross, perp, safe_norm, unit
-from ._system import SINGULAR, Geometry, Reaction, solve_flagged
+from ._system import SINGULAR, Geometry, Reaction, moment_about, solve_flagged
 
 
 def class4_topology(group, pairs):
@@ -62,11 +62,6 @@ NORMALS_BY_FORCES = 0.1
 components come from moments about its joints instead of its force sum."""
 
 
-def _moment_about(geom, known, link, centre):
-    f, m = known[link]
-    return m + cross(geom.coms[link] - centre, f)
-
-
 def solve_class4_special(group, pairs, geom: Geometry, known):
     """The special-point method: a 4 x 4 system for the tangential components, then
     closed forms for the normal components and the external reactions."""
@@ -87,7 +82,7 @@ def solve_class4_special(group, pairs, geom: Geometry, known):
         rhs.append(-known_moment)
     for d, x in zip(drags, xs):  # eqs. 6 and 8: dragging link about its external joint
         rows.append(jnp.stack([-cross(at[k] - x, e_t[k]) if k[1] == d else jnp.zeros(()) for k in order]))
-        rhs.append(-_moment_about(geom, known, d, x))
+        rhs.append(-moment_about(geom, known, d, x))
     t, ok = solve_flagged(jnp.stack(rows), jnp.stack(rhs))
     tangential = dict(zip(order, t))
     force = {}
@@ -121,7 +116,7 @@ def _about_special_point(geom, known, c, drags, at, e_n, e_t, order):
         [den * cross(at[k] - p1, e_t[k]) - lever * cross(n1, e_t[k]) if k[0] == c else jnp.zeros(()) for k in order]
     )
     f, _ = known[c]
-    return row, den * _moment_about(geom, known, c, p1) - lever * cross(n1, f)
+    return row, den * moment_about(geom, known, c, p1) - lever * cross(n1, f)
 
 
 def _normal_components(geom, known, c, p1, p2, n1, n2, t1, t2, tan1, tan2):
@@ -136,8 +131,8 @@ def _normal_components(geom, known, c, p1, p2, n1, n2, t1, t2, tan1, tan2):
     d12 = p2 - p1
     den1, den2 = cross(-d12, n1), cross(d12, n2)
     by_moments = (
-        -(_moment_about(geom, known, c, p2) + tan1 * cross(-d12, t1)) / safe(den1),
-        -(_moment_about(geom, known, c, p1) + tan2 * cross(d12, t2)) / safe(den2),
+        -(moment_about(geom, known, c, p2) + tan1 * cross(-d12, t1)) / safe(den1),
+        -(moment_about(geom, known, c, p1) + tan2 * cross(d12, t2)) / safe(den2),
     )
     length = safe_norm(d12)
     ok = use_forces | (jnp.minimum(jnp.abs(den1), jnp.abs(den2)) > SINGULAR * length)

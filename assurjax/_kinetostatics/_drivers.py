@@ -10,25 +10,23 @@ f, m: known force and moment about the centre of mass G of the driving link
 
 import jax.numpy as jnp
 
-from .._geometry import cross, dot, perp
-from ._system import Geometry, Reaction
+from .._geometry import dot, perp
+from ._system import Geometry, Reaction, moment_about
 
 
 def solve_crank(group, pairs, geom: Geometry, known):
     link = group.links[0]
-    f, m = known[link]
     (pivot,) = pairs
-    r = -f
-    tau = -(m + cross(geom.points[pivot.point] - geom.coms[link], r))
-    return {pivot.name: Reaction(r, jnp.zeros(()))}, tau, jnp.array(True)
+    tau = -moment_about(geom, known, link, geom.points[pivot.point])
+    return {pivot.name: Reaction(-known[link][0], jnp.zeros(()))}, tau, jnp.array(True)
 
 
 def solve_slider(group, pairs, geom: Geometry, known):
     link = group.links[0]
-    f, m = known[link]
+    f = known[link][0]
     (guide,) = pairs
     u = geom.rots[link]
     n = perp(u)
     normal, drive = -dot(f, n), -dot(f, u)
-    couple = cross(geom.points[guide.point] - geom.coms[link], f) - m
+    couple = -moment_about(geom, known, link, geom.points[guide.point])
     return {guide.name: Reaction(normal * n, couple)}, drive, jnp.array(True)

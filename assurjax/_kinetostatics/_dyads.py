@@ -1,10 +1,11 @@
-"""Class-II dyads. RRR in closed form; the dyads with prismatic pairs (RRP, PRR,
-RPR, PRP) by their own 6 x 6 system (two links, three equations each)."""
+"""Class-II RRR dyad in closed form. The dyads with prismatic pairs (RRP, PRR,
+RPR, PRP) solve their own 6 x 6 system (two links, three equations each) with
+:func:`._system.solve_dense`, the fallback of :func:`._api.solve_groups`."""
 
 import jax.numpy as jnp
 
 from .._geometry import cross, safe_norm
-from ._system import SINGULAR, Geometry, Reaction, solve_dense
+from ._system import SINGULAR, Geometry, Reaction, moment_about
 
 
 def solve_rrr(group, pairs, geom: Geometry, known):
@@ -19,12 +20,10 @@ def solve_rrr(group, pairs, geom: Geometry, known):
     (a, b), (e1, e2, j) = group.links, group.joints
     by_point = {(p.point, p.on): p for p in pairs}
     p1, p2, pj = by_point[(e1, a)], by_point[(e2, b)], by_point[(j, b)]
-    fa, ma = known[a]
-    fb, mb = known[b]
+    fa, fb = known[a][0], known[b][0]
     xj = geom.points[j]
     d1, d2 = geom.points[e1] - xj, geom.points[e2] - xj
-    ma_j = ma + cross(geom.coms[a] - xj, fa)
-    mb_j = mb + cross(geom.coms[b] - xj, fb)
+    ma_j, mb_j = moment_about(geom, known, a, xj), moment_about(geom, known, b, xj)
     c1 = -ma_j
     c2 = mb_j - cross(d2, fa + fb)
     det = cross(d1, d2)
@@ -35,8 +34,3 @@ def solve_rrr(group, pairs, geom: Geometry, known):
     r2 = -rj - fb
     zero = jnp.zeros(())
     return {p1.name: Reaction(r1, zero), p2.name: Reaction(r2, zero), pj.name: Reaction(rj, zero)}, None, ok
-
-
-def solve_dyad_dense(group, pairs, geom: Geometry, known):
-    """RRP, PRR, RPR, PRP: the dyad's own 6 x 6 system."""
-    return solve_dense(group.links, pairs, geom, known)

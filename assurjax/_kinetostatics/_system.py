@@ -44,6 +44,12 @@ def moment_about_com(geom: Geometry, link: str, at: Array, force: Array) -> Arra
     return cross(at - geom.coms[link], force)
 
 
+def moment_about(geom: Geometry, known: dict, link: str, centre: Array) -> Array:
+    """Moment (N m) about ``centre`` of the known wrench of ``link`` (its force acts at the COM)."""
+    f, m = known[link]
+    return m + cross(geom.coms[link] - centre, f)
+
+
 def guide_normal(geom: Geometry, pair: Pair) -> Array:
     """Left normal of the guide of a prismatic pair (the slider's x axis is along the guide)."""
     return perp(geom.rots[pair.on])
