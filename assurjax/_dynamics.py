@@ -38,9 +38,9 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
-from ._loads import Damper, RotaryDamper, any_velocity_dependent, check_loads, dissipated_power, potential_energy
+from ._loads import Damper, RotaryDamper, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
-from ._reduction import coefficients, generalized_force, kinematics_from_coefficients, reduce_single, reduce_with_pose
+from ._reduction import generalized_force, reduce_single, reduce_with_kinematics, reduce_with_pose
 from ._table import DEFAULT_TABLE_NODES, ReducedTable, build_table, build_table_core
 from ._tracking import branch_angles, branch_rates, branch_state
 
@@ -140,9 +140,10 @@ def _rhs(t, y, args):
     mechanism, gravity, loads, track_work = args
     q, w = y[0], y[1]
     near = branch_state(y)
-    red = reduce_single(mechanism, gravity, loads, q, w, t, near=near)
-    dw = (red.effort + red.torque - 0.5 * red.dinertia * w**2) / red.inertia
-    out = (w, dw) + ((_dissipation(mechanism, loads, q, w, near),) if track_work else ())
+    # One position analysis per evaluation: the dampers' power reads the same kinematics
+    # (track_work implies a damper, so the velocities are built).
+    red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, w, t, near=near)
+    out = (w, red.acceleration(w)) + ((dissipated_power(mechanism, loads, kin),) if track_work else ())
     return out if near is None else out + (branch_rates(red, near, w),)
 
 
@@ -151,31 +152,25 @@ def _rhs_table(t, y, args):
     return y[1], args[-1].acceleration(y[0], y[1])
 
 
-def _dissipation(mechanism, loads, q, w, near=None):
-    x, dx, _, ok = coefficients(mechanism, q, near=near)
-    return dissipated_power(mechanism, loads, kinematics_from_coefficients(q, w, x, dx, ok))
-
-
-def _acceleration(mechanism, gravity, loads, t, q, w, near=None):
-    return _rhs(t, (q, w) + (() if near is None else (near,)), (mechanism, gravity, loads, False))[1]
-
-
 # ---------------------------------------------------------------------------- events
 
 
-def _margins(settings: Settings, t, y, args) -> list:
+def _margins(settings: Settings, t, y, args, lockup=None) -> list:
     """One margin per enabled stop condition, positive until that condition fires.
 
     standstill: direction of motion * w (0 at a start from rest, then > 0 while
     moving); assembly: +1 while every group assembles, -1 once one cannot; user
-    events: cond(t, q, w) times its sign at t0.
+    events: cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when
+    already known (then no position analysis here).
     """
     mechanism, direction, user_signs = args[0], args[4], args[5]
     out = []
     if settings.standstill:
         out.append(direction * y[1])
     if settings.check_assembly:
-        out.append(jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -_TINY))
+        if lockup is None:
+            lockup = jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -_TINY)
+        out.append(lockup)
     for k, cond in enumerate(settings.events):
         out.append(user_signs[k] * jnp.asarray(cond(t, y[0], y[1]), dtype=float))
     return out
@@ -235,7 +230,7 @@ def _controller(settings: Settings):
     return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol)
 
 
-def _initial_step(settings, dt, t0, t1):
+def _initial_step(settings, dt):
     """The fixed step, or the controller's first step (None: diffrax's automatic choice,
     two right-hand-side evaluations; a small guess costs more steps to grow)."""
     if dt is None:
@@ -293,7 +288,7 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         _solver(settings),
         t0=t0,
         t1=t1,
-        dt0=_initial_step(settings, dt, t0, t1),
+        dt0=_initial_step(settings, dt),
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True),
@@ -354,9 +349,8 @@ def _which_event(sol, settings, args, last, ok_final):
     if not codes:
         return jnp.asarray(NO_EVENT)
     y_final = jax.tree.map(lambda y: y[last], sol.ys)
-    margins = _margins(settings, sol.ts[last], y_final, args)
-    if settings.check_assembly:
-        margins[codes.index(LOCKUP)] = jnp.where(jnp.all(ok_final), 1.0, -1.0)
+    lockup = jnp.where(jnp.all(ok_final), 1.0, -1.0) if settings.check_assembly else None
+    margins = _margins(settings, sol.ts[last], y_final, args, lockup)
     return jnp.where(sol.event_mask, jnp.asarray(codes)[jnp.argmin(jnp.stack(margins))], NO_EVENT)
 
 
@@ -380,7 +374,7 @@ def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:
         if settings.domega or settings.energies:
             red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z)
             if settings.domega:
-                values["domega"] = (red.effort + red.torque - 0.5 * red.dinertia * w**2) / red.inertia
+                values["domega"] = red.acceleration(w)
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)
@@ -578,7 +572,7 @@ def _seed_euler_core(mechanism, gravity, loads, q0, omega0, t0, t1, dq, n_steps:
     with q stepping by dq in the direction of motion and dt = dq / mean(|w_i|, |w_{i+1}|)."""
     red = lambda q, w, t: reduce_single(mechanism, gravity, loads, q, w, t)  # noqa: E731
     r0 = red(q0, omega0, t0)
-    a0 = (r0.effort + r0.torque - 0.5 * r0.dinertia * omega0**2) / r0.inertia
+    a0 = r0.acceleration(omega0)
     s = jnp.where(omega0 != 0, jnp.sign(omega0), jnp.sign(a0))
     step = s * dq
 

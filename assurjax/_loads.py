@@ -21,7 +21,6 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from typing import Any
 
 import equinox as eqx
@@ -174,6 +173,7 @@ def _point_velocity(kin, point: str) -> Array:
 
 
 def _point_position(mechanism: Mechanism, kin, point: str) -> Array:
+    """A moving point from ``kin.points`` (a Kinematics or a Pose), a fixed one from the ground."""
     return kin.points[point] if point in kin.points else mechanism.ground[point]
 
 
@@ -276,17 +276,16 @@ class Spring(_TwoPoint):
         self.stiffness, self.free_length = jnp.asarray(stiffness, dtype=float), jnp.asarray(free_length, dtype=float)
         self.velocity_dependent = False
 
-    def _length(self, mechanism, positions_of):
+    def _length(self, mechanism, config):
+        """L (m) in ``config``: a Kinematics or a Pose (both have ``points``)."""
         a, b = self.points
-        return safe_norm(positions_of(b) - positions_of(a))
+        return safe_norm(_point_position(mechanism, config, b) - _point_position(mechanism, config, a))
 
     def wrenches(self, mechanism, kin, t):
-        length = self._length(mechanism, lambda p: _point_position(mechanism, kin, p))
-        return self._pull(mechanism, kin, self.stiffness * (length - self.free_length))
+        return self._pull(mechanism, kin, self.stiffness * (self._length(mechanism, kin) - self.free_length))
 
     def potential(self, mechanism, pose):
-        length = self._length(mechanism, lambda p: pose.points[p] if p in pose.points else mechanism.ground[p])
-        return 0.5 * self.stiffness * (length - self.free_length) ** 2
+        return 0.5 * self.stiffness * (self._length(mechanism, pose) - self.free_length) ** 2
 
 
 class Damper(_TwoPoint):
@@ -437,14 +436,3 @@ def dissipated_power(mechanism: Mechanism, loads, kin) -> Array:
     for load in loads:
         total = total + load.dissipation(mechanism, kin)
     return total
-
-
-LOAD_CLASSES: Mapping[str, Callable] = {
-    "force": PointForce,
-    "couple": Couple,
-    "spring": Spring,
-    "damper": Damper,
-    "rotary_damper": RotaryDamper,
-    "drive": Drive,
-    "motor": MotorLine,
-}

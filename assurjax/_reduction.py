@@ -54,10 +54,20 @@ class Reduction(eqx.Module):
     ok: Array
     angle_rates: dict[str, Array] | None = None  # dtheta/dq of every link, when a branch predictor was given
 
-    @property
-    def acceleration_terms(self):
-        """(J_red, dJ_red/dq, tau + tau_red)."""
-        return self.inertia, self.dinertia, self.torque + self.effort
+    def acceleration(self, omega):
+        """dw/dt of the reduced link at velocity ``omega`` (seed 000 eq. 1 in time form):
+        (tau + tau_red - 0.5 dJ_red/dq w^2) / J_red."""
+        return (self.effort + self.torque - 0.5 * self.dinertia * omega**2) / self.inertia
+
+
+def _coords(mechanism: Mechanism, near=None):
+    """q -> ((points, coms, angles), ok): the position map that the jvps differentiate."""
+
+    def coords(q):
+        pose = positions(mechanism, q, near=near)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
+    return coords
 
 
 def coefficients(mechanism: Mechanism, q, *, near=None):
@@ -66,10 +76,7 @@ def coefficients(mechanism: Mechanism, q, *, near=None):
     as ((points, coms, angles) x 3, ok). ``near``: link angles (rad) selecting the
     branch (see :func:`assurjax.positions`)."""
     one = jnp.ones_like(q)
-
-    def coords(q):
-        pose = positions(mechanism, q, near=near)
-        return (pose.points, pose.coms, pose.angles), pose.ok
+    coords = _coords(mechanism, near)
 
     def first(q):
         x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
@@ -84,11 +91,7 @@ def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Arra
     at rest (omega = 0) its sign is the direction the mechanism starts to move in."""
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
 
-    def coords(q):
-        pose = positions(mechanism, q)
-        return (pose.points, pose.coms, pose.angles), pose.ok
-
-    x, dx, ok = jax.jvp(coords, (q,), (jnp.ones_like(q),), has_aux=True)
+    x, dx, ok = jax.jvp(_coords(mechanism), (q,), (jnp.ones_like(q),), has_aux=True)
     kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=any_velocity_dependent(loads))
     wrenches = applied_wrenches(mechanism, gravity, loads, kin, t)
     torque = sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
@@ -131,6 +134,15 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
 
 def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> tuple[Reduction, Pose]:
     """:func:`reduce_single` and the :class:`Pose` it was computed at (one position analysis for both)."""
+    reduction, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)
+    return reduction, Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
+
+
+def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None,
+                           near=None) -> tuple[Reduction, Kinematics]:
+    """:func:`reduce_single` and the single-configuration :class:`Kinematics` the loads
+    were evaluated on (velocities filled when ``velocities``), e.g. for the dampers'
+    dissipated power without a second position analysis."""
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     if velocities is None:
         velocities = any_velocity_dependent(loads)
@@ -152,7 +164,7 @@ def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, veloc
         group_inertia=gj, group_dinertia=gdj, group_torque=gt,
         ok=ok, angle_rates=None if near is None else dx[2],
     )
-    return reduction, Pose(points=x[0], coms=x[1], angles=x[2], ok=ok)
+    return reduction, kin
 
 
 @eqx.filter_jit

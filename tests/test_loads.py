@@ -78,6 +78,22 @@ def test_dampers_dissipate_what_their_wrenches_remove(watt, kin):
         assert abs(_power(watt, wr, kin) + dissipated) < 1e-12
 
 
+def test_dissipated_power_closed_form(watt, kin):
+    """c (dL/dt)^2 and c (w_b - w_a)^2 from the reference's closed-form positions
+    (central differences, crank at q = 0.4 turning at w = 2 rad/s)."""
+    q, w, h = 0.4, 2.0, 1e-6
+    (pp, ap), (pm, am) = ref.watt_sixbar_points(q + h), ref.watt_sixbar_points(q - h)
+    length = lambda pts: np.linalg.norm(pts["E"] - pts["O4"])  # noqa: E731
+    rate = lambda link: (ap[link] - am[link]) / (2 * h) * w  # noqa: E731
+    expected = [
+        (aj.Damper("O4", "E", 3.0), 3.0 * ((length(pp) - length(pm)) / (2 * h) * w) ** 2),
+        (aj.RotaryDamper("A", 0.7), 0.7 * (rate("coupler") - rate("crank")) ** 2),
+        (aj.RotaryDamper("O2", 0.7), 0.7 * rate("crank") ** 2),
+    ]
+    for damper, power in expected:
+        assert abs(float(aj.dissipated_power(watt.mechanism, (damper,), kin)) - power) < 1e-7 * (1.0 + power)
+
+
 def test_rotary_damper_on_ground_joint_closed_form(watt, kin):
     wr = aj.applied_wrenches(watt.mechanism, [0.0, 0.0], (aj.RotaryDamper("O2", 0.7),), kin)
     assert abs(float(wr["link2"][1]) + 0.7 * 2.0) < 1e-14  # crank spins at w = 2 rad/s
