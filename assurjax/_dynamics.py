@@ -55,7 +55,10 @@ SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "euler": diffrax.Euler,
 }
 BASELINES = ("seed_euler",)
-DEFAULT_SOLVER = "dopri8"
+# Chosen from the work-precision run (benchmarks/README.md): on the Watt six-bar, Tsit5 at
+# rtol = atol = 1e-8 keeps the angle within 4e-7 rad of the converged motion over 2 s from
+# 64 starting angles (1e-7 lets it reach 4e-6), faster than Dopri5 or Dopri8 reaching that.
+DEFAULT_SOLVER = "tsit5"
 DEFAULT_RTOL = 1e-8
 DEFAULT_ATOL = 1e-8
 DEFAULT_SAMPLES = 201
@@ -87,6 +90,7 @@ class Settings(NamedTuple):
     adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
     reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
     table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
+    steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
 
 
 class Solution(eqx.Module):
@@ -270,6 +274,8 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     if tabulated:
         settings = settings._replace(check_assembly=False)
         table = build_table_core(mechanism, gravity, loads, settings.table_nodes) if table is None else table
+    if settings.steps is not None:
+        return _steps_solve(mechanism, gravity, loads, q0, omega0, t0, t1, settings, table)
     if ts is None:
         ts = jnp.linspace(t0, t1, settings.samples)
     ts = jnp.asarray(ts, dtype=float)
@@ -301,10 +307,75 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     return _package(mechanism, gravity, loads, sol, ts, args, settings, track_work)
 
 
+def _steps_solve(mechanism, gravity, loads, q0, omega0, t0, t1, settings: Settings, table) -> Solution:
+    """``settings.steps`` equal steps of the diffrax solver from t0 to t1, by
+    ``jax.lax.scan`` over the solver's own ``step`` (no step-size controller, no
+    event root finding, no dense output): the leanest use of diffrax for this
+    two-state ODE, whose adaptive loop costs more per step than a tabulated
+    right-hand side. Saves every step (``dissipated`` stays None). Without a table, a
+    step any of whose stages meets a configuration that cannot assemble ends the valid
+    samples before it (event 1, located to the step, not by root finding): with the
+    fixed mode, stepping over a limit position would otherwise bounce back unphysically."""
+    _check_steps(settings)
+    tabulated = table is not None
+    term = diffrax.ODETerm(_rhs_table if tabulated else (_rhs_or_nan if settings.check_assembly else _rhs))
+    args = (None, None, None, None, None, None, table) if tabulated else (mechanism, gravity, loads, False)
+    solver = _solver(settings)
+    h = (t1 - t0) / settings.steps
+    y0 = (q0, omega0)
+
+    def step(carry, k):
+        y, state = carry
+        t = t0 + k * h
+        y1, _, _, state, _ = solver.step(term, t, t + h, y, args, state, False)
+        return (y1, state), y1
+
+    _, (q, w) = jax.lax.scan(step, (y0, solver.init(term, t0, t0 + h, y0, args)), jnp.arange(settings.steps))
+    t = t0 + h * jnp.arange(settings.steps + 1)
+    q, w = jnp.concatenate([q0[None], q]), jnp.concatenate([omega0[None], w])
+    n = settings.steps
+    if tabulated or not settings.check_assembly:  # nothing can fail (the table checked a full turn)
+        valid, last, locked, failed = jnp.ones(n + 1, dtype=bool), n, jnp.asarray(False), jnp.asarray(-1)
+    else:  # a NaN marks a step that met a configuration that cannot assemble
+        assembled = jnp.isfinite(q) & jnp.isfinite(w)
+        locked = ~jnp.all(assembled)
+        last = jnp.where(locked, jnp.argmin(assembled) - 1, n)  # the last sample before it
+        valid = jnp.arange(n + 1) <= last
+        t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
+        ahead = positions(mechanism, q[last] + h * w[last]).ok  # the group failing one step on
+        failed = jnp.where(locked & ~jnp.all(ahead), jnp.argmin(ahead), -1)
+    outputs = _outputs(mechanism, gravity, loads, t, q, w, settings)
+    return Solution(
+        t=t, q=q, omega=w, **outputs, dissipated=None, valid=valid,
+        t_final=t[last], q_final=q[last], omega_final=w[last],
+        t_stop=jnp.where(locked, t[last], jnp.inf), event=jnp.where(locked, LOCKUP, NO_EVENT),
+        failed_group_index=failed, result=jnp.asarray(0), num_steps=jnp.asarray(n),
+    )
+
+
+def _rhs_or_nan(t, y, args):
+    """(dq/dt, dw/dt), with dw/dt NaN where a group cannot assemble (fixed steps)."""
+    mechanism, gravity, loads, _ = args
+    red, _ = reduce_with_kinematics(mechanism, gravity, loads, y[0], y[1], t)
+    return y[1], jnp.where(jnp.all(red.ok), red.acceleration(y[1]), jnp.nan)
+
+
+def _check_steps(settings: Settings) -> None:
+    if int(settings.steps) < 1:
+        raise AssurjaxError(f"steps must be a positive number of steps, got {settings.steps}")
+    if settings.standstill or settings.events:
+        raise AssurjaxError("steps= integrates with fixed steps and locates no events: use stop=None and no events, "
+                            "or the adaptive solver (steps=None) for stop='standstill' and user events")
+    if settings.branch == "tracked":
+        raise AssurjaxError("steps= needs branch='fixed' (a tracked branch travels in the adaptive solver's state)")
+
+
 def _check_reduction(settings: Settings) -> bool:
     """True in table mode; clear errors for unknown modes and unsupported combinations."""
-    if settings.reduction not in ("exact", "table"):
-        raise AssurjaxError(f"reduction must be 'exact' or 'table', got {settings.reduction!r}")
+    if settings.reduction not in ("exact", "table", "auto"):
+        raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
+    if settings.reduction == "auto":
+        raise AssurjaxError("reduction='auto' is resolved by simulate(); simulate_core takes 'exact' or 'table'")
     if settings.reduction == "table" and settings.branch == "tracked":
         raise AssurjaxError("reduction='table' needs branch='fixed' (the table is sampled on the scene's assembly modes)")
     return settings.reduction == "table"
@@ -424,35 +495,50 @@ def simulate(
     branch: str | None = None,
     reduction: str | None = None,
     table_nodes: int | None = None,
+    table: ReducedTable | None = None,
+    steps: int | None = None,
 ) -> Solution:
     """Simulate a scene's motion from its initial state (seed 000's forward dynamics).
 
     Keyword arguments override the scene: ``q0`` (rad or m), ``omega0`` (rad/s or
     m/s), ``t0``, ``t1`` (s) from ``[state]``; ``stop`` (``"standstill"`` or None),
-    ``solver`` (``"dopri8"`` default, ``"tsit5"``, ``"dopri5"``, ..., or the baseline
-    ``"seed_euler"``), ``rtol``, ``atol``, ``dt`` (a fixed step, s), ``max_steps``,
+    ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the baseline
+    ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad over seconds
+    of motion; pass 1e-10 or tighter for reference-quality runs), ``dt`` (a fixed step, s), ``max_steps``,
     ``samples`` from ``[simulation]``; ``points``, ``angles``, ``energies`` from
     ``[outputs]``. ``branch``: ``"fixed"`` (default: the scene's assembly modes) or
     ``"tracked"``: the link angles travel in the ODE state (d theta/dt = d theta/dq w,
     from the same jvp) and every group takes the root nearest to them, which keeps
     the motion on one continuous branch through singular configurations (e.g. the
-    N-four-bar's). ``reduction``: ``"exact"`` (default: the reduction at every
-    right-hand side) or ``"table"``: a :class:`ReducedTable` of ``table_nodes``
-    (default 4096) nodes over one crank turn is built and checked first, and the
-    right-hand side interpolates it (crank drivers, loads of q only; see
-    :func:`build_table`). ``saveat``: an array of times (s). ``events``: functions
-    ``cond(t, q, omega)``; the motion stops where one changes sign. ``mechanism``,
-    ``loads``, ``gravity`` replace the scene's.
+    N-four-bar's). ``reduction``: ``"exact"`` (the reduction at every right-hand
+    side), ``"table"``: a :class:`ReducedTable` of ``table_nodes`` (default 4096)
+    nodes over one crank turn is built and checked first, and the right-hand side
+    interpolates it (crank drivers, loads of q only; see :func:`build_table`), or
+    ``"auto"`` (default): the table for a batch of at least AUTO_TABLE_BATCH starting
+    states when the scene allows one (its build then costs less than the exact
+    reduction saves), else exact. ``table``: a prebuilt :class:`ReducedTable` to use.
+    ``steps``: integrate with that many equal steps by ``jax.lax.scan`` over the
+    solver's own step (no step-size control, no events: ``stop`` must be None; saves
+    every step) -- the fastest path for short runs, e.g. ``solver="dopri8",
+    steps=20`` with a table keeps the Watt six-bar within 1e-8 rad over 1 s.
+    ``saveat``: an array of times (s). ``events``: functions ``cond(t, q, omega)``;
+    the motion stops where one changes sign. ``mechanism``, ``loads``, ``gravity``
+    replace the scene's.
 
-    Returns a :class:`Solution` trimmed to the times reached.
+    ``q0`` and ``omega0`` may be 1-D arrays (broadcast together): then all starting
+    states are simulated at once (vmapped) and the :class:`Solution` has a leading
+    batch axis, untrimmed (read ``valid``; ``t_stop`` is +inf where no event fired).
+
+    Returns a :class:`Solution` trimmed to the times reached (a single run).
 
     **Example:**
     >>> sol = assurjax.simulate(assurjax.load_scene("watt_sixbar"))
     >>> float(sol.t_stop)   # first standstill after falling from rest
+    >>> batch = assurjax.simulate(scene, q0=np.linspace(0, 6, 10_000), stop=None)
     """
     mechanism = scene.mechanism if mechanism is None else mechanism
     loads = tuple(scene.loads if loads is None else loads)
-    gravity = jnp.asarray(scene.gravity if gravity is None else gravity, dtype=float)
+    gravity = scene.gravity if gravity is None else jnp.asarray(gravity, dtype=float)
     check_loads(mechanism, loads)
     state, sim, outs = scene.state, scene.simulation, scene.outputs
     pick = lambda given, table, key, default: given if given is not None else table.get(key, default)  # noqa: E731
@@ -473,8 +559,9 @@ def simulate(
         angles=tuple(pick(angles, outs, "angles", ())),
         energies=bool(pick(energies, outs, "energies", False)),
         branch=str(pick(branch, sim, "branch", "fixed")),
-        reduction=str(pick(reduction, sim, "reduction", "exact")),
+        reduction=str(pick(reduction, sim, "reduction", "auto")),
         table_nodes=int(pick(table_nodes, sim, "table_nodes", DEFAULT_TABLE_NODES)),
+        steps=None if pick(steps, sim, "steps", None) is None else int(pick(steps, sim, "steps", None)),
     )
     if settings.branch not in ("fixed", "tracked"):
         raise AssurjaxError(f"branch must be 'fixed' (the scene's assembly modes) or 'tracked' (continuous through singular configurations), got {settings.branch!r}")
@@ -488,15 +575,76 @@ def simulate(
         saveat = jnp.asarray(saveat, dtype=float)
         if saveat.ndim != 1:
             raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
+    if settings.steps is not None:
+        _check_steps(settings)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
-    q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
+    q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    batch = _batch_shape(q0, omega0)
     step = pick(dt, sim, "dt", None)
-    step = None if step is None else jnp.asarray(step, dtype=float)
-    table = None
-    if _check_reduction(settings):  # built and checked on the host, once, outside the jitted core
-        table = build_table(mechanism, gravity, loads, settings.table_nodes)
-    sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings, table=table)
-    return _trim(sol, mechanism)
+    step = None if step is None else np.asarray(step, dtype=float)
+    settings, table = _resolve_reduction(settings, table, mechanism, gravity, loads, batch)
+    if batch is None:
+        sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings, table=table)
+        return _trim(sol, mechanism)
+    q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
+    sols = _simulate_batch_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings, table)
+    return _batch_summary(jax.device_get(sols))
+
+
+AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~25 exact runs)
+
+
+def _batch_shape(q0, omega0):
+    """None for one starting state, else the common 1-D shape of q0 and omega0."""
+    if q0.ndim == 0 and omega0.ndim == 0:
+        return None
+    try:
+        shape = np.broadcast_shapes(q0.shape, omega0.shape)
+    except ValueError:
+        raise AssurjaxError(f"q0 (shape {q0.shape}) and omega0 (shape {omega0.shape}) do not broadcast together") from None
+    if len(shape) != 1:
+        raise AssurjaxError(f"a batch of starting states needs 1-D q0/omega0, got shape {shape}")
+    return shape
+
+
+def _resolve_reduction(settings: Settings, table, mechanism, gravity, loads, batch):
+    """(settings with reduction 'exact' or 'table', the table or None). The table is
+    built and checked on the host, once, outside the jitted core."""
+    if table is not None:
+        if not isinstance(table, ReducedTable):
+            raise AssurjaxError(f"table must be an assurjax.ReducedTable (from assurjax.build_table), got {type(table).__name__}")
+        return settings._replace(reduction="table"), table
+    if settings.reduction == "auto":
+        wanted = batch is not None and batch[0] >= AUTO_TABLE_BATCH and settings.branch == "fixed"
+        if wanted:
+            try:
+                return settings._replace(reduction="table"), build_table(mechanism, gravity, loads, settings.table_nodes)
+            except AssurjaxError:  # not tabulable (slider, velocity/time loads, a crank that cannot turn fully)
+                pass
+        return settings._replace(reduction="exact"), None
+    if _check_reduction(settings):
+        return settings, build_table(mechanism, gravity, loads, settings.table_nodes)
+    return settings, None
+
+
+def _simulate_batch(mechanism, gravity, loads, q0, omega0, t0, t1, ts, dt, settings, table):
+    run = lambda q, w: simulate_core(mechanism, gravity, loads, q, w, t0, t1, ts, dt, settings=settings, table=table)  # noqa: E731
+    return jax.vmap(run)(q0, omega0)
+
+
+_simulate_batch_jit = eqx.filter_jit(_simulate_batch)
+
+
+def _batch_summary(sols: Solution) -> Solution:
+    """A batched Solution (host arrays) with a status counting the outcomes."""
+    events, results = np.asarray(sols.event), np.asarray(sols.result)
+    parts = [f"{np.sum(events == code)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
+             if np.any(events == code)]
+    parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
+    parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
+    parts += [f"{np.sum((events < 0) & (results != 0))} solver failures"] if np.any((events < 0) & (results != 0)) else []
+    return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))
 
 
 def _check_outputs(mechanism, settings):
