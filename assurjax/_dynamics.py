@@ -519,8 +519,8 @@ def simulate(
     reduction saves), else exact. ``table``: a prebuilt :class:`ReducedTable` to use.
     ``steps``: integrate with that many equal steps by ``jax.lax.scan`` over the
     solver's own step (no step-size control, no events: ``stop`` must be None; saves
-    every step) -- the fastest path for short runs, e.g. ``solver="dopri8",
-    steps=20`` with a table keeps the Watt six-bar within 1e-8 rad over 1 s.
+    every step) -- the fastest path for short runs: with a table, ``steps=80``
+    (Tsit5) keeps the Watt six-bar within 4e-9 rad over 1 s in ~60 us.
     ``saveat``: an array of times (s). ``events``: functions ``cond(t, q, omega)``;
     the motion stops where one changes sign. ``mechanism``, ``loads``, ``gravity``
     replace the scene's.

@@ -82,12 +82,18 @@ class ReducedTable(eqx.Module):
         h = TWO_PI / n
         u = jnp.mod(q, TWO_PI) / h
         i = jnp.clip(jnp.floor(u), 0, n - 1).astype(jnp.int32)
-        s = u - i
-        rows = self.data[jnp.stack([i, jnp.where(i + 1 == n, 0, i + 1)])]  # one gather of both ends
-        (f0, d0), (f1, d1) = (jnp.split(r, 2, axis=-1) for r in rows)
+        s = (u - i)[..., None]  # broadcast against the three columns
+        (f0, d0), (f1, d1) = (jnp.split(self._row(k), 2, axis=-1) for k in (i, jnp.where(i + 1 == n, 0, i + 1)))
         s2, r = s * s, 1.0 - s
         p = (1.0 + 2.0 * s) * r * r * f0 + s * r * r * h * d0 + s2 * (3.0 - 2.0 * s) * f1 - s2 * r * h * d1
         return p[..., 0], p[..., 1], p[..., 2]
+
+    def _row(self, k):
+        """Row(s) k of the table. For one index a dynamic slice, not a gather: on the
+        CPU a gather costs several times the rest of an integration step."""
+        if jnp.ndim(k) == 0:
+            return jax.lax.dynamic_slice(self.data, (k, jnp.zeros((), k.dtype)), (1, self.data.shape[1]))[0]
+        return self.data[k]
 
     def acceleration(self, q, w):
         """dw/dt (rad/s^2) of the reduced link from the interpolant (seed 000 eq. 1 in time form)."""

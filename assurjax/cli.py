@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -430,8 +431,11 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     common.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress bars")
+    common.add_argument("--no-cache", action="store_true", default=argparse.SUPPRESS,
+                        help="do not keep compiled programs on disk (default: kept in $ASSURJAX_CACHE_DIR or "
+                             "~/.cache/assurjax; ASSURJAX_NO_CACHE=1 also turns it off)")
     parser = argparse.ArgumentParser(prog="assurjax", description="Dynamics of planar one-DOF linkages built from Assur groups.", parents=[common])
-    parser.set_defaults(debug=False, quiet=False)
+    parser.set_defaults(debug=False, quiet=False, no_cache=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("run", parents=[common], help="simulate a scene: CSV, plots, animation, summary")
@@ -475,11 +479,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # argparse already printed its usage message
         return int(e.code or 0)
     try:
+        if not (args.no_cache or os.environ.get("ASSURJAX_NO_CACHE")):
+            _enable_cache()
         return args.func(args)
     except Exception as e:  # one line for the user, the traceback with --debug
         if args.debug:
             raise
         return _report(e)
+
+
+def _enable_cache() -> None:
+    """The persistent compilation cache: the second run of a scene skips most compiling."""
+    from ._cache import enable_compilation_cache
+
+    try:
+        enable_compilation_cache()
+    except OSError as e:  # a read-only home: run without the cache
+        print(f"assurjax: compilation cache disabled ({e.strerror or e})", file=sys.stderr)
 
 
 def _report(e: Exception) -> int:

@@ -9,7 +9,10 @@ Methods (all in one run, so the ratios hold on a noisy machine)
 - assurjax: the reduced equation integrated by diffrax (Tsit5, Dopri5, Dopri8,
   Kvaerno5) at tolerances 1e-3 .. 1e-12. The run is the package's own right-hand
   side inside the leanest diffrax call (save only at the grid, no events, no
-  outputs), jitted once per solver with the tolerances traced;
+  outputs), jitted once per solver with the tolerances traced; with the exact or
+  the tabulated reduction (the table is built once per mechanism, outside the timed
+  call); and Dopri8 / Tsit5 with fixed step counts by lax.scan over the solver's
+  own step (``simulate_core`` with ``steps``), returning the angle at the grid;
 - the seed's scheme (Euler in q, steps 1e-2 .. 1e-5 rad), a labelled baseline;
 - the joint-based full-coordinate formulation (tests/joint_reference.py, scipy
   DOP853, numpy right-hand side) at tolerances 1e-3 .. 1e-12;
@@ -75,12 +78,11 @@ def best_time(fn, repeats: int, budget: float = 3.0) -> float:
 _RUNNERS: dict = {}
 
 
-def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = False, table: bool = False, max_steps: int = 200_000):
+def lean_runner(scene, solver: str, *, tracked: bool = False, table: bool = False, max_steps: int = 200_000):
     """The package's reduced equation in the leanest diffrax call: saves q at the grid
-    only; PID controller with traced tolerances, or (``fixed``) constant steps whose
-    size is passed in place of rtol (atol unused). ``table``: the tabulated reduction
+    only; PID controller with traced tolerances. ``table``: the tabulated reduction
     (built once, outside the timed call). One compile per variant (cached)."""
-    key = (scene.name, solver, tracked, fixed, table)
+    key = (scene.name, solver, tracked, table)
     if key in _RUNNERS:
         return _RUNNERS[key]
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
@@ -92,9 +94,9 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = Fals
         y0 = (q0, w0)
         if tracked:
             y0 = y0 + (branch_angles(mech, assurjax.positions(mech, q0)),)
-        controller = diffrax.ConstantStepSize() if fixed else diffrax.PIDController(rtol=rtol, atol=atol)
+        controller = diffrax.PIDController(rtol=rtol, atol=atol)
         sol = diffrax.diffeqsolve(
-            term, SOLVERS[solver](), 0.0, ts[-1], rtol if fixed else None, y0, args=(mech, gravity, loads, False) + extra,
+            term, SOLVERS[solver](), 0.0, ts[-1], None, y0, args=(mech, gravity, loads, False) + extra,
             saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller, max_steps=max_steps, throw=False,
         )
         return sol.ys[0], sol.stats["num_steps"], sol.result._value
@@ -103,16 +105,24 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, fixed: bool = Fals
     return run
 
 
-def fixed_step_runs(scene, q0, w0, ts, ref, steps, repeats):
-    """Dopri8 and Tsit5 with constant steps (no controller, no rejections)."""
+def steps_runs(scene, q0, w0, ts, ref, counts: dict, repeats, *, table=False):
+    """Fixed steps by lax.scan over the solver's own step (simulate_core with
+    ``steps``): no controller, no rejected steps, no event machinery. Step counts are
+    multiples of the grid, so the saved steps include the grid times."""
+    mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
+    tab = assurjax.build_table(mech, gravity, loads) if table else None
     rows = []
-    for name in ("dopri8", "tsit5"):
-        run = lean_runner(scene, name, fixed=True)
-        for dt in steps:
-            a = (jnp.asarray(q0), jnp.asarray(w0), jnp.asarray(ts), jnp.asarray(dt), jnp.asarray(0.0))
-            q, n, result = run(*a)
-            err = float(np.max(np.abs(np.asarray(q) - ref))) if int(result) == 0 else None
-            rows.append(dict(method=f"assurjax {name} fixed dt", setting=dt, error=err, time=best_time(lambda: run(*a), repeats), steps=int(n)))
+    for name, multiples in counts.items():
+        for n in (len(ts) * k for k in multiples):
+            stride = n // len(ts)
+            settings = assurjax.SimulationSettings(solver=name, steps=n, check_assembly=False, domega=False,
+                                                   reduction="table" if table else "exact")
+            run = eqx.filter_jit(lambda q0, w0: assurjax.simulate_core(mech, gravity, loads, q0, w0, 0.0, ts[-1],
+                                                                      settings=settings, table=tab).q[stride::stride])
+            a = (jnp.asarray(q0), jnp.asarray(w0))
+            err = float(np.max(np.abs(np.asarray(run(*a)) - ref)))
+            rows.append(dict(method=f"assurjax {name} steps" + (" table" if table else ""), setting=n, error=err,
+                             time=best_time(lambda: run(*a), repeats), steps=n))
     return rows
 
 
@@ -219,7 +229,10 @@ def watt(theta0, T, args, compile_times):
     explicit = [k for k in SOLVERS if k != "kvaerno5"]
     rows = assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times, solvers=explicit if args.no_implicit else None)
     rows += assurjax_runs(scene, theta0, 0.0, ts, ref, tols, args.repeats, compile_times=compile_times, solvers=explicit, table=True)
-    rows += fixed_step_runs(scene, theta0, 0.0, ts, ref, [0.1, 0.05, 0.025, 0.0125] if not args.quick else [0.05], args.repeats)
+    # step counts, as multiples of the grid's size
+    table_steps = dict(tsit5=(2, 3, 4, 6, 8, 12, 16), dopri8=(1, 2, 4)) if not args.quick else dict(tsit5=(3, 8))
+    rows += steps_runs(scene, theta0, 0.0, ts, ref, table_steps, args.repeats, table=True)
+    rows += steps_runs(scene, theta0, 0.0, ts, ref, dict(tsit5=(4, 8), dopri8=(2,)) if not args.quick else dict(tsit5=(4,)), args.repeats)
     rows += seed_euler_runs(scene, theta0, 0.0, ts, ref, [1e-2, 1e-3, 1e-4] + ([] if args.quick else [1e-5]), args.repeats)
     rows += joint_based_runs(lambda: jr.watt_sixbar(theta0), ts, ref, tols[::2], args.repeats)
     mj_steps = [1e-3, 1e-4] + ([] if args.quick else [3e-5, 1e-5])

@@ -1,11 +1,15 @@
 """Shared fixtures. Keep this small: helpers that only one test file needs live in that file."""
 
+import os
 import textwrap
 
 import numpy as np
 import pytest
 
 import assurjax
+
+# The command line keeps compiled programs on disk by default; tests leave no files behind.
+os.environ.setdefault("ASSURJAX_NO_CACHE", "1")
 
 
 @pytest.fixture

@@ -183,7 +183,7 @@ def test_time_dependent_or_non_periodic_loads_are_clear_errors(watt):
 
 
 def test_unknown_reduction_is_a_clear_error(watt):
-    with pytest.raises(aj.AssurjaxError, match=r"reduction must be 'exact' or 'table'"):
+    with pytest.raises(aj.AssurjaxError, match=r"reduction must be 'exact', 'table' or 'auto'"):
         aj.simulate(watt, reduction="spline")
 
 
