@@ -23,6 +23,7 @@ HERE = Path(__file__).resolve().parent
 BENCHMARKS = {
     "kinematics": ("bench_kinematics.py", ["--n", "10000", "--repeats", "3"]),
     "dynamics": ("bench_dynamics.py", ["--quick"]),
+    "profile": ("bench_profile.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
