@@ -142,6 +142,7 @@ def _dissipative(loads) -> bool:
 def _rhs(t, y, args):
     """(dq/dt, dw/dt[, dW_diss/dt]) at (t, y): the reduced equation of motion."""
     mechanism, gravity, loads, track_work = args
+    loads = () if loads is None else loads  # see _solver_args
     q, w = y[0], y[1]
     near = branch_state(y)
     # One position analysis per evaluation: the dampers' power reads the same kinematics
@@ -149,6 +150,12 @@ def _rhs(t, y, args):
     red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, w, t, near=near)
     out = (w, red.acceleration(w)) + ((dissipated_power(mechanism, loads, kin),) if track_work else ())
     return out if near is None else out + (branch_rates(red, near, w),)
+
+
+def _solver_args(args):
+    """The args as given to diffeqsolve: empty tuples (no loads, no user events) become None,
+    since diffrax.BacksolveAdjoint cannot take an empty tuple inside its args."""
+    return tuple(None if isinstance(a, tuple) and not a else a for a in args)
 
 
 def _rhs_table(t, y, args):
@@ -296,7 +303,7 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
         t1=t1,
         dt0=_initial_step(settings, dt),
         y0=y0,
-        args=args,
+        args=_solver_args(args),
         saveat=diffrax.SaveAt(ts=ts, t1=True),
         stepsize_controller=_controller(settings),
         event=_event(settings),
@@ -561,13 +568,15 @@ def simulate(
         branch=str(pick(branch, sim, "branch", "fixed")),
         reduction=str(pick(reduction, sim, "reduction", "auto")),
         table_nodes=int(pick(table_nodes, sim, "table_nodes", DEFAULT_TABLE_NODES)),
-        steps=None if pick(steps, sim, "steps", None) is None else int(pick(steps, sim, "steps", None)),
+        steps=None if (n_steps := pick(steps, sim, "steps", None)) is None else int(n_steps),
     )
     if settings.branch not in ("fixed", "tracked"):
         raise AssurjaxError(f"branch must be 'fixed' (the scene's assembly modes) or 'tracked' (continuous through singular configurations), got {settings.branch!r}")
     _check_outputs(mechanism, settings)
     q0, omega0, t0, t1 = (pick(v, state, k, d) for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
     if settings.solver in BASELINES:
+        if np.ndim(q0) or np.ndim(omega0):
+            raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
         return simulate_seed_euler(mechanism, gravity, loads, q0, omega0, t0=t0, t1=t1, dq=pick(dt, sim, "dt", None) or 1e-3,
                                    standstill=settings.standstill)
     _solver(settings)  # unknown names fail here, not inside jit
