@@ -1,21 +1,30 @@
-"""Cost of gradients through the simulation (diffrax), per adjoint.
+"""Cost of gradients through the simulation, per route.
 
 The Watt six-bar of seed 000 falls from rest; f = theta(T) at T = 0.5 s (tsit5,
 rtol = atol = 1e-8, no stop events). We time one forward simulation, then the gradient
 of f with respect to every parameter of the scene (all point coordinates, centres of mass,
 masses, inertias and gravity: 50 numbers) with
 
-- reverse mode, diffrax.RecursiveCheckpointAdjoint (default checkpointing),
-- reverse mode, RecursiveCheckpointAdjoint storing every step (checkpoints = max_steps),
-- forward mode, diffrax.ForwardMode with jax.jacfwd (one tangent per parameter),
-- forward mode, one directional derivative (jax.jvp),
-- reverse mode, diffrax.BacksolveAdjoint (adjoint ODE backwards in time),
+- ``quadrature``: forward sensitivities by variation of constants (assurjax.synthesis,
+  ``adjoint="quadrature"``): the plain simulation, one batched reverse pass of the reduced
+  acceleration at Gauss-Legendre nodes, a 2x2 transition-matrix solve (no AD through diffrax),
+- ``sensitivity``: the forward-sensitivity equations integrated with the state by diffrax
+  (one reverse pass of the acceleration per solver stage),
+- reverse mode through diffrax, RecursiveCheckpointAdjoint (default checkpoints, and every
+  step stored),
+- forward mode through diffrax, ForwardMode with jax.jacfwd (one tangent per parameter)
+  and one directional derivative (jax.jvp),
+- reverse mode, diffrax.BacksolveAdjoint (continuous adjoint backwards in time),
 
-and the gradient of the standstill time (event) with the default adjoint. Compile times are
-reported apart; run times are medians over repeats. The cost is reported as a multiple of one
-forward simulation (the target is below 5x for the full gradient).
+and the gradient of the standstill time through the event (implicit function theorem) with
+the quadrature and the recursive routes. Every gradient is compared with a central finite
+difference (Richardson-extrapolated) of the same forward simulation. Compile times are
+reported apart; run times are medians over repeats; cost is a multiple of one forward
+simulation measured in the same run (the target is below 5x for the full gradient).
 
-Usage: python benchmarks/bench_gradients.py [--repeats 20]
+Usage: python benchmarks/bench_gradients.py [--repeats 20] [--quick]
+  --quick: only the forward simulations and the sensitivity routes (skips the minutes of
+  compilation of reverse and forward mode through diffrax).
 Results: benchmarks/results/gradients.json
 """
 
@@ -29,6 +38,7 @@ from pathlib import Path
 
 import diffrax
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import assurjax
@@ -37,6 +47,7 @@ from assurjax import synthesis as syn
 
 RESULTS = Path(__file__).parent / "results"
 T = 0.5
+T1_STANDSTILL = 2.0
 OPTS = dict(solver="tsit5", rtol=1e-8, atol=1e-8, max_steps=1024)
 
 
@@ -52,79 +63,111 @@ def timed(fn, x, repeats):
     return compile_s, float(np.median(runs))
 
 
+def central_difference(f, theta, h=1e-4):
+    """Richardson-extrapolated central difference of a scalar f along every axis (one vmapped call)."""
+    eye = jnp.eye(theta.size, dtype=theta.dtype)
+    batch = jax.jit(jax.vmap(f))
+
+    def d(step):
+        return (batch(theta + step * eye) - batch(theta - step * eye)) / (2 * step)
+
+    return np.asarray((4 * d(h / 2) - d(h)) / 3)
+
+
+def rel_diff(g, ref):
+    return float(np.max(np.abs(np.asarray(g) - ref)) / np.max(np.abs(ref)))
+
+
+def run_cases(rows, cases, theta, forward_s, reference, repeats, what_forward):
+    for what, adjoint, fn, reps in cases:
+        try:
+            fn = jax.jit(fn)
+            c, run = timed(fn, theta, reps or repeats)
+            row = dict(what=what, adjoint=adjoint, compile_s=c, run_s=run, cost_vs_forward=run / forward_s,
+                       relative_to=what_forward)
+            value = np.asarray(fn(theta))
+            if value.shape == reference.shape:
+                row["max_rel_diff_vs_finite_differences"] = rel_diff(value, reference)
+            rows.append(row)
+        except Exception as e:  # a route that does not apply is reported, not hidden
+            rows.append(dict(what=what, adjoint=adjoint, error=f"{type(e).__name__}: {str(e)[:200]}"))
+        print_row(rows[-1])
+
+
+def print_row(r):
+    if "error" in r:
+        print(f"{r['what']:<44} {r['adjoint']:<20} error: {r['error'][:70]}", flush=True)
+        return
+    ratio = f"{r['cost_vs_forward']:.2f}" if "cost_vs_forward" in r else "1"
+    err = f"{r['max_rel_diff_vs_finite_differences']:.1e}" if "max_rel_diff_vs_finite_differences" in r else "-"
+    print(f"{r['what']:<44} {r['adjoint']:<20} {r['compile_s']:>9.1f} {1e3 * r['run_s']:>9.3f} {ratio:>9} {err:>9}", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--max-steps", type=int, default=1024, help="diffrax max_steps (sizes the reverse-mode buffers)")
-    ap.add_argument("--reverse-only", action="store_true", help="only the forward simulation and the reverse-mode gradients")
+    ap.add_argument("--quick", action="store_true", help="skip reverse and forward mode through diffrax")
     ap.add_argument("--output", default="gradients.json")
     args = ap.parse_args()
-    OPTS["max_steps"] = args.max_steps
     # every step stored: no recomputation in the backward pass (memory ~ steps x state)
     _dynamics.ADJOINTS["recursive_all_steps"] = lambda: diffrax.RecursiveCheckpointAdjoint(checkpoints=OPTS["max_steps"])
 
     scene = assurjax.load_scene("watt_sixbar")
-    select = lambda s: (s.mechanism, s.gravity)  # noqa: E731
-    theta, unflatten = syn.flatten_parameters(scene, select=select)
+    theta, unflatten = syn.flatten_parameters(scene, select=lambda s: (s.mechanism, s.gravity))
     direction = jax.random.normal(jax.random.key(0), theta.shape)
 
     def theta_T(th, adjoint="recursive"):
         return syn.final_state(unflatten(th), T, adjoint=adjoint, **OPTS)[0]
 
+    def t_stop(th, adjoint="recursive"):
+        return syn.standstill_time(unflatten(th), t1=T1_STANDSTILL, adjoint=adjoint, **OPTS)[0]
+
+    print(f"{'what':<44} {'adjoint':<20} {'compile s':>9} {'run ms':>9} {'x forward':>9} {'vs FD':>9}")
     rows = []
     c, fwd = timed(jax.jit(theta_T), theta, args.repeats)
     rows.append(dict(what="forward simulation theta(T)", adjoint="-", compile_s=c, run_s=fwd))
+    print_row(rows[-1])
+    c, fwd_plain = timed(jax.jit(lambda th: theta_T(th, "quadrature")), theta, args.repeats)
+    rows.append(dict(what="forward simulation theta(T), sensitivity path", adjoint="-", compile_s=c, run_s=fwd_plain))
+    print_row(rows[-1])
+    fd = central_difference(jax.jit(theta_T), theta)
+    ad = lambda adjoint: (lambda th: theta_T(th, adjoint))  # noqa: E731
     cases = [
-        ("gradient, reverse", "recursive", lambda f: jax.grad(f)),
-        ("gradient, reverse", "recursive_all_steps", lambda f: jax.grad(f)),
-        ("gradient, forward (jacfwd)", "forward", lambda f: jax.jacfwd(f)),
-        ("directional derivative (jvp)", "forward", lambda f: (lambda th: jax.jvp(f, (th,), (direction,))[1])),
-        ("gradient, reverse", "backsolve", lambda f: jax.grad(f)),
+        ("gradient (jax.grad)", "quadrature", jax.grad(ad("quadrature")), None),
+        ("gradient (jax.grad), 8 panels", "quadrature", jax.grad(lambda th: syn.final_state(
+            unflatten(th), T, adjoint="quadrature", panels=8, **OPTS)[0]), None),
+        ("gradient (jax.jacfwd)", "quadrature", jax.jacfwd(ad("quadrature")), None),
+        ("gradient (jax.grad)", "sensitivity", jax.grad(ad("sensitivity")), None),
     ]
-    if args.reverse_only:
-        cases = cases[:2]
-    grads = {}
-    for what, adjoint, transform in cases:
-        f = lambda th, adjoint=adjoint: theta_T(th, adjoint)  # noqa: E731
-        try:
-            fn = jax.jit(transform(f))
-            c, run = timed(fn, theta, args.repeats if adjoint != "forward" or "jvp" in what else max(3, args.repeats // 5))
-            grads[(what, adjoint)] = np.asarray(fn(theta))
-            rows.append(dict(what=what, adjoint=adjoint, compile_s=c, run_s=run, cost_vs_forward=run / fwd))
-        except Exception as e:  # an adjoint that does not apply is reported, not hidden
-            rows.append(dict(what=what, adjoint=adjoint, error=f"{type(e).__name__}: {str(e)[:200]}"))
-    ref = grads.get(("gradient, reverse", "recursive"))
-    for r in rows:
-        g = grads.get((r["what"], r.get("adjoint")))
-        if ref is not None and g is not None and g.shape == ref.shape:
-            r["max_rel_diff_vs_recursive"] = float(np.max(np.abs(g - ref)) / np.max(np.abs(ref)))
+    if not args.quick:
+        slow = max(3, args.repeats // 5)
+        cases += [
+            ("gradient, reverse", "recursive", jax.grad(ad("recursive")), None),
+            ("gradient, reverse", "recursive_all_steps", jax.grad(ad("recursive_all_steps")), None),
+            ("gradient, forward (jacfwd)", "forward", jax.jacfwd(ad("forward")), slow),
+            ("directional derivative (jvp)", "forward", lambda th: jax.jvp(ad("forward"), (th,), (direction,))[1], None),
+            ("gradient, reverse", "backsolve", jax.grad(ad("backsolve")), None),
+        ]
+    run_cases(rows, cases, theta, fwd, fd, args.repeats, "forward simulation theta(T)")
 
-    def t_stop(th):
-        return syn.standstill_time(unflatten(th), t1=2.0, **OPTS)[0]
+    c, fwd_t = timed(jax.jit(t_stop), theta, args.repeats)
+    rows.append(dict(what="forward simulation to standstill", adjoint="-", compile_s=c, run_s=fwd_t))
+    print_row(rows[-1])
+    fd_t = central_difference(jax.jit(t_stop), theta)
+    cases = [("gradient of standstill time", "quadrature", jax.grad(lambda th: t_stop(th, "quadrature")), None)]
+    if not args.quick:
+        cases.append(("gradient of standstill time", "recursive", jax.grad(t_stop), None))
+    run_cases(rows, cases, theta, fwd_t, fd_t, args.repeats, "forward simulation to standstill")
 
-    if not args.reverse_only:
-        c, run_t = timed(jax.jit(t_stop), theta, args.repeats)
-        rows.append(dict(what="forward simulation to standstill", adjoint="-", compile_s=c, run_s=run_t))
-        c, run = timed(jax.jit(jax.grad(t_stop)), theta, args.repeats)
-        rows.append(dict(what="gradient of standstill time, reverse", adjoint="recursive", compile_s=c, run_s=run, cost_vs_forward=run / run_t))
     from assurjax._dynamics import Settings, simulate_core
 
     sol = jax.jit(lambda th: simulate_core(unflatten(th).mechanism, scene.gravity, scene.loads, 0.0, 0.0, 0.0, T,
                                            settings=Settings(samples=2, domega=False, check_assembly=False, **OPTS)))(theta)
-    num_steps = int(sol.num_steps)
-
     out = dict(machine=platform.machine(), processor=platform.processor(), jax=jax.__version__, n_parameters=int(theta.size),
-               T=T, options=OPTS, solver_steps=num_steps, date=time.strftime("%Y-%m-%d %H:%M:%S"), rows=rows)
+               T=T, options=OPTS, solver_steps=int(sol.num_steps), date=time.strftime("%Y-%m-%d %H:%M:%S"), rows=rows)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps(out, indent=2))
-    print(f"Watt six-bar, theta({T} s), {theta.size} parameters, {num_steps} solver steps, max_steps {OPTS['max_steps']}")
-    print(f"{'what':<40} {'adjoint':<20} {'compile s':>9} {'run ms':>9} {'x forward':>9}")
-    for r in rows:
-        if "error" in r:
-            print(f"{r['what']:<40} {r['adjoint']:<20} error: {r['error'][:60]}")
-            continue
-        ratio = f"{r['cost_vs_forward']:.2f}" if "cost_vs_forward" in r else "1"
-        print(f"{r['what']:<40} {r['adjoint']:<20} {r['compile_s']:>9.1f} {1e3 * r['run_s']:>9.3f} {ratio:>9}")
+    print(f"Watt six-bar, theta({T} s), {theta.size} parameters, {int(sol.num_steps)} solver steps; saved {RESULTS / args.output}")
 
 
 if __name__ == "__main__":

@@ -267,3 +267,65 @@ def test_standstill_time_gradient(watt_flat):
     grad = jax.jit(jax.grad(lambda th: t_stop(th)[0]))(theta)
     assert abs(jvp - fd) <= RTOL * abs(fd)
     assert abs(jnp.dot(grad, v) - fd) <= RTOL * abs(fd)
+
+
+# ----------------------------------------------------------------------------- forward sensitivities (no AD through diffrax)
+
+QUAD = dict(solver="tsit5", rtol=1e-10, atol=1e-10, max_steps=1024)
+
+
+def test_final_angle_gradient_quadrature_every_parameter(watt_flat):
+    """theta(T) of the falling Watt six-bar: the sensitivity gradient (variation of constants, one
+    batched reverse pass at Gauss nodes) w.r.t. all 50 scene parameters equals the central
+    difference of the simulation itself, and so does the derivative w.r.t. the start angle."""
+    theta, unflatten, v = watt_flat
+    f = jax.jit(lambda th: syn.final_state(unflatten(th), 0.3, **QUAD)[0])
+    grad = jax.jit(jax.grad(lambda th: syn.final_state(unflatten(th), 0.3, adjoint="quadrature", **QUAD)[0]))(theta)
+    assert_close_jacobian(grad, central_difference(f, theta, 1e-4))
+
+
+@pytest.mark.slow  # ~40 s of compilation; the fast synthesis test checks the same route on two parameters
+def test_standstill_time_gradient_quadrature(watt_flat):
+    """The standstill time through the event: implicit-function derivative with the forward
+    sensitivities at t*, along a random direction of all 50 parameters, vs central differences
+    of the event time located by the simulation."""
+    theta, unflatten, v = watt_flat
+    t_stop = lambda th, adj: syn.standstill_time(unflatten(th), t1=2.0, adjoint=adj, **QUAD)  # noqa: E731
+    value_of = jax.jit(lambda th: t_stop(th, "quadrature"))
+    value, ok = value_of(theta)
+    assert bool(ok) and 1.0 < float(value) < 2.0
+    fd = _directional_fd(lambda th: value_of(th)[0], theta, v, 1e-4)
+    grad = jax.jit(jax.grad(lambda th: t_stop(th, "quadrature")[0]))(theta)
+    assert abs(jnp.dot(grad, v) - fd) <= RTOL * abs(fd), (float(jnp.dot(grad, v)), float(fd))
+
+
+@pytest.mark.slow  # the "loop" method, jacfwd and the start angle: several compilations
+def test_sensitivity_routes_agree_with_finite_differences(watt, watt_flat):
+    """The "loop" forward sensitivities (S integrated with the state): gradient over every parameter
+    and jacfwd of (q, w)(T) w.r.t. the initial state and T, vs central differences."""
+    theta, unflatten, v = watt_flat
+    f = jax.jit(lambda th: syn.final_state(unflatten(th), 0.3, **QUAD)[0])
+    grad = jax.jit(jax.grad(lambda th: syn.final_state(unflatten(th), 0.3, adjoint="sensitivity", **QUAD)[0]))(theta)
+    assert_close_jacobian(grad, central_difference(f, theta, 1e-4))
+    x = jnp.array([0.1, 0.5, 0.3])  # q0, omega0, T
+
+    def state(x, adj):
+        return jnp.stack(syn.final_state(watt, x[2], q0=x[0], omega0=x[1], adjoint=adj, **QUAD))
+
+    fd = central_difference(jax.jit(lambda x: state(x, "recursive")), x, 1e-4)
+    for adj in ("sensitivity", "quadrature"):
+        assert_close_jacobian(jax.jit(jax.jacfwd(lambda x: state(x, adj)))(x), fd)
+
+
+def test_sensitivity_routes_reject_bad_input(watt):
+    """Clear errors, before any tracing, for settings the sensitivity routes do not have."""
+    with pytest.raises(assurjax.AssurjaxError, match="samples"):
+        syn.final_state(watt, 0.5, adjoint="quadrature", samples=3)
+    with pytest.raises(assurjax.AssurjaxError, match="method"):
+        syn.final_state_sensitivity(watt, 0.5, method="euler")
+    with pytest.raises(assurjax.AssurjaxError, match="panels"):
+        syn.standstill_time(watt, adjoint="quadrature", panels=0)
+    with pytest.raises(assurjax.AssurjaxError, match="link9"):
+        syn.add_point_mass(watt.mechanism, "link9", 1.0, (0.0, 0.0))
+    with pytest.raises(assurjax.AssurjaxError, match="target"):
+        syn.standstill_time_problem(watt, -1.0)

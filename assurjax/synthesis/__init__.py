@@ -11,6 +11,11 @@
 """
 
 from ._design import Design as Design
+from ._sensitivity import (
+    SensitivityOptions as SensitivityOptions,
+    final_state_sensitivity as final_state_sensitivity,
+    standstill_time_sensitivity as standstill_time_sensitivity,
+)
 from ._dynamic import final_state as final_state, standstill_time as standstill_time
 from ._linkages import (
     four_bar as four_bar,
@@ -28,7 +33,12 @@ from ._objectives import (
     straight_line_deviation as straight_line_deviation,
     transmission_angles as transmission_angles,
 )
-from ._problems import ROBERTS_Q0 as ROBERTS_Q0, straight_line_problem as straight_line_problem
+from ._problems import (
+    ROBERTS_Q0 as ROBERTS_Q0,
+    add_point_mass as add_point_mass,
+    standstill_time_problem as standstill_time_problem,
+    straight_line_problem as straight_line_problem,
+)
 from ._optimize import History as History, SynthesisResult as SynthesisResult, assembles as assembles, optimize as optimize
 from ._parameters import (
     flatten_parameters as flatten_parameters,

@@ -25,7 +25,9 @@ class History(eqx.Module):
     to the unconstrained variables; ``time``: wall time since the start (s,
     compilation included); ``evaluations``: cumulative objective+gradient
     evaluations; ``backtracks``: step halvings needed to stay assemblable;
-    ``aux``: the objective's auxiliary output per step (when it has one).
+    ``aux``: the objective's auxiliary output per step (when it has one);
+    ``grad``: the gradient with respect to the unconstrained variables per step
+    (a pytree like ``z``, each leaf stacked over steps).
     """
 
     loss: np.ndarray
@@ -34,6 +36,7 @@ class History(eqx.Module):
     evaluations: np.ndarray
     backtracks: np.ndarray
     aux: Any = None
+    grad: Any = None
 
 
 class SynthesisResult(eqx.Module):
@@ -215,6 +218,7 @@ def _stalled(losses: list, rtol: float, patience: int) -> bool:
 class _Recorder:
     def __init__(self):
         self.loss, self.grad_norm, self.time, self.evals, self.backtracks, self.aux = [], [], [], [], [], []
+        self.grads = []
 
     def add(self, loss, grad, elapsed, n_eval, backtracks, aux):
         self.loss.append(float(loss))
@@ -223,6 +227,7 @@ class _Recorder:
         self.evals.append(n_eval)
         self.backtracks.append(backtracks)
         self.aux.append(aux)
+        self.grads.append(jax.device_get(grad))
 
     def history(self) -> History:
         aux = None
@@ -235,4 +240,5 @@ class _Recorder:
             evaluations=np.asarray(self.evals),
             backtracks=np.asarray(self.backtracks),
             aux=aux,
+            grad=jax.tree.map(lambda *gs: np.stack([np.asarray(g) for g in gs]), *self.grads),
         )
