@@ -115,6 +115,13 @@ def positions(
     very slow for many outputs of a deep mechanism (see benchmarks/bench_kinematics.py).
     The values are the same either way.
     """
+    return _positions(mechanism, q, None if points is None else tuple(points), near, materialize)
+
+
+# A nested jit: a simulation needs the position analysis in several places (events,
+# outputs, the initial state); traced once and reused, it costs less tracing and compiling.
+@eqx.filter_jit
+def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose:
     q = jnp.asarray(q, dtype=float)
     links = mechanism.all_links()
     owner = dict(mechanism.owner)

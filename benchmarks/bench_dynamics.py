@@ -106,7 +106,7 @@ def main(quick: bool = False):
     configs = [("tsit5", 1e-8, True, None, False), ("tsit5", 1e-8, False, None, False), ("tsit5", 1e-7, True, None, False),
                ("tsit5", 1e-6, True, None, False), ("dopri5", 1e-8, True, None, False), ("dopri8", 1e-8, True, None, False),
                ("dopri8", 1e-10, True, None, False), ("tsit5", 1e-8, True, None, True),
-               ("dopri8", None, True, 40, False), ("dopri8", None, True, 40, True), ("dopri8", None, True, 80, True)]
+               ("tsit5", None, True, 160, False), ("tsit5", None, True, 80, True), ("tsit5", None, True, 160, True)]
     if quick:
         configs = configs[:2] + configs[-2:-1]
     for solver, tol, lean_outputs, steps, tabulated in configs:
