@@ -601,7 +601,7 @@ def simulate(
     return _batch_summary(jax.device_get(sols))
 
 
-AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~25 exact runs)
+AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
 
 
 def _batch_shape(q0, omega0):
