@@ -115,7 +115,8 @@ def positions(
     very slow for many outputs of a deep mechanism (see benchmarks/bench_kinematics.py).
     The values are the same either way.
     """
-    return _positions(mechanism, q, None if points is None else tuple(points), near, materialize)
+    # q as an array: the jit below would take a Python float as static and compile per value
+    return _positions(mechanism, jnp.asarray(q, dtype=float), None if points is None else tuple(points), near, materialize)
 
 
 # A nested jit: a simulation needs the position analysis in several places (events,

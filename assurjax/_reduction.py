@@ -145,6 +145,8 @@ def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *,
     dissipated power without a second position analysis."""
     if velocities is None:
         velocities = any_velocity_dependent(loads)
+    # arrays: the jit below would take Python floats as static and compile per value
+    q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     return _reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities, near)
 
 
@@ -153,7 +155,6 @@ def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *,
 # simulate() (XLA inlines it, so the compiled program and its speed are unchanged).
 @eqx.filter_jit
 def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near):
-    q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     x, dx, d2x, ok = coefficients(mechanism, q, near=near)
     kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=velocities)
     terms = _link_terms(mechanism, dx, d2x, applied_wrenches(mechanism, gravity, loads, kin, t))

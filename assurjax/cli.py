@@ -489,7 +489,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _enable_cache() -> None:
-    """The persistent compilation cache: the second run of a scene skips most compiling."""
+    """The persistent compilation cache: later runs load what JAX can cache (kinematics,
+    reactions, tables) instead of compiling it again."""
     from ._cache import enable_compilation_cache
 
     try:
