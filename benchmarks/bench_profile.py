@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import time
 from pathlib import Path
 
 import diffrax
@@ -30,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax as aj
+from _timing import best_time
 from assurjax._dynamics import _rhs, _rhs_table
 from assurjax._reduction import _coords
 
@@ -39,14 +39,6 @@ STEPS = 2_000  # integration steps per timed scan
 SOLVERS = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
 
 
-def best_of(fn, repeats: int = 7) -> float:
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def per_evaluation(f) -> float:
@@ -57,7 +49,7 @@ def per_evaluation(f) -> float:
     def loop(q):
         return jax.lax.fori_loop(0, LOOP, lambda i, q: q + 1e-9 * f(q) + 1e-6, q)
 
-    return best_of(lambda: loop(jnp.asarray(0.3))) / LOOP
+    return best_time(lambda: loop(jnp.asarray(0.3))) / LOOP
 
 
 def per_step(solver, term, args) -> float:
@@ -75,7 +67,7 @@ def per_step(solver, term, args) -> float:
 
         return jax.lax.scan(body, (y0, state), jnp.arange(STEPS))[0][0][0]
 
-    return best_of(lambda: scan(jnp.asarray(0.3))) / STEPS
+    return best_time(lambda: scan(jnp.asarray(0.3))) / STEPS
 
 
 def adaptive_per_step(solver, term) -> tuple[float, int]:
@@ -88,7 +80,7 @@ def adaptive_per_step(solver, term) -> tuple[float, int]:
         return sol.ys[0], sol.stats["num_steps"]
 
     steps = int(solve(jnp.asarray(0.3))[1])
-    return best_of(lambda: solve(jnp.asarray(0.3))) / steps, steps
+    return best_time(lambda: solve(jnp.asarray(0.3))) / steps, steps
 
 
 def main():

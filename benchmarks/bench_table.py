@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax as aj
+from _timing import best_time
 
 HERE = Path(__file__).resolve().parent
 QUICK = "--quick" in sys.argv
@@ -41,14 +42,6 @@ REPEATS = 5 if QUICK else 20
 BATCH = 1000 if QUICK else 10_000
 
 
-def best_time(fn, repeats):
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t)
-    return float(np.min(times))
 
 
 def timed_first(fn):

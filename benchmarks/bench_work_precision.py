@@ -53,23 +53,10 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 import joint_reference as jr  # noqa: E402
+from _timing import best_time  # noqa: E402
 
 RESULTS = HERE / "results"
 SOLVERS = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8, "kvaerno5": diffrax.Kvaerno5}
-
-
-def best_time(fn, repeats: int, budget: float = 3.0) -> float:
-    """Best wall time of up to ``repeats`` calls (s), stopping once ``budget`` seconds
-    are spent; the first call (compile) is not counted."""
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-        if sum(times) > budget:
-            break
-    return min(times)
 
 
 # ----------------------------------------------------------------------------- assurjax
