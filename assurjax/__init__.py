@@ -48,6 +48,7 @@ from ._dynamics import (
 )
 from ._table import ReducedTable as ReducedTable, build_table as build_table, build_table_core as build_table_core
 from ._cache import enable_compilation_cache as enable_compilation_cache
+from ._jit import jit as jit
 from ._loads import (
     AbstractLoad as AbstractLoad,
     Couple as Couple,

@@ -25,7 +25,6 @@ baseline for benchmarks.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
@@ -38,6 +37,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
+from ._jit import jit
 from ._loads import Damper, RotaryDamper, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
 from ._reduction import generalized_force, reduce_single, reduce_with_kinematics, reduce_with_pose
@@ -275,7 +275,7 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     assembly event is off (the table checked a full turn).
 
     **Example** (10 starting angles at once):
-    >>> core = eqx.filter_jit(eqx.filter_vmap(
+    >>> core = assurjax.jit(eqx.filter_vmap(
     ...     lambda q0: assurjax.simulate_core(mech, gravity, (), q0, 0.0, 0.0, 2.0,
     ...                                       settings=assurjax.SimulationSettings(samples=2))))
     >>> sols = core(jnp.linspace(0.0, 1.0, 10))
@@ -474,7 +474,7 @@ def _outputs(mechanism, gravity, loads, t, q, w, settings, near=None) -> dict:
     return out
 
 
-_simulate_jit = eqx.filter_jit(simulate_core)
+_simulate_jit = jit(simulate_core)
 
 
 # ---------------------------------------------------------------------------- user-facing
@@ -646,7 +646,7 @@ def _simulate_batch(mechanism, gravity, loads, q0, omega0, t0, t1, ts, dt, setti
     return jax.vmap(run)(q0, omega0)
 
 
-_simulate_batch_jit = eqx.filter_jit(_simulate_batch)
+_simulate_batch_jit = jit(_simulate_batch)
 
 
 def _batch_summary(sols: Solution) -> Solution:
@@ -727,7 +727,7 @@ class SeedEulerSolution(NamedTuple):
     status: str
 
 
-@functools.partial(eqx.filter_jit)
+@jit
 def _seed_euler_core(mechanism, gravity, loads, q0, omega0, t0, t1, dq, n_steps: int, standstill: bool):
     """Seed 000 eq. 2 by jax.lax.scan: w_{i+1}^2 = (J_i w_i^2 + 2 (tau + tau_red)_i dq) / J_{i+1},
     with q stepping by dq in the direction of motion and dt = dq / mean(|w_i|, |w_{i+1}|)."""

@@ -17,6 +17,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import AssemblyError, AssurjaxError
+from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
 
 
@@ -136,7 +137,7 @@ def _second_order(coords, q, one):
     return x, dx, d2x, ok
 
 
-@eqx.filter_jit
+@jit
 def _kinematics_batch(mechanism, q, omega, alpha, points, order, what=(True, True)):
     names: dict = {}
 
@@ -221,7 +222,7 @@ def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
 
 def pose_at(mechanism: Mechanism, q) -> Pose:
     """The Pose at one q, with a clear error if some group cannot assemble."""
-    pose = eqx.filter_jit(positions)(mechanism, jnp.asarray(q, dtype=float))
+    pose = jit(positions)(mechanism, jnp.asarray(q, dtype=float))
     raise_if_not_assembled(mechanism, pose.ok, q)
     return pose
 
@@ -254,7 +255,7 @@ def inverse_kinematics(
     return q, pose_at(mechanism, q) if not isinstance(q, jax.core.Tracer) else positions(mechanism, q)
 
 
-@eqx.filter_jit
+@jit
 def _inverse_jit(mechanism, quantity, value, q0, rtol, atol, max_steps):
     def residual(q, _):
         pose = positions(mechanism, q)

@@ -13,6 +13,7 @@ from jaxtyping import Array
 
 from ._errors import MechanismError
 from ._geometry import rotate
+from ._jit import jit
 from .groups._base import GROUND, AbstractGroup, Frame, Link, Placement
 from .groups._branch import solve_near
 
@@ -121,7 +122,7 @@ def positions(
 
 # A nested jit: a simulation needs the position analysis in several places (events,
 # outputs, the initial state); traced once and reused, it costs less tracing and compiling.
-@eqx.filter_jit
+@jit
 def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose:
     q = jnp.asarray(q, dtype=float)
     links = mechanism.all_links()

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from ._geometry import dot
+from ._jit import jit
 from ._kinematics import Kinematics
 from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
 from ._mechanism import Mechanism, Pose, positions
@@ -153,7 +154,7 @@ def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *,
 # A nested jit: a simulation uses the reduction in several places (the solver's stages,
 # the outputs); it is traced once and reused, which halves the tracing time of a first
 # simulate() (XLA inlines it, so the compiled program and its speed are unchanged).
-@eqx.filter_jit
+@jit
 def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near):
     x, dx, d2x, ok = coefficients(mechanism, q, near=near)
     kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=velocities)
@@ -176,7 +177,7 @@ def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, v
     return reduction, kin
 
 
-@eqx.filter_jit
+@jit
 def _reduce_batch(mechanism, gravity, loads, q, omega, t):
     shape = q.shape
     single = lambda q, w, t: reduce_single(mechanism, gravity, loads, q, w, t)  # noqa: E731
@@ -207,7 +208,7 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
     shape = jnp.broadcast_shapes(q.shape, jnp.shape(omega), jnp.shape(t))
     q, omega, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, omega, t))
     if not shape:
-        return eqx.filter_jit(reduce_single)(mechanism, gravity, loads, q, omega, t)
+        return jit(reduce_single)(mechanism, gravity, loads, q, omega, t)
     return _reduce_batch(mechanism, gravity, loads, q, omega, t)
 
 

@@ -35,6 +35,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._errors import AssurjaxError
+from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
 
@@ -225,7 +226,7 @@ def _compiled_vmap(fn):
     try:
         return _COMPILED[fn]
     except (KeyError, TypeError):
-        compiled = eqx.filter_jit(eqx.filter_vmap(fn))
+        compiled = jit(eqx.filter_vmap(fn))
         try:
             _COMPILED[fn] = compiled
         except TypeError:

@@ -51,6 +51,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
+from ._jit import jit
 from ._loads import Polynomial, Table, Vector, any_velocity_dependent
 from ._mechanism import Mechanism
 from ._reduction import reduce_single
@@ -147,7 +148,7 @@ def build_table_core(mechanism: Mechanism, gravity, loads, nodes: int = DEFAULT_
     return ReducedTable(data=data, ok=ok)
 
 
-@eqx.filter_jit
+@jit
 def _build_and_probe(mechanism, gravity, loads, nodes: int):
     """The table, per-group assembly flags at the nodes, and probes of time dependence
     (d tau/dt) and periodicity (tau at q + 2 pi)."""

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ._geometry import wrap_angle
+from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
 
 
@@ -43,7 +43,7 @@ def branch_rates(reduction, near: dict, omega) -> dict:
     return {k: reduction.angle_rates[k] * omega for k in near}
 
 
-@eqx.filter_jit
+@jit
 def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, points: Iterable[str] | None = None) -> Pose:
     """Positions along a 1-D path of driving coordinates ``qs`` (rad or m), staying
     on one continuous assembly branch through singular configurations.

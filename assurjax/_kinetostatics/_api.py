@@ -7,11 +7,11 @@ from collections.abc import Iterable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._geometry import rotation
+from .._jit import jit
 from .._kinematics import Kinematics, _kinematics_single, first_failure
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
@@ -177,7 +177,7 @@ def _prismatic_names(mechanism):
     return {p.name for ps in group_pairs(mechanism) for p in ps if p.kind == "P"}
 
 
-@eqx.filter_jit
+@jit
 def _batch(scene, q, omega, alpha, t, method, groups, static):
     shape = q.shape
     single = lambda q, w, a, t: _single(scene, q, w, a, t, method, groups, static)  # noqa: E731

@@ -14,6 +14,7 @@ import numpy as np
 import optax
 
 from .._errors import AssemblyError, AssurjaxError
+from .._jit import jit
 from .._sweep import _progress_bar
 from ._design import Design
 
@@ -181,7 +182,7 @@ def optimize(
 def _evaluator(design: Design, objective, feasible):
     """One jitted call: loss, gradient (w.r.t. z), feasibility and aux at z."""
 
-    @eqx.filter_jit
+    @jit
     def evaluate(design, z):
         def loss_of(z):
             tree = design.build(z)
