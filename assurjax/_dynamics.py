@@ -40,7 +40,7 @@ from ._errors import AssurjaxError
 from ._jit import jit
 from ._loads import Damper, RotaryDamper, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
-from ._reduction import generalized_force, reduce_single, reduce_with_kinematics, reduce_with_pose
+from ._reduction import reduce_single, reduce_with_kinematics, reduce_with_pose
 from ._table import DEFAULT_TABLE_NODES, ReducedTable, build_table, build_table_core
 from ._tracking import branch_angles, branch_rates, branch_state
 
@@ -173,15 +173,16 @@ def _rhs_table(t, y, args):
 def _margins(settings: Settings, t, y, args, lockup=None) -> list:
     """One margin per enabled stop condition, positive until that condition fires.
 
-    standstill: direction of motion * w (0 at a start from rest, then > 0 while
-    moving); assembly: +1 while every group assembles, -1 once one cannot; user
-    events: cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when
+    standstill: w times the direction of motion, the sign of w0, or from rest the
+    displacement q - q0 (0 at the start, > 0 while moving, < 0 once w has reversed:
+    no force evaluation at t0 is needed to know which way the mechanism starts);
+    assembly: +1 while every group assembles, -1 once one cannot; user events: cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when
     already known (then no position analysis here).
     """
-    mechanism, direction, user_signs = args[0], args[4], args[5]
+    mechanism, (direction, q0), user_signs = args[0], args[4], args[5]
     out = []
     if settings.standstill:
-        out.append(direction * y[1])
+        out.append(y[1] * jnp.where(direction != 0, direction, y[0] - q0))
     if settings.check_assembly:
         if lockup is None:
             lockup = jnp.where(jnp.all(positions(mechanism, y[0], near=branch_state(y)).ok), 1.0, -_TINY)
@@ -294,12 +295,8 @@ def simulate_core(mechanism: Mechanism, gravity, loads, q0, omega0, t0, t1, ts=N
     y0 = (q0, omega0, jnp.zeros(())) if track_work else (q0, omega0)
     if settings.branch == "tracked":  # the branch travels with the state, starting on the fixed modes
         y0 = y0 + (branch_angles(mechanism, positions(mechanism, q0)),)
-    # Initial direction of motion: of the velocity, or from rest of the acceleration.
-    direction = jnp.sign(omega0)
-    if settings.standstill:  # from rest, the direction the applied loads start it in
-        direction = jnp.where(omega0 != 0, direction, jnp.sign(generalized_force(mechanism, gravity, loads, q0, omega0, t0)))
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
-    args = (mechanism, gravity, loads, track_work, direction, user_signs) + ((table,) if tabulated else ())
+    args = (mechanism, gravity, loads, track_work, (jnp.sign(omega0), q0), user_signs) + ((table,) if tabulated else ())
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(_rhs_table if tabulated else (lambda t, y, a: _rhs(t, y, a[:4]))),
         _solver(settings),

@@ -102,6 +102,17 @@ def test_watt_standstill_matches_joint_reference(watt):
     assert np.all(np.isfinite(sol.points["E"]))
 
 
+@pytest.mark.parametrize("theta0, omega0", [(2.0, 0.0), (0.0, -1.0), (1.0, 1.0)])
+def test_standstill_in_either_direction_matches_joint_reference(watt, theta0, omega0):
+    """From rest falling either way (the margin uses q - q0), or thrown against or along
+    gravity: the first zero of w, against the joint-based reference's own event."""
+    sol = aj.simulate(watt, q0=theta0, omega0=omega0, stop="standstill", t1=5.0, **TIGHT)
+    r = ref.watt_sixbar(theta0, omega0).simulate(5.0, standstill=0)
+    assert sol.event == STANDSTILL
+    assert abs(sol.t_stop - r.t_events[0]) < 1e-8 and abs(r.t[-1] - r.t_events[0]) < 1e-12
+    assert abs(sol.q[-1] - r.q[-1]) < 1e-8
+
+
 def test_watt_standstill_from_the_scene_defaults(watt):
     """The bundled scene says stop = "standstill": falling from rest it swings to a stop;
     from rest a standstill is where T returns to 0, so V(q_stop) = V(q0)."""
