@@ -176,8 +176,9 @@ def _margins(settings: Settings, t, y, args, lockup=None) -> list:
     standstill: w times the direction of motion, the sign of w0, or from rest the
     displacement q - q0 (0 at the start, > 0 while moving, < 0 once w has reversed:
     no force evaluation at t0 is needed to know which way the mechanism starts);
-    assembly: +1 while every group assembles, -1 once one cannot; user events: cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when
-    already known (then no position analysis here).
+    assembly: +1 while every group assembles, -1 once one cannot; user events:
+    cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when already
+    known (then no position analysis here).
     """
     mechanism, (direction, q0), user_signs = args[0], args[4], args[5]
     out = []
