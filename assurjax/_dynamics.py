@@ -37,7 +37,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
-from ._jit import jit
+from ._jit import checks_without_callbacks, jit
 from ._loads import Damper, RotaryDamper, check_loads, dissipated_power, potential_energy
 from ._mechanism import Mechanism, positions
 from ._reduction import reduce_single, reduce_with_kinematics, reduce_with_pose
@@ -582,25 +582,37 @@ def simulate(
         return simulate_seed_euler(mechanism, gravity, loads, q0, omega0, t0=t0, t1=t1, dq=pick(dt, sim, "dt", None) or 1e-3,
                                    standstill=settings.standstill)
     _solver(settings)  # unknown names fail here, not inside jit
-    if saveat is not None:
-        saveat = jnp.asarray(saveat, dtype=float)
-        if saveat.ndim != 1:
-            raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
     if settings.steps is not None:
         _check_steps(settings)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     step = pick(dt, sim, "dt", None)
     step = None if step is None else np.asarray(step, dtype=float)
     settings, table = _resolve_reduction(settings, table, mechanism, gravity, loads, batch)
-    if batch is None:
-        sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings, table=table)
-        return _trim(sol, mechanism)
-    q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
-    sols = _simulate_batch_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings, table)
+    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
+        if batch is None:
+            sol = _simulate_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings=settings, table=table)
+            return _trim(sol, mechanism)
+        q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
+        sols = _simulate_batch_jit(mechanism, gravity, loads, q0, omega0, t0, t1, saveat, step, settings, table)
     return _batch_summary(jax.device_get(sols))
+
+
+def _checked_saveat(saveat, t0, t1) -> np.ndarray:
+    """The save times as a 1-D float array, sorted from t0 towards t1 and inside [t0, t1]."""
+    saveat = np.asarray(saveat, dtype=float)
+    if saveat.ndim != 1:
+        raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
+    steps = np.diff(saveat) * np.sign(t1 - t0)
+    if np.any(steps < 0) or not np.all(np.isfinite(saveat)):
+        raise AssurjaxError("saveat must be finite times in the direction from t0 to t1")
+    if np.any((saveat - t0) * (saveat - t1) > 0):
+        raise AssurjaxError(f"saveat must lie between t0 = {float(t0)} and t1 = {float(t1)} s; "
+                            f"got times from {saveat.min()} to {saveat.max()}")
+    return saveat
 
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)

@@ -134,3 +134,25 @@ def test_batch_with_fixed_steps_equals_single_runs(watt, table):
     batch = aj.simulate(watt, q0=q0, **kw)
     for k, start in enumerate(q0):
         np.testing.assert_allclose(batch.q[k], aj.simulate(watt, q0=start, **kw).q, atol=1e-12)
+
+
+def test_saveat_errors_name_the_field(watt):
+    for saveat, message in (([0.0, 0.5, 0.2], "direction from t0 to t1"), ([0.0, 3.0], "between t0"),
+                            ([[0.0, 1.0]], "1-D"), ([0.0, np.nan], "finite")):
+        with pytest.raises(aj.AssurjaxError, match=message):
+            aj.simulate(watt, saveat=saveat, t1=2.0)
+
+
+def test_simulation_program_has_no_host_callbacks(watt):
+    """What simulate() compiles can go to JAX's persistent cache: no host callbacks
+    (diffrax's saveat checks run on the host instead)."""
+    import jax
+
+    from assurjax._dynamics import Settings, simulate_core
+    from assurjax._jit import checks_without_callbacks
+
+    settings = Settings(standstill=True, samples=5)
+    with checks_without_callbacks():
+        text = jax.jit(lambda q0: simulate_core(watt.mechanism, watt.gravity, (), q0, 0.0, 0.0, 1.0, settings=settings)) \
+            .lower(0.0).as_text()
+    assert "callback" not in text
