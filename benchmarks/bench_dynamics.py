@@ -83,8 +83,8 @@ def core(scene, settings, table=None):
     ts = jnp.asarray(TS)
     if settings.steps is not None:  # saves every step: compare on the same grid
         stride = settings.steps // (len(TS) - 1)
-        return eqx.filter_jit(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, settings=settings, table=table).q[::stride])
-    return eqx.filter_jit(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, ts, settings=settings, table=table).q)
+        return aj.jit(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, settings=settings, table=table).q[::stride])
+    return aj.jit(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, ts, settings=settings, table=table).q)
 
 
 def main(quick: bool = False):
@@ -142,13 +142,13 @@ def main(quick: bool = False):
     first = time.perf_counter() - t
     med, best = median_time(lambda: aj.simulate(scene, **batch).q, 3)
     check = np.arange(0, n, n // 50)
-    ref_batch = eqx.filter_jit(eqx.filter_vmap(core(scene, ref_settings)))(jnp.asarray(q0s[check]))
+    ref_batch = aj.jit(eqx.filter_vmap(core(scene, ref_settings)))(jnp.asarray(q0s[check]))
     results["batch_simulate"] = dict(
         what=f"aj.simulate(scene, q0=<{n} angles>): table built automatically (included), tsit5 1e-8", n=n,
         warm_median_s=med, warm_min_s=best, first_call_s=first,
         max_abs_error_rad_50_members=float(np.max(np.abs(np.asarray(sols.q)[check] - np.asarray(ref_batch)))))
     settings = aj.SimulationSettings(samples=2, check_assembly=False, domega=False)
-    exact = eqx.filter_jit(eqx.filter_vmap(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, settings=settings)))
+    exact = aj.jit(eqx.filter_vmap(lambda q0: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, T1, settings=settings)))
     jax.block_until_ready(exact(jnp.asarray(q0s)).q)
     med, best = median_time(lambda: exact(jnp.asarray(q0s)).q, 3)
     results["vmapped_exact"] = dict(n=n, what="vmapped simulate_core, exact reduction, tsit5 1e-8", warm_median_s=med, warm_min_s=best)

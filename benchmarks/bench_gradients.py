@@ -66,7 +66,7 @@ def timed(fn, x, repeats):
 def central_difference(f, theta, h=1e-4):
     """Richardson-extrapolated central difference of a scalar f along every axis (one vmapped call)."""
     eye = jnp.eye(theta.size, dtype=theta.dtype)
-    batch = jax.jit(jax.vmap(f))
+    batch = assurjax.jit(jax.vmap(f))
 
     def d(step):
         return (batch(theta + step * eye) - batch(theta - step * eye)) / (2 * step)
@@ -81,7 +81,7 @@ def rel_diff(g, ref):
 def run_cases(rows, cases, theta, forward_s, reference, repeats, what_forward):
     for what, adjoint, fn, reps in cases:
         try:
-            fn = jax.jit(fn)
+            fn = assurjax.jit(fn)
             c, run = timed(fn, theta, reps or repeats)
             row = dict(what=what, adjoint=adjoint, compile_s=c, run_s=run, cost_vs_forward=run / forward_s,
                        relative_to=what_forward)
@@ -124,13 +124,13 @@ def main():
 
     print(f"{'what':<44} {'adjoint':<20} {'compile s':>9} {'run ms':>9} {'x forward':>9} {'vs FD':>9}")
     rows = []
-    c, fwd = timed(jax.jit(theta_T), theta, args.repeats)
+    c, fwd = timed(assurjax.jit(theta_T), theta, args.repeats)
     rows.append(dict(what="forward simulation theta(T)", adjoint="-", compile_s=c, run_s=fwd))
     print_row(rows[-1])
-    c, fwd_plain = timed(jax.jit(lambda th: theta_T(th, "quadrature")), theta, args.repeats)
+    c, fwd_plain = timed(assurjax.jit(lambda th: theta_T(th, "quadrature")), theta, args.repeats)
     rows.append(dict(what="forward simulation theta(T), sensitivity path", adjoint="-", compile_s=c, run_s=fwd_plain))
     print_row(rows[-1])
-    fd = central_difference(jax.jit(theta_T), theta)
+    fd = central_difference(assurjax.jit(theta_T), theta)
     ad = lambda adjoint: (lambda th: theta_T(th, adjoint))  # noqa: E731
     cases = [
         ("gradient (jax.grad)", "quadrature", jax.grad(ad("quadrature")), None),
@@ -150,10 +150,10 @@ def main():
         ]
     run_cases(rows, cases, theta, fwd, fd, args.repeats, "forward simulation theta(T)")
 
-    c, fwd_t = timed(jax.jit(t_stop), theta, args.repeats)
+    c, fwd_t = timed(assurjax.jit(t_stop), theta, args.repeats)
     rows.append(dict(what="forward simulation to standstill", adjoint="-", compile_s=c, run_s=fwd_t))
     print_row(rows[-1])
-    fd_t = central_difference(jax.jit(t_stop), theta)
+    fd_t = central_difference(assurjax.jit(t_stop), theta)
     cases = [("gradient of standstill time", "quadrature", jax.grad(lambda th: t_stop(th, "quadrature")), None)]
     if not args.quick:
         cases.append(("gradient of standstill time", "recursive", jax.grad(t_stop), None))
@@ -161,7 +161,7 @@ def main():
 
     from assurjax._dynamics import Settings, simulate_core
 
-    sol = jax.jit(lambda th: simulate_core(unflatten(th).mechanism, scene.gravity, scene.loads, 0.0, 0.0, 0.0, T,
+    sol = assurjax.jit(lambda th: simulate_core(unflatten(th).mechanism, scene.gravity, scene.loads, 0.0, 0.0, 0.0, T,
                                            settings=Settings(samples=2, domega=False, check_assembly=False, **OPTS)))(theta)
     out = dict(machine=platform.machine(), processor=platform.processor(), jax=jax.__version__, n_parameters=int(theta.size),
                T=T, options=OPTS, solver_steps=int(sol.num_steps), date=time.strftime("%Y-%m-%d %H:%M:%S"), rows=rows)

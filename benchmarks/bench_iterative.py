@@ -46,7 +46,7 @@ def with_substeps(mech, substeps):
     return eqx.tree_at(lambda m: m.groups, mech, (mech.groups[0], group, *mech.groups[2:]))
 
 
-@eqx.filter_jit
+@assurjax.jit
 def batch_positions(mech, q):
     return jax.vmap(lambda q: assurjax.positions(mech, q))(q)
 
@@ -55,7 +55,7 @@ def sweep(mech, q):
     return assurjax.positions_tracked(mech, q)  # jitted itself
 
 
-@eqx.filter_jit
+@assurjax.jit
 def batch_kinematics(mech, q):
     return assurjax.kinematics(mech, q, check=False)
 

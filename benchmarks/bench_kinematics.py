@@ -18,7 +18,6 @@ import platform
 import time
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -43,7 +42,7 @@ VARIANTS = [
 
 
 def make_runner(options):
-    @eqx.filter_jit
+    @assurjax.jit
     def run(mech, q):
         return assurjax.kinematics(mech, q, 1.0, 0.0, check=False, **options)
 

@@ -64,15 +64,15 @@ def end_to_end(scene, method):
         kin = _kinematics_single(scene.mechanism, q, w, a, None, 2)
         return from_kinematics(scene, kin, t, method=method)
 
-    return jax.jit(jax.vmap(one))
+    return assurjax.jit(jax.vmap(one))
 
 
 def solve_only(scene, method):
-    return jax.jit(jax.vmap(lambda kin, t: from_kinematics(scene, kin, t, method=method)))
+    return assurjax.jit(jax.vmap(lambda kin, t: from_kinematics(scene, kin, t, method=method)))
 
 
 def kinematics_of(scene, q, w, a):
-    return jax.jit(jax.vmap(lambda q, w, a: _kinematics_single(scene.mechanism, q, w, a, None, 2)))(q, w, a)
+    return assurjax.jit(jax.vmap(lambda q, w, a: _kinematics_single(scene.mechanism, q, w, a, None, 2)))(q, w, a)
 
 
 def bench_scene(label, scene, state, methods, repeats):

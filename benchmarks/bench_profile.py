@@ -26,7 +26,6 @@ from pathlib import Path
 import diffrax
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import assurjax as aj
 from _timing import best_time
@@ -45,7 +44,7 @@ def per_evaluation(f) -> float:
     """Seconds per call of f(q) -> scalar, in a fori_loop whose carry depends on it
     (so nothing is hoisted out of the loop)."""
 
-    @jax.jit
+    @aj.jit
     def loop(q):
         return jax.lax.fori_loop(0, LOOP, lambda i, q: q + 1e-9 * f(q) + 1e-6, q)
 
@@ -55,7 +54,7 @@ def per_evaluation(f) -> float:
 def per_step(solver, term, args) -> float:
     """Seconds per step of solver.step over STEPS fixed steps of 1e-3 s."""
 
-    @jax.jit
+    @aj.jit
     def scan(q0):
         h, y0 = 1e-3, (q0, jnp.zeros(()))
         state = solver.init(term, 0.0, h, y0, args)
@@ -73,7 +72,7 @@ def per_step(solver, term, args) -> float:
 def adaptive_per_step(solver, term) -> tuple[float, int]:
     """Seconds per accepted-or-rejected step of diffeqsolve with the PID controller."""
 
-    @jax.jit
+    @aj.jit
     def solve(q0):
         sol = diffrax.diffeqsolve(term, solver, 0.0, 200.0, None, (q0, jnp.zeros(())), saveat=diffrax.SaveAt(t1=True),
                                   stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-8), max_steps=100_000)

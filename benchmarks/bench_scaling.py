@@ -57,7 +57,7 @@ def measure(n: int, repeats: int) -> dict:
     # one right-hand side alone, vmapped over 1000 states near the start
     z = branch_angles(mech, assurjax.positions(mech, np.pi / 2))
     qs = jnp.linspace(1.4, 1.7, 1000)
-    rhs = jax.jit(jax.vmap(lambda q: _rhs(0.0, (q, -jnp.ones_like(q), z), (mech, scene.gravity, (), False))))
+    rhs = assurjax.jit(jax.vmap(lambda q: _rhs(0.0, (q, -jnp.ones_like(q), z), (mech, scene.gravity, (), False))))
     rhs_s = best_time(lambda: rhs(qs), repeats) / qs.size
     return dict(N=n, groups=n + 1, compile_s=compile_s, run_s=run_s, steps=int(steps), result=int(result),
                 error=float(abs(float(q[0]) - exact)), rhs_us=1e6 * rhs_s)

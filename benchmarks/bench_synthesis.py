@@ -41,7 +41,7 @@ RESULTS = Path(__file__).parent / "results"
 
 def roberts_deviation() -> float:
     design, objective = syn.straight_line_problem(syn.roberts_lengths())
-    return float(jax.jit(objective)(design.values(design.init()))[1]["deviation"])
+    return float(assurjax.jit(objective)(design.values(design.init()))[1]["deviation"])
 
 
 def gradient_run(lengths, target, steps):
@@ -67,7 +67,7 @@ def _batched_objective(design, objective):
         _, aux = objective(design.values(z))
         return jnp.where(aux["ok"], aux["deviation"], jnp.inf)
 
-    return jax.jit(jax.vmap(one))
+    return assurjax.jit(jax.vmap(one))
 
 
 def random_search_baseline(lengths, target, budget, population=256, seed=0):

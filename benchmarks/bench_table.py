@@ -58,8 +58,8 @@ def settings(mode, solver, tol, **kw):
 def single_core(scene, s, with_table: bool):
     mech, g = scene.mechanism, scene.gravity
     if with_table:
-        return eqx.filter_jit(lambda q0, t1, table: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, t1, settings=s, table=table))
-    return eqx.filter_jit(lambda q0, t1, table: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, t1, settings=s))
+        return aj.jit(lambda q0, t1, table: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, t1, settings=s, table=table))
+    return aj.jit(lambda q0, t1, table: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, t1, settings=s))
 
 
 def interpolation_errors(scene):
@@ -122,7 +122,7 @@ def main():
         for tol in (1e-6, 1e-8):
             s = settings(mode, "tsit5", tol)
             tab = table if mode == "table" else None
-            batch = eqx.filter_jit(eqx.filter_vmap(
+            batch = aj.jit(eqx.filter_vmap(
                 lambda q0, table: aj.simulate_core(mech, g, (), q0, 0.0, 0.0, 1.0, settings=s, table=table), in_axes=(0, None)))
             first = timed_first(lambda: batch(q0s, tab).q)
             warm = best_time(lambda: batch(q0s, tab).q, 1 if QUICK else 3)

@@ -40,7 +40,6 @@ import time
 from pathlib import Path
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -76,7 +75,7 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, table: bool = Fals
     term = diffrax.ODETerm(_rhs_table if table else _rhs)
     extra = (assurjax.build_table(mech, gravity, loads),) if table else ()
 
-    @eqx.filter_jit
+    @assurjax.jit
     def run(q0, w0, ts, rtol, atol):
         y0 = (q0, w0)
         if tracked:
@@ -104,7 +103,7 @@ def steps_runs(scene, q0, w0, ts, ref, counts: dict, repeats, *, table=False):
             stride = n // len(ts)
             settings = assurjax.SimulationSettings(solver=name, steps=n, check_assembly=False, domega=False,
                                                    reduction="table" if table else "exact")
-            run = eqx.filter_jit(lambda q0, w0: assurjax.simulate_core(mech, gravity, loads, q0, w0, 0.0, ts[-1],
+            run = assurjax.jit(lambda q0, w0: assurjax.simulate_core(mech, gravity, loads, q0, w0, 0.0, ts[-1],
                                                                       settings=settings, table=tab).q[stride::stride])
             a = (jnp.asarray(q0), jnp.asarray(w0))
             err = float(np.max(np.abs(np.asarray(run(*a)) - ref)))
@@ -188,7 +187,7 @@ def mujoco_runs(xml_of, theta0, omega0, ts, ref, steps, repeats):
             data0 = mm.initial_data(model, theta0, omega0)
 
             def stepping():
-                data, qadr, theta_ref = mujoco.MjData(model), data0[1], data0[2]
+                data, qadr = mujoco.MjData(model), data0[1]
                 data.qpos[:], data.qvel[:] = data0[0].qpos, data0[0].qvel
                 for _ in range(len(ts)):
                     mujoco.mj_step(model, data, nstep=per)

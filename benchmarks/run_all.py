@@ -24,6 +24,7 @@ BENCHMARKS = {
     "kinematics": ("bench_kinematics.py", ["--n", "10000", "--repeats", "3"]),
     "dynamics": ("bench_dynamics.py", ["--quick"]),
     "profile": ("bench_profile.py", []),
+    "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
