@@ -222,7 +222,7 @@ def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
 
 def pose_at(mechanism: Mechanism, q) -> Pose:
     """The Pose at one q, with a clear error if some group cannot assemble."""
-    pose = jit(positions)(mechanism, jnp.asarray(q, dtype=float))
+    pose = positions(mechanism, q)  # its own jit
     raise_if_not_assembled(mechanism, pose.ok, q)
     return pose
 

@@ -208,7 +208,7 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
     shape = jnp.broadcast_shapes(q.shape, jnp.shape(omega), jnp.shape(t))
     q, omega, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, omega, t))
     if not shape:
-        return jit(reduce_single)(mechanism, gravity, loads, q, omega, t)
+        return reduce_single(mechanism, gravity, loads, q, omega, t)  # jitted inside (_reduce_with_kinematics)
     return _reduce_batch(mechanism, gravity, loads, q, omega, t)
 
 
