@@ -124,7 +124,6 @@ def positions(
 # outputs, the initial state); traced once and reused, it costs less tracing and compiling.
 @jit
 def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose:
-    q = jnp.asarray(q, dtype=float)
     links = mechanism.all_links()
     owner = dict(mechanism.owner)
     frames = {GROUND: Frame(jnp.zeros(2), jnp.array([1.0, 0.0]))}

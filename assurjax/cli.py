@@ -489,8 +489,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _enable_cache() -> None:
-    """The persistent compilation cache: later runs load what JAX can cache (kinematics,
-    reactions, tables) instead of compiling it again."""
+    """The persistent compilation cache: later runs load the compiled simulation,
+    kinematics and reactions instead of compiling them again."""
     from ._cache import enable_compilation_cache
 
     try:

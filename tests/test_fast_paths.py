@@ -3,6 +3,8 @@
 the tabulated reduction for them. Checked against the joint-based reference, the
 closed-form limit angle of a non-Grashof four-bar, and single runs."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -143,16 +145,18 @@ def test_saveat_errors_name_the_field(watt):
             aj.simulate(watt, saveat=saveat, t1=2.0)
 
 
-def test_simulation_program_has_no_host_callbacks(watt):
-    """What simulate() compiles can go to JAX's persistent cache: no host callbacks
-    (diffrax's saveat checks run on the host instead)."""
-    import jax
+def test_simulate_is_kept_by_the_persistent_cache(tmp_path):
+    """simulate() compiles without host callbacks, so JAX's on-disk cache stores its program
+    (with diffrax's own saveat checks as callbacks it wrote nothing). In a fresh process: the
+    cache is global to a process."""
+    import subprocess
+    import sys
 
-    from assurjax._dynamics import Settings, simulate_core
-    from assurjax._jit import checks_without_callbacks
-
-    settings = Settings(standstill=True, samples=5)
-    with checks_without_callbacks():
-        text = jax.jit(lambda q0: simulate_core(watt.mechanism, watt.gravity, (), q0, 0.0, 0.0, 1.0, settings=settings)) \
-            .lower(0.0).as_text()
-    assert "callback" not in text
+    code = (
+        "import assurjax as aj\n"
+        f"aj.enable_compilation_cache({str(tmp_path)!r})\n"
+        "aj.simulate(aj.load_scene('watt_sixbar'), stop=None, t1=0.5, samples=5)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "ASSURJAX_NO_CACHE"}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, capture_output=True)
+    assert any(tmp_path.iterdir()), "no compiled program was written to the cache"
