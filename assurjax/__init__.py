@@ -38,15 +38,22 @@ from ._kinetostatics import (
     static_reactions as static_reactions,
     static_torque as static_torque,
 )
-from ._dynamics import (
+from ._model import Model as Model
+from ._friction import JointFriction as JointFriction, SlideFriction as SlideFriction
+from ._kinematics import Coefficients as Coefficients, coefficients as coefficients
+from .dynamics import (
+    RESULTS as RESULTS,
+    ReducedTable as ReducedTable,
     SeedEulerSolution as SeedEulerSolution,
     Settings as SimulationSettings,
     Solution as Solution,
+    build_table as build_table,
+    build_table_core as build_table_core,
+    settings_from as settings_from,
     simulate as simulate,
     simulate_core as simulate_core,
     simulate_seed_euler as simulate_seed_euler,
 )
-from ._table import ReducedTable as ReducedTable, build_table as build_table, build_table_core as build_table_core
 from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._jit import jit as jit
 from ._loads import (

@@ -79,18 +79,77 @@ def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tup
     return coords
 
 
+def taylor(fn: Callable, q, order: int):
+    """``fn(q) -> (x, aux)`` and its derivatives along the driving coordinate:
+    (x, dx/dq, d2x/dq2, aux), None above ``order`` (0, 1 or 2).
+
+    The package's only jvp of the position analysis (seed 000 step i: with a unit
+    driving velocity the velocities are the kinematic coefficients): kinematics,
+    the reduction and the kinetostatics all take their coefficients from here.
+    (With several drivers this becomes a jacfwd over q; nothing else changes.)"""
+    one = jnp.ones_like(q)
+    if order == 0:
+        x, aux = fn(q)
+        return x, None, None, aux
+    if order == 1:
+        x, dx, aux = jax.jvp(fn, (q,), (one,), has_aux=True)
+        return x, dx, None, aux
+
+    def first(q):
+        x, dx, aux = jax.jvp(fn, (q,), (one,), has_aux=True)
+        return (x, dx), aux
+
+    (x, dx), (_, d2x), aux = jax.jvp(first, (q,), (one,), has_aux=True)
+    return x, dx, d2x, aux
+
+
+class Coefficients(eqx.Module):
+    """Positions and kinematic coefficients of every point, centre of mass and link at
+    one driving coordinate: ``x``, ``dx`` = dx/dq, ``d2x`` = d2x/dq2, each a triple of
+    dicts (points (m), coms (m), angles (rad)); ``dx``/``d2x`` are None when not asked
+    for. ``ok``: one flag per group (False: cannot assemble)."""
+
+    q: Array
+    x: tuple
+    dx: tuple | None
+    d2x: tuple | None
+    ok: Array
+
+    def kinematics(self, omega, alpha=None) -> Kinematics:
+        """The :class:`Kinematics` at driving velocity ``omega`` and acceleration ``alpha``:
+        v = dx/dq w, a = d2x/dq2 w^2 + dx/dq alpha (accelerations only with ``alpha``)."""
+        omega = jnp.asarray(omega, dtype=float)
+        vel = (None, None, None) if self.dx is None else jax.tree.map(lambda d: d * omega, self.dx)
+        acc = (None, None, None)
+        if alpha is not None:
+            acc = jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, self.d2x, self.dx)
+        return Kinematics(
+            q=self.q, omega=omega, alpha=jnp.zeros_like(self.q) if alpha is None else jnp.asarray(alpha, dtype=float),
+            points=self.x[0], velocities=vel[0], accelerations=acc[0],
+            coms=self.x[1], com_velocities=vel[1], com_accelerations=acc[1],
+            angles=self.x[2], angular_velocities=vel[2], angular_accelerations=acc[2],
+            ok=self.ok,
+        )
+
+
+def coefficients(mechanism: Mechanism, q, *, order: int = 2, near=None) -> Coefficients:
+    """Positions and first/second kinematic coefficients of every point, centre of mass
+    and link angle at ``q`` (see :func:`taylor`). ``near``: link angles (rad) selecting
+    the branch (see :func:`assurjax.positions`)."""
+
+    def coords(q):
+        pose = positions(mechanism, q, near=near)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
+    q = jnp.asarray(q, dtype=float)
+    x, dx, d2x, ok = taylor(coords, q, order)
+    return Coefficients(q=q, x=x, dx=dx, d2x=d2x, ok=ok)
+
+
 def _stacked_single(mechanism: Mechanism, q, omega, alpha, points, order: int, what=(True, True)):
     """Positions, velocities and accelerations at one q as stacked arrays, and their names."""
     names: dict = {}
-    coords = _coordinates(mechanism, points, what, names)
-    one = jnp.ones_like(q)
-    dx = d2x = None
-    if order == 0:
-        x, ok = coords(q)
-    elif order == 1:
-        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
-    else:
-        x, dx, d2x, ok = _second_order(coords, q, one)
+    x, dx, d2x, ok = taylor(_coordinates(mechanism, points, what, names), q, order)
     vel = None if dx is None else jax.tree.map(lambda d: d * omega, dx)
     acc = None if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
     return names, dict(q=q, omega=omega, alpha=alpha, x=x, v=vel, a=acc, ok=ok)
@@ -124,17 +183,6 @@ def _kinematics_single(mechanism: Mechanism, q, omega, alpha, points, order: int
     """Kinematics at one q (unbatched); see :func:`kinematics`."""
     names, arrays = _stacked_single(mechanism, q, omega, alpha, points, order, what)
     return _unstack(names, arrays, 0)
-
-
-def _second_order(coords, q, one):
-    """x, dx/dq, d2x/dq2 and the ok flags from one nested jvp."""
-
-    def first(q):
-        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
-        return (x, dx), ok
-
-    (x, dx), (_, d2x), ok = jax.jvp(first, (q,), (one,), has_aux=True)
-    return x, dx, d2x, ok
 
 
 @jit

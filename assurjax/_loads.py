@@ -21,7 +21,7 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -113,6 +113,14 @@ def _velocity_dependent(*values, flag: bool | None = None) -> bool:
     return False
 
 
+def _has_time_form(value) -> bool:
+    if isinstance(value, (Polynomial, Table)):
+        return value.variable == "t"
+    if isinstance(value, Vector):
+        return _has_time_form(value.x) or _has_time_form(value.y)
+    return False
+
+
 def _as_value(v):
     return v if callable(v) else jnp.asarray(v, dtype=float)
 
@@ -122,9 +130,28 @@ def _as_value(v):
 
 class AbstractLoad(eqx.Module):
     """Every load says which links it acts on (``wrenches``), what it puts on the
-    driver (``effort``), its potential energy and its dissipated power."""
+    driver (``effort``), its potential energy and its dissipated power.
+
+    Capabilities, declared by each class: ``velocity_dependent`` (depends on the
+    driving velocity: the integrator builds velocities for it), ``conservative``
+    (its work is minus the change of its ``potential``: it is in V, not in the work
+    of the energy balance), ``dissipative`` (it only removes energy: ``dissipation``
+    is its power loss), ``needs_reactions`` (its wrenches depend on the joint
+    reactions: friction), ``time_dependent()`` (depends on time t)."""
 
     velocity_dependent: eqx.AbstractVar[bool]
+    conservative: ClassVar[bool] = False
+    dissipative: ClassVar[bool] = False
+    needs_reactions: ClassVar[bool] = False
+
+    def time_dependent(self) -> bool:
+        """True when the load's values depend on time t (forms in t; functions are not
+        inspected here: a table build probes them)."""
+        return any(_has_time_form(v) for v in self._values())
+
+    def _values(self) -> tuple:
+        """The load's value fields (numbers, forms or functions)."""
+        return ()
 
     def check(self, mechanism: Mechanism) -> None:
         """Raise :class:`MechanismError` naming an unknown point or link."""
@@ -195,6 +222,9 @@ class PointForce(AbstractLoad):
         self.force = _as_value(force)
         self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
 
+    def _values(self):
+        return (self.force,)
+
     def check(self, mechanism):
         _check_point(mechanism, self.point, self.link, f"force on point '{self.point}'")
 
@@ -217,6 +247,9 @@ class Couple(AbstractLoad):
         self.link = link
         self.moment = _as_value(moment)
         self.velocity_dependent = _velocity_dependent(moment, flag=velocity_dependent)
+
+    def _values(self):
+        return (self.moment,)
 
     def check(self, mechanism):
         if self.link not in mechanism.links:
@@ -270,6 +303,7 @@ class Spring(_TwoPoint):
     stiffness: Array
     free_length: Array
     velocity_dependent: bool = eqx.field(static=True, default=False)
+    conservative: ClassVar[bool] = True
 
     def __init__(self, a: str, b: str, stiffness, free_length=0.0, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = (a, b), tuple(links)
@@ -294,6 +328,7 @@ class Damper(_TwoPoint):
 
     coefficient: Array
     velocity_dependent: bool = eqx.field(static=True, default=True)
+    dissipative: ClassVar[bool] = True
 
     def __init__(self, a: str, b: str, coefficient, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = (a, b), tuple(links)
@@ -317,6 +352,7 @@ class RotaryDamper(AbstractLoad):
     joint: str = eqx.field(static=True)
     coefficient: Array
     velocity_dependent: bool = eqx.field(static=True, default=True)
+    dissipative: ClassVar[bool] = True
 
     def __init__(self, joint: str, coefficient):
         self.joint = joint
@@ -356,6 +392,9 @@ class Drive(AbstractLoad):
     def __init__(self, value, *, velocity_dependent: bool | None = None):
         self.value = _as_value(value)
         self.velocity_dependent = _velocity_dependent(value, flag=velocity_dependent)
+
+    def _values(self):
+        return (self.value,)
 
     def effort(self, mechanism, q, omega, t):
         return evaluate(self.value, q, omega, t)

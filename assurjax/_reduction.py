@@ -17,7 +17,8 @@ slider driver the reduced link translates: J_red is a reduced mass (kg) and tau_
 a reduced force (N) along the guide.
 
 The equation of motion of the reduced link (seed 000 eq. 1, differentiated in time) is
-J_red(q) dw/dt + 0.5 dJ_red/dq w^2 = tau + tau_red(q, w, t).
+J_red(q) dw/dt + 0.5 dJ_red/dq w^2 = tau + tau_red(q, w, t)
+(:func:`reduced_acceleration`, the one place it is written).
 """
 
 from __future__ import annotations
@@ -29,9 +30,16 @@ from jaxtyping import Array
 
 from ._geometry import dot
 from ._jit import jit
-from ._kinematics import Kinematics
+from ._kinematics import Coefficients, Kinematics, coefficients
 from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
 from ._mechanism import Mechanism, Pose, positions
+
+
+def reduced_acceleration(inertia, dinertia, force, omega):
+    """dw/dt of the reduced link: the reduced equation of motion, written once
+    (seed 000 eq. 1 in time form): J_red dw/dt + 0.5 dJ_red/dq w^2 = force, where
+    ``force`` = tau + tau_red is every generalized force on the driving coordinate."""
+    return (force - 0.5 * dinertia * omega**2) / inertia
 
 
 class Reduction(eqx.Module):
@@ -43,6 +51,10 @@ class Reduction(eqx.Module):
     ``group_inertia``, ``group_dinertia``, ``group_torque``: each group's own
     terms (dicts keyed by group name; they sum to the totals). ``ok``: one flag
     per group (False: cannot assemble). With a batch of q, arrays get its shape.
+    ``angle_rates``: dtheta/dq of every link, when a branch predictor was given.
+    ``work_force``: the generalized force of every load outside the potential energy
+    (all but gravity and springs, the driving effort included), when asked for:
+    ``work_force * omega`` is the power that changes T + V.
     """
 
     inertia: Array
@@ -53,64 +65,42 @@ class Reduction(eqx.Module):
     group_dinertia: dict[str, Array]
     group_torque: dict[str, Array]
     ok: Array
-    angle_rates: dict[str, Array] | None = None  # dtheta/dq of every link, when a branch predictor was given
+    angle_rates: dict[str, Array] | None = None
+    work_force: Array | None = None
+
+    @property
+    def force(self):
+        """tau + tau_red: every generalized force on the driving coordinate (N m; N)."""
+        return self.effort + self.torque
 
     def acceleration(self, omega):
-        """dw/dt of the reduced link at velocity ``omega`` (seed 000 eq. 1 in time form):
-        (tau + tau_red - 0.5 dJ_red/dq w^2) / J_red."""
-        return (self.effort + self.torque - 0.5 * self.dinertia * omega**2) / self.inertia
-
-
-def _coords(mechanism: Mechanism, near=None):
-    """q -> ((points, coms, angles), ok): the position map that the jvps differentiate."""
-
-    def coords(q):
-        pose = positions(mechanism, q, near=near)
-        return (pose.points, pose.coms, pose.angles), pose.ok
-
-    return coords
-
-
-def coefficients(mechanism: Mechanism, q, *, near=None):
-    """Positions x, first and second kinematic coefficients dx/dq, d2x/dq2 (seed 000
-    step i, unit driving velocity) of every point, centre of mass and link angle,
-    as ((points, coms, angles) x 3, ok). ``near``: link angles (rad) selecting the
-    branch (see :func:`assurjax.positions`)."""
-    one = jnp.ones_like(q)
-    coords = _coords(mechanism, near)
-
-    def first(q):
-        x, dx, ok = jax.jvp(coords, (q,), (one,), has_aux=True)
-        return (x, dx), ok
-
-    (x, dx), (_, d2x), ok = jax.jvp(first, (q,), (one,), has_aux=True)
-    return x, dx, d2x, ok
+        """dw/dt of the reduced link at velocity ``omega`` (:func:`reduced_acceleration`)."""
+        return reduced_acceleration(self.inertia, self.dinertia, self.force, omega)
 
 
 def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Array:
     """tau + tau_red (N m or N) from first-order kinematic coefficients only (no dJ/dq):
     at rest (omega = 0) its sign is the direction the mechanism starts to move in."""
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
-
-    x, dx, ok = jax.jvp(_coords(mechanism), (q,), (jnp.ones_like(q),), has_aux=True)
-    kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=any_velocity_dependent(loads))
-    wrenches = applied_wrenches(mechanism, gravity, loads, kin, t)
-    torque = sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
-    return torque + driver_effort(mechanism, loads, q, omega, t)
+    coeffs = coefficients(mechanism, q, order=1)
+    kin = kinematics_from_coefficients(coeffs, omega, velocities=any_velocity_dependent(loads))
+    return _reduced_force(coeffs.dx, applied_wrenches(mechanism, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
 
 
-def kinematics_from_coefficients(q, omega, x, dx, ok, *, velocities: bool = True) -> Kinematics:
+def kinematics_from_coefficients(coeffs: Coefficients, omega, *, velocities: bool = True) -> Kinematics:
     """A single-configuration :class:`Kinematics` (order 1) built from the coefficients:
     v = dx/dq w. Without ``velocities`` only positions are filled (loads that do not
     depend on velocity need no more)."""
-    vel = jax.tree.map(lambda d: d * omega, dx) if velocities else (None, None, None)
-    return Kinematics(
-        q=q, omega=omega, alpha=jnp.zeros_like(q),
-        points=x[0], velocities=vel[0], accelerations=None,
-        coms=x[1], com_velocities=vel[1], com_accelerations=None,
-        angles=x[2], angular_velocities=vel[2], angular_accelerations=None,
-        ok=ok,
-    )
+    kin = coeffs.kinematics(omega)
+    if velocities:
+        return kin
+    return eqx.tree_at(lambda k: (k.velocities, k.com_velocities, k.angular_velocities), kin, (None, None, None),
+                       is_leaf=lambda x: x is None)
+
+
+def _reduced_force(dx, wrenches) -> Array:
+    """sum_j F_j . dG_j/dq + M_j dtheta_j/dq (seed 000 eqs. 3-4)."""
+    return sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
 
 
 def _link_terms(mechanism: Mechanism, dx, d2x, wrenches):
@@ -130,7 +120,7 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
     """The reduction at one configuration (pure, jittable). ``velocities``: build the
     velocity-dependent part (None: only when some load depends on velocity).
     ``near``: link angles (rad) selecting the branch; then ``angle_rates`` is filled."""
-    return reduce_with_pose(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)[0]
+    return reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)[0]
 
 
 def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> tuple[Reduction, Pose]:
@@ -140,25 +130,35 @@ def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, veloc
 
 
 def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None,
-                           near=None) -> tuple[Reduction, Kinematics]:
+                           near=None, work: bool = False) -> tuple[Reduction, Kinematics]:
     """:func:`reduce_single` and the single-configuration :class:`Kinematics` the loads
     were evaluated on (velocities filled when ``velocities``), e.g. for the dampers'
-    dissipated power without a second position analysis."""
+    dissipated power without a second position analysis. ``work``: also fill
+    ``Reduction.work_force`` (the energy balance)."""
     if velocities is None:
         velocities = any_velocity_dependent(loads)
     # arrays: the jit below would take Python floats as static and compile per value
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
-    return _reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities, near)
+    return _reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities, near, work)
 
 
 # A nested jit: a simulation uses the reduction in several places (the solver's stages,
 # the outputs); it is traced once and reused, which halves the tracing time of a first
 # simulate() (XLA inlines it, so the compiled program and its speed are unchanged).
 @jit
-def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near):
-    x, dx, d2x, ok = coefficients(mechanism, q, near=near)
-    kin = kinematics_from_coefficients(q, omega, x, dx, ok, velocities=velocities)
-    terms = _link_terms(mechanism, dx, d2x, applied_wrenches(mechanism, gravity, loads, kin, t))
+def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near, work: bool):
+    coeffs = coefficients(mechanism, q, order=2, near=near)
+    return reduce_coefficients(mechanism, gravity, loads, coeffs, omega, t, velocities=velocities, work=work,
+                               rates=near is not None)
+
+
+def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficients, omega, t, *, velocities: bool = True,
+                        work: bool = False, rates: bool = False) -> tuple[Reduction, Kinematics]:
+    """The reduction from kinematic coefficients already computed (order 2), and the
+    Kinematics (order 1) the loads were evaluated on. ``rates``: fill ``angle_rates``."""
+    kin = kinematics_from_coefficients(coeffs, omega, velocities=velocities)
+    wrenches = applied_wrenches(mechanism, gravity, loads, kin, t)
+    terms = _link_terms(mechanism, coeffs.dx, coeffs.d2x, wrenches)
     zero = jnp.zeros(())
     gj, gdj, gt = {}, {}, {}
     for group in mechanism.groups:  # each group reduces its own links
@@ -166,13 +166,18 @@ def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, v
         gj[group.name] = sum((p[0] for p in parts), zero)
         gdj[group.name] = sum((p[1] for p in parts), zero)
         gt[group.name] = sum((p[2] for p in parts), zero)
+    effort = driver_effort(mechanism, loads, coeffs.q, omega, t)
+    work_force = None
+    if work:  # the loads outside V: every load but gravity and springs
+        outside = tuple(load for load in loads if not load.conservative)
+        work_force = _reduced_force(coeffs.dx, applied_wrenches(mechanism, jnp.zeros(2), outside, kin, t)) + effort
     reduction = Reduction(
         inertia=sum(gj.values(), zero),
         dinertia=sum(gdj.values(), zero),
         torque=sum(gt.values(), zero),
-        effort=driver_effort(mechanism, loads, q, omega, t),
+        effort=effort,
         group_inertia=gj, group_dinertia=gdj, group_torque=gt,
-        ok=ok, angle_rates=None if near is None else dx[2],
+        ok=coeffs.ok, angle_rates=coeffs.dx[2] if rates else None, work_force=work_force,
     )
     return reduction, kin
 

@@ -318,30 +318,33 @@ def batch_simulate(
 
     ``q0``, ``omega0`` (rad, rad/s or m, m/s) and ``t1`` (s) override the scene's
     state; ``saveat``: save times (s). ``settings``: fields of
-    ``assurjax._dynamics.Settings`` (``solver``, ``rtol``, ``atol``,
-    ``standstill``, ``samples``, ``points``, ``angles``, ``max_steps``...).
+    :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``,
+    ``standstill``, ``samples``, ``points``, ``angles``, ``max_steps``...) over the
+    scene's ``[simulation]`` and ``[outputs]`` (the exact reduction: one table per
+    mechanism would not pay off).
     Returns an untrimmed Solution of numpy arrays with the batch axis in front:
     read ``valid``, ``event``, ``t_stop`` and ``result`` per mechanism (a batch
     member that locks up or fails does not stop the others).
     """
-    from ._dynamics import Settings, simulate_core
+    from .dynamics._settings import fixed_step_from, settings_from
+    from .dynamics._solve import simulate_core
 
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
-    unknown = sorted(set(settings) - set(Settings._fields))
-    if unknown:
-        raise AssurjaxError(f"batch_simulate: unknown setting(s) {unknown}; known: {list(Settings._fields)}")
-    options = Settings(**settings)
+    options = settings_from(scene, **settings)
+    options = options._replace(reduction="exact") if options.reduction == "auto" else options
+    step = fixed_step_from(scene, settings.get("dt"))
     gravity, loads = scene.gravity, scene.loads
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)
-    key = (options, None if ts is None else tuple(np.asarray(ts).tolist()), float(q0), float(omega0), float(t0), float(t1))
+    key = (options, None if ts is None else tuple(np.asarray(ts).tolist()), float(q0), float(omega0), float(t0), float(t1),
+           None if step is None else float(step))
     if key not in _SIM_ITEMS:
 
         def item(args):
             mechanism, loads_, gravity_ = args
-            return simulate_core(mechanism, gravity_, loads_, q0, omega0, t0, t1, ts, settings=options)
+            return simulate_core(mechanism, gravity_, loads_, q0, omega0, t0, t1, ts, step, settings=options)
 
         _SIM_ITEMS[key] = item
     n = batch_size(mechanisms)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax as aj
-from assurjax._dynamics import Settings, simulate_core
+from assurjax import SimulationSettings as Settings, simulate_core
 from assurjax._jit import COMPILER_OPTIONS
 
 from _timing import best_time

@@ -159,7 +159,7 @@ def main():
         cases.append(("gradient of standstill time", "recursive", jax.grad(t_stop), None))
     run_cases(rows, cases, theta, fwd_t, fd_t, args.repeats, "forward simulation to standstill")
 
-    from assurjax._dynamics import Settings, simulate_core
+    from assurjax import SimulationSettings as Settings, simulate_core
 
     sol = assurjax.jit(lambda th: simulate_core(unflatten(th).mechanism, scene.gravity, scene.loads, 0.0, 0.0, 0.0, T,
                                            settings=Settings(samples=2, domega=False, check_assembly=False, **OPTS)))(theta)

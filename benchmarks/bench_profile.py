@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 import assurjax as aj
 from _timing import best_time
-from assurjax._dynamics import _rhs, _rhs_table
+from assurjax.dynamics._field import State, field_args, vector_field
 from assurjax._reduction import _coords
 
 HERE = Path(__file__).resolve().parent
@@ -56,7 +56,7 @@ def per_step(solver, term, args) -> float:
 
     @aj.jit
     def scan(q0):
-        h, y0 = 1e-3, (q0, jnp.zeros(()))
+        h, y0 = 1e-3, State(q0, jnp.zeros(()))
         state = solver.init(term, 0.0, h, y0, args)
 
         def body(carry, k):
@@ -87,8 +87,8 @@ def main():
     mech, gravity = scene.mechanism, scene.gravity
     coords = _coords(mech)
     table = aj.build_table(mech, gravity, ())
-    args = (mech, gravity, (), False)
-    table_args = (None,) * 6 + (table,)
+    args = field_args(assurjax.Model(mech, gravity))
+    table_args = field_args(assurjax.Model(mech, gravity), table)
 
     def first_order(q):
         x, dx, _ = jax.jvp(coords, (q,), (jnp.ones_like(q),), has_aux=True)
@@ -100,13 +100,13 @@ def main():
     rhs = {
         "positions only": positions,
         "positions + first-order jvp": first_order,
-        "exact right-hand side (second-order jvp + reduction)": lambda q: _rhs(0.0, (q, 1.0), args)[1],
-        "tabulated right-hand side": lambda q: _rhs_table(0.0, (q, 1.0), table_args)[1],
+        "exact right-hand side (second-order jvp + reduction)": lambda q: vector_field(0.0, State(q, 1.0), args).omega,
+        "tabulated right-hand side": lambda q: vector_field(0.0, State(q, 1.0), table_args).omega,
     }
     out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__, load_average=os.getloadavg()),
                per_evaluation_us={k: 1e6 * per_evaluation(f) for k, f in rhs.items()})
-    trivial = diffrax.ODETerm(lambda t, y, a: (y[1], -jnp.sin(y[0])))
-    terms = {"trivial": (trivial, None), "table": (diffrax.ODETerm(_rhs_table), table_args), "exact": (diffrax.ODETerm(_rhs), args)}
+    trivial = diffrax.ODETerm(lambda t, y, a: State(y.omega, -jnp.sin(y.q)))
+    terms = {"trivial": (trivial, None), "table": (diffrax.ODETerm(vector_field), table_args), "exact": (diffrax.ODETerm(vector_field), args)}
     out["per_step_us"] = {f"{s} {k}": 1e6 * per_step(cls(), *terms[k]) for s, cls in SOLVERS.items() for k in terms}
     seconds, steps = adaptive_per_step(diffrax.Tsit5(), trivial)
     out["adaptive_tsit5_trivial_per_step_us"] = 1e6 * seconds

@@ -32,7 +32,7 @@ import numpy as np
 
 import assurjax
 from assurjax._jit import COMPILER_OPTIONS
-from assurjax._dynamics import _rhs, _rhs_table
+from assurjax.dynamics._field import State, field_args, vector_field
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -42,12 +42,12 @@ SOLVERS = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.D
 def batch_runner(scene, solver: str, tol: float, reduction: str = "exact"):
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
     table = reduction == "table"
-    extra = (assurjax.build_table(mech, gravity, loads),) if table else ()
+    prebuilt = assurjax.build_table(mech, gravity, loads) if table else None
 
     def one(q0):
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(_rhs_table if table else _rhs), SOLVERS[solver](), 0.0, 1.0, None, (q0, jnp.zeros_like(q0)),
-            args=(mech, gravity, loads, False) + extra,
+            diffrax.ODETerm(vector_field), SOLVERS[solver](), 0.0, 1.0, None, State(q0, jnp.zeros_like(q0)),
+            args=field_args(assurjax.Model(mech, gravity, loads), prebuilt),
             saveat=diffrax.SaveAt(t1=True), stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol), max_steps=4096, throw=False,
             adjoint=diffrax.ForwardMode(),  # no reverse-mode checkpointing: a plain while loop, cheaper under vmap
         )

@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax
-from assurjax._dynamics import _rhs, _rhs_table
+from assurjax.dynamics._field import State, field_args, vector_field
 from assurjax._tracking import branch_angles
 
 HERE = Path(__file__).resolve().parent
@@ -72,20 +72,20 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, table: bool = Fals
     if key in _RUNNERS:
         return _RUNNERS[key]
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
-    term = diffrax.ODETerm(_rhs_table if table else _rhs)
-    extra = (assurjax.build_table(mech, gravity, loads),) if table else ()
+    term = diffrax.ODETerm(vector_field)
+    prebuilt = assurjax.build_table(mech, gravity, loads) if table else None
 
     @assurjax.jit
     def run(q0, w0, ts, rtol, atol):
-        y0 = (q0, w0)
+        y0 = State(q0, w0)
         if tracked:
-            y0 = y0 + (branch_angles(mech, assurjax.positions(mech, q0)),)
+            y0 = y0._replace(branch=branch_angles(mech, assurjax.positions(mech, q0)))
         controller = diffrax.PIDController(rtol=rtol, atol=atol)
         sol = diffrax.diffeqsolve(
-            term, SOLVERS[solver](), 0.0, ts[-1], None, y0, args=(mech, gravity, loads, False) + extra,
+            term, SOLVERS[solver](), 0.0, ts[-1], None, y0, args=field_args(assurjax.Model(mech, gravity, loads), prebuilt),
             saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller, max_steps=max_steps, throw=False,
         )
-        return sol.ys[0], sol.stats["num_steps"], sol.result._value
+        return sol.ys[0], sol.stats["num_steps"], sol.result._value  # diffrax's code
 
     _RUNNERS[key] = run
     return run

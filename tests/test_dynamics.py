@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import assurjax as aj
-from assurjax._dynamics import LOCKUP, STANDSTILL
+from assurjax.dynamics._results import LOCKUP, STANDSTILL
 
 import joint_reference as ref
 
@@ -272,7 +272,7 @@ def test_seed_euler_baseline_converges_with_order_one(watt):
 def test_user_event_stops_where_its_condition_changes_sign(watt):
     lean = dict(energies=False, points=(), angles=(), check_assembly=False, rtol=1e-12, atol=1e-12)
     sol = aj.simulate(watt, q0=0.0, stop=None, t1=2.0, events=[lambda t, q, w: q + 1.0], **lean)
-    assert sol.event == aj._dynamics.USER and sol.t_stop is not None
+    assert sol.event == aj.dynamics._results.USER and sol.t_stop is not None
     assert abs(sol.q[-1] + 1.0) < 1e-9
     r = ref.watt_sixbar(0.0).simulate(2.0, t_eval=[sol.t_stop])
     assert abs(r.q[-1] + 1.0) < 1e-8  # the reference is at q = -1 at that time too

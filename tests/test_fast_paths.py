@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import assurjax as aj
-from assurjax._dynamics import LOCKUP, NO_EVENT
+from assurjax.dynamics._results import LOCKUP, NO_EVENT
 
 import joint_reference as ref
 
@@ -104,7 +104,7 @@ def test_small_batch_equals_single_runs(watt):
 def test_large_batch_uses_the_table_and_matches_the_reference(watt):
     """A batch of 64 starting angles at tight tolerance (tabulated automatically) against
     the joint-based reference for three of them; and a batch stopping at standstill."""
-    q0 = np.linspace(-3.0, 3.0, aj._dynamics.AUTO_TABLE_BATCH)
+    q0 = np.linspace(-3.0, 3.0, aj.dynamics._solve.AUTO_TABLE_BATCH)
     ts = np.linspace(0.0, T1, 11)
     batch = aj.simulate(watt, q0=q0, stop=None, t1=T1, saveat=ts, rtol=1e-11, atol=1e-11, max_steps=20000,
                         points=(), angles=(), energies=False)

@@ -348,14 +348,18 @@ def test_watt_reactions_match_the_joint_reference_along_its_motion():
 
 
 @pytest.mark.slow
-def test_watt_reactions_along_the_package_simulation():
+def test_watt_reactions_along_the_package_simulation(monkeypatch):
     """assurjax.simulate from rest at theta2 = 0 until standstill, then the reactions
     along the Solution (vmapped) against the reference at the same (q, w).
     Simulating traces no kinetostatics."""
     scene = SCENES["watt_sixbar"]
-    traces = kinetostatics_api.TRACE_COUNT[0]
-    sol = assurjax.simulate(scene, samples=12)
-    assert kinetostatics_api.TRACE_COUNT[0] == traces
+
+    def traced(*args, **kwargs):
+        raise AssertionError("simulate traced the kinetostatics")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(kinetostatics_api, "solve_groups", traced)
+        sol = assurjax.simulate(scene, samples=12, rtol=1.01e-8)  # a program no other test compiled
     r = reactions(scene, sol, joints=("O2", "A", "E"))
     for k in range(0, len(sol.t), 3):
         wdot, ref = _reference_watt(sol.q[k], sol.omega[k])

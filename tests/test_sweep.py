@@ -153,4 +153,4 @@ def test_batch_simulate_matches_single_simulations():
         one = assurjax.simulate(scene, mechanism=m, t1=0.3, solver="tsit5", samples=4, stop=None,
                                 points=(), angles=(), energies=False)
         np.testing.assert_allclose(sols.q[i], one.q, rtol=1e-12, atol=1e-12)
-    assert np.all(sols.result == 0)
+    assert np.all(sols.result == assurjax.RESULTS.successful)

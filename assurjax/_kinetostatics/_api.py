@@ -12,9 +12,11 @@ from jaxtyping import Array
 from .._errors import AssurjaxError
 from .._geometry import rotation
 from .._jit import jit
-from .._kinematics import Kinematics, _kinematics_single, first_failure
+from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
+from .._friction import friction_wrenches, frictions_of, solve_friction
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
+from .._model import Model, as_model
 from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
 from ._dyads import solve_rrr
@@ -41,10 +43,6 @@ SOLVERS = {
 }
 
 METHODS = ("modular", "dense", "global")
-
-TRACE_COUNT = [0]
-"""How many times the kinetostatic analysis has been traced (tests check that scenes
-that ask for no reaction never trace it)."""
 
 
 class Reactions(eqx.Module):
@@ -139,7 +137,7 @@ def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
 
 def _static_kinematics(mechanism, q):
     """Positions only, zero velocities and no inertia (the mechanism at rest)."""
-    kin = _kinematics_single(mechanism, q, jnp.zeros_like(q), jnp.zeros_like(q), None, 0)
+    kin = coefficients(mechanism, q, order=0).kinematics(jnp.zeros_like(q))
     zeros = lambda d: jax.tree.map(jnp.zeros_like, d)  # noqa: E731
     return eqx.tree_at(
         lambda k: (k.velocities, k.com_velocities, k.angular_velocities),
@@ -149,20 +147,45 @@ def _static_kinematics(mechanism, q):
     )
 
 
-def _single(scene, q, omega, alpha, t, method: str, groups, static: bool):
-    TRACE_COUNT[0] += 1
+def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool):
     if static:
-        kin = _static_kinematics(scene.mechanism, q)
-    else:
-        kin = _kinematics_single(scene.mechanism, q, omega, alpha, None, 2)
-    return from_kinematics(scene, kin, t, method=method, groups=groups)
+        return from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups)
+    return reactions_at(model, coefficients(model.mechanism, q, order=2), omega, alpha, t, method=method, groups=groups)
 
 
-def from_kinematics(scene, kin: Kinematics, t, *, method: str = "modular", groups=None):
+def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method: str = "modular", groups=None):
+    """Reactions at one state from the kinematic coefficients (order 2) the dynamics
+    already computed: (forces, couples, driving effort, ok per group). Affine in the
+    driving acceleration ``alpha`` (d'Alembert forces are linear in it) and in the
+    friction values, which are solved for first when the model has joint friction
+    (their signs follow omega; at rest they are zero: static friction is not
+    determined by the motion)."""
+    kin = coeffs.kinematics(omega, alpha)
+    frictions = frictions_of(model.loads)
+    if not frictions:
+        return from_kinematics(model, kin, t, method=method, groups=groups)
+    mechanism = model.mechanism
+    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
+
+    def react(u):
+        forces, couples, _, _ = from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
+        return forces, couples
+
+    u, _ = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(omega), omega)
+    return from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+
+
+def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None):
     """Reactions at one state given its kinematics (order 2, or order 0 with zero
-    velocities for statics): (forces, couples, driving effort, ok per group)."""
-    mechanism = scene.mechanism
-    known = _known_wrenches(mechanism, kin, applied_wrenches(mechanism, scene.gravity, scene.loads, kin, t))
+    velocities for statics): (forces, couples, driving effort, ok per group).
+    ``model``: a :class:`assurjax.Model` or a Scene. ``extra``: link -> (force, moment
+    about the COM) added to the applied loads (the friction wrenches)."""
+    model = as_model(model)
+    mechanism = model.mechanism
+    wrenches = applied_wrenches(mechanism, model.gravity, model.loads, kin, t)
+    for link, (f, m) in (extra or {}).items():
+        wrenches[link] = (wrenches[link][0] + f, wrenches[link][1] + m)
+    known = _known_wrenches(mechanism, kin, wrenches)
     geom = _geometry(kin)
     if method == "global":
         found, driving, ok = solve_global(mechanism, geom, known)
@@ -178,9 +201,9 @@ def _prismatic_names(mechanism):
 
 
 @jit
-def _batch(scene, q, omega, alpha, t, method, groups, static):
+def _batch(model, q, omega, alpha, t, method, groups, static):
     shape = q.shape
-    single = lambda q, w, a, t: _single(scene, q, w, a, t, method, groups, static)  # noqa: E731
+    single = lambda q, w, a, t: _single(model, q, w, a, t, method, groups, static)  # noqa: E731
     flat = jax.vmap(single)(*(v.reshape(-1) for v in (q, omega, alpha, t)))
     return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
 
@@ -219,7 +242,8 @@ def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method
     """Joint reactions and driving effort (kinetostatics, seed 000 section 3.3 and seed 003).
 
     **Arguments:**
-    - ``scene``: a :class:`assurjax.Scene` (mechanism, gravity, loads).
+    - ``scene``: a :class:`assurjax.Scene` or :class:`assurjax.Model` (mechanism,
+      gravity, loads), or a bare :class:`assurjax.Mechanism` (no loads, no gravity).
     - ``state``: a Solution (its ``t``, ``q``, ``omega``, ``domega``), a dict with
       those keys, or a tuple ``(q, omega, domega[, t])``; arrays of any (common)
       shape give results with that shape in front.
@@ -261,12 +285,13 @@ def static_reactions(scene, q, *, t=0.0, joints=None, check: bool = True) -> Rea
 def _run(scene, state, joints, method, check, *, static):
     if method not in METHODS:
         raise AssurjaxError(f"method must be one of {METHODS}, got {method!r}")
-    mechanism = scene.mechanism
+    model = as_model(scene)
+    mechanism = model.mechanism
     groups = _wanted_groups(mechanism, joints)
     q = jnp.asarray(state[0], dtype=float)
     shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
-    forces, couples, driving, ok = _batch(scene, q, omega, alpha, t, method, groups, static)
+    forces, couples, driving, ok = _batch(model, q, omega, alpha, t, method, groups, static)
     if joints is not None:
         names = (joints,) if isinstance(joints, str) else tuple(joints)
         forces = {k: forces[k] for k in names}

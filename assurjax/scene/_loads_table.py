@@ -7,7 +7,7 @@ No code is evaluated: a load value is a number, or one of the documented forms
 
 from __future__ import annotations
 
-from .. import _loads
+from .. import _friction, _loads
 from .._errors import MechanismError, SceneError
 from .._mechanism import Mechanism
 from ._load import Fields
@@ -109,6 +109,16 @@ def _motor(f, mechanism):
     return _loads.MotorLine(f.number("stall"), f.number("no_load_speed", positive=True))
 
 
+def _joint_friction(f, mechanism):
+    return _friction.JointFriction(f.string("joint"), f.number("coefficient", nonnegative=True),
+                                   f.number("radius", nonnegative=True), viscous=f.number("viscous", 0.0, nonnegative=True))
+
+
+def _slide_friction(f, mechanism):
+    return _friction.SlideFriction(f.string("pair"), f.number("coefficient", nonnegative=True),
+                                   f.number("length", positive=True), viscous=f.number("viscous", 0.0, nonnegative=True))
+
+
 PARSERS = {
     "force": _force,
     "couple": _couple,
@@ -117,6 +127,8 @@ PARSERS = {
     "rotary_damper": _rotary_damper,
     "drive": _drive,
     "motor": _motor,
+    "joint_friction": _joint_friction,
+    "slide_friction": _slide_friction,
 }
 
 

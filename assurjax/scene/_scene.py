@@ -51,6 +51,13 @@ class Scene(eqx.Module):
     description: str = eqx.field(static=True, default="")
     source: str = eqx.field(static=True, default="")
 
+    @property
+    def model(self):
+        """The :class:`assurjax.Model` (mechanism, gravity, loads) of this scene."""
+        from .._model import Model
+
+        return Model(self.mechanism, self.gravity, self.loads)
+
     def replace_mechanism(self, mechanism: Mechanism) -> "Scene":
         return eqx.tree_at(lambda s: s.mechanism, self, mechanism)
 

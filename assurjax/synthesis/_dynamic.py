@@ -37,6 +37,8 @@ import jax
 import jax.numpy as jnp
 
 from .._reduction import reduce_single
+from ..dynamics._settings import fixed_step_from, settings_from
+from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
 
 SENSITIVITY_ROUTES = {"quadrature": "quadrature", "sensitivity": "loop"}
@@ -46,26 +48,28 @@ def _route(adjoint: str, settings: dict) -> dict:
     return {**settings, "method": SENSITIVITY_ROUTES[adjoint]}
 
 
-def _core():
-    from .._dynamics import Settings, simulate_core
-
-    return Settings, simulate_core
+def _settings(scene, settings: dict, **fixed):
+    """The scene's settings under the caller's, for a lean run (no outputs, exact reduction)."""
+    opts = settings_from(scene, **{"samples": 2, "domega": False, "points": (), "angles": (), "energies": False,
+                                   **settings, **fixed})
+    return opts._replace(reduction="exact") if opts.reduction == "auto" else opts
 
 
 def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", **settings):
     """(q(T), omega(T)) of the scene's motion from its initial state to ``t1`` (s),
     without stop events; differentiable with respect to every array of ``scene``
-    (mechanism parameters, gravity, load values). ``settings``: fields of the
-    dynamics Settings (``solver``, ``rtol``, ``atol``, ``dt``, ``max_steps``)."""
+    (mechanism parameters, gravity, load values). ``settings``: fields of
+    :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``, ``dt``,
+    ``max_steps``) over the scene's ``[simulation]``."""
     if adjoint in SENSITIVITY_ROUTES:
         q, w, _ = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return q, w
-    Settings, simulate_core = _core()
-    opts = Settings(**{"samples": 2, "domega": False, "check_assembly": False, **settings, "standstill": False, "adjoint": adjoint})
+    opts = _settings(scene, {"check_assembly": False, **settings}, standstill=False, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
-    sol = simulate_core(scene.mechanism, scene.gravity, scene.loads, q0, omega0, state.get("t0", 0.0), t1, settings=opts)
+    sol = simulate_core(scene.model, None, (), q0, omega0, state.get("t0", 0.0), t1, None, fixed_step_from(scene, settings.get("dt")),
+                        settings=opts)
     return sol.q_final, sol.omega_final
 
 
@@ -86,16 +90,15 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     if adjoint in SENSITIVITY_ROUTES:
         t_star, ok, _ = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return t_star, ok
-    Settings, simulate_core = _core()
-    opts = Settings(**{"samples": 2, "domega": False, **settings, "standstill": True, "adjoint": adjoint})
+    opts = _settings(scene, settings, standstill=True, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t1 = state.get("t1", 1.0) if t1 is None else t1
-    sol = simulate_core(scene.mechanism, scene.gravity, scene.loads, q0, omega0, state.get("t0", 0.0), t1, settings=opts)
+    sol = simulate_core(scene.model, None, (), q0, omega0, state.get("t0", 0.0), t1, None, fixed_step_from(scene, settings.get("dt")),
+                        settings=opts)
     red = reduce_single(scene.mechanism, scene.gravity, scene.loads, sol.q_final, sol.omega_final, sol.t_final)
-    alpha = (red.effort + red.torque - 0.5 * red.dinertia * sol.omega_final**2) / red.inertia
-    alpha = jax.lax.stop_gradient(alpha)
+    alpha = jax.lax.stop_gradient(red.acceleration(sol.omega_final))
     w = sol.omega_final
     t_star = sol.t_final - (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha)
     return t_star, sol.event == 0

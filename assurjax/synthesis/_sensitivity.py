@@ -49,39 +49,40 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .._errors import AssurjaxError
-from .._reduction import generalized_force, reduce_single
+from .._model import Model, as_model
+from .._reduction import generalized_force
+from ..dynamics._field import State, field_args, vector_field
+from ..dynamics._results import result_value
+from ..dynamics._settings import Settings, controller_for, settings_from, solver_for
 
 _TINY = 1e-30
 
 
 class SensitivityOptions(NamedTuple):
-    """Static options of the sensitivity solves (one compile per distinct value)."""
+    """Static options of the sensitivity solves (one compile per distinct value): the
+    simulation's own settings (:func:`assurjax.settings_from`: the scene's
+    ``[simulation]`` under the caller's keywords) and the sensitivity method."""
 
-    solver: str = "tsit5"
-    rtol: float = 1e-8
-    atol: float = 1e-8
-    dt: float | None = None  # a fixed step (s); None: adaptive (PID controller on (q, w))
-    max_steps: int = 4096
+    settings: Settings = Settings()
+    dt: float | None = None  # a fixed step (s); None: adaptive (the simulation's PID controller on (q, w))
     method: str = "loop"  # "loop": S integrated with the state; "quadrature": variation of constants (below)
     panels: int = 16  # quadrature: panels of equal length over [t0, T]
     nodes: int = 6  # quadrature: Gauss-Legendre nodes per panel
 
 
-def _split(mechanism, gravity, loads):
-    """(flat parameter vector p, rebuild(p) -> (mechanism, gravity, loads))."""
-    params, static = eqx.partition((mechanism, gravity, loads), eqx.is_inexact_array)
+def _split(model: Model):
+    """(flat parameter vector p, rebuild(p) -> Model)."""
+    params, static = eqx.partition(model, eqx.is_inexact_array)
     flat, unravel = ravel_pytree(params)
     return flat, lambda p: eqx.combine(unravel(p), static)
 
 
 def _field(rebuild):
-    """f(t, (q, w), p) -> (dq/dt, dw/dt): the reduced equation of motion at parameters p."""
+    """f(t, (q, w), p) -> (dq/dt, dw/dt): the simulation's vector field at parameters p."""
 
     def f(t, y, p):
-        mechanism, gravity, loads = rebuild(p)
-        q, w = y
-        red = reduce_single(mechanism, gravity, loads, q, w, t)
-        return w, red.acceleration(w)
+        out = vector_field(t, State(y[0], y[1]), field_args(rebuild(p)))
+        return out.q, out.omega
 
     return f
 
@@ -108,11 +109,7 @@ def _augmented_field(f, n_p: int):
 
 
 def _solver(options: SensitivityOptions):
-    from .._dynamics import SOLVERS
-
-    if options.solver not in SOLVERS:
-        raise AssurjaxError(f"unknown solver {options.solver!r}; choose one of {sorted(SOLVERS)}")
-    return SOLVERS[options.solver]()
+    return solver_for(options.settings)
 
 
 def _state_norm(error):
@@ -127,7 +124,7 @@ def _standstill_event(options: SensitivityOptions):
     def cond_fn(t, y, args, **kwargs):
         return jnp.minimum(args[1] * y[1], _TINY)
 
-    tol = min(1e-3 * options.rtol, 1e-12)
+    tol = min(1e-3 * options.settings.rtol, 1e-12)
     return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
 
 
@@ -142,10 +139,9 @@ def _solve(term, y0, t0, t1, args, options: SensitivityOptions, standstill: bool
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(t1=True, dense=dense),
-        stepsize_controller=diffrax.ConstantStepSize() if fixed
-        else diffrax.PIDController(rtol=options.rtol, atol=options.atol, norm=_state_norm),
+        stepsize_controller=diffrax.ConstantStepSize() if fixed else controller_for(options.settings, norm=_state_norm),
         event=_standstill_event(options) if standstill else None,
-        max_steps=options.max_steps,
+        max_steps=options.settings.max_steps,
         adjoint=diffrax.ForwardMode(),  # never differentiated: the custom_jvp below supplies the derivative
         throw=False,
     )
@@ -154,7 +150,7 @@ def _solve(term, y0, t0, t1, args, options: SensitivityOptions, standstill: bool
 def _plain(f, p, y0, t0, t1, direction, options, standstill):
     """(t_final, q, w, event fired, diffrax result) of the plain simulation."""
     sol = _solve(lambda t, y, a: f(t, y, a[0]), (y0[0], y0[1]), t0, t1, (p, direction), options, standstill)
-    return sol.ts[-1], sol.ys[0][-1], sol.ys[1][-1], _fired(sol), sol.result._value
+    return sol.ts[-1], sol.ys[0][-1], sol.ys[1][-1], _fired(sol), result_value(sol.result)
 
 
 def _augmented(f, p, y0, t0, t1, direction, options, standstill):
@@ -165,7 +161,7 @@ def _augmented(f, p, y0, t0, t1, direction, options, standstill):
     s0 = jnp.concatenate([jnp.eye(2, dtype=p.dtype), jnp.zeros((2, n_p), p.dtype)], axis=1)
     rhs = _augmented_field(f, n_p)
     sol = _solve(lambda t, y, a: rhs(t, y, a[0]), (y0[0], y0[1], s0), t0, t1, (p, direction), options, standstill)
-    return sol.ts[-1], sol.ys[0][-1], sol.ys[1][-1], sol.ys[2][-1], _fired(sol), sol.result._value
+    return sol.ts[-1], sol.ys[0][-1], sol.ys[1][-1], sol.ys[2][-1], _fired(sol), result_value(sol.result)
 
 
 # ---------------------------------------------------------------------------- variation of constants
@@ -205,7 +201,7 @@ def _augmented_quadrature(f, p, y0, t0, t1, direction, options, standstill):
     inv_col = jnp.stack([-phi_nodes[:, 0, 1], phi_nodes[:, 0, 0]], axis=-1) / det[:, None]
     integral = jnp.einsum("k,ki,kj->ij", weights, inv_col, a_p)
     s = jnp.concatenate([phi_end, phi_end @ integral], axis=1)
-    return t_end, sol.ys[0][-1], sol.ys[1][-1], s, _fired(sol), sol.result._value
+    return t_end, sol.ys[0][-1], sol.ys[1][-1], s, _fired(sol), result_value(sol.result)
 
 
 def _lagrange(x_nodes):
@@ -235,8 +231,8 @@ def _transition(t0, t_end, h, x, a_q, a_w, nodes, options):
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(rhs), _solver(options), t0=t0, t1=t_end, dt0=None, y0=jnp.eye(2),
         saveat=diffrax.SaveAt(ts=nodes, t1=True),
-        stepsize_controller=diffrax.PIDController(rtol=options.rtol, atol=options.atol),
-        max_steps=options.max_steps, adjoint=diffrax.ForwardMode(), throw=False,
+        stepsize_controller=controller_for(options.settings),
+        max_steps=options.settings.max_steps, adjoint=diffrax.ForwardMode(), throw=False,
     )
     return sol.ys[:-1], sol.ys[-1]
 
@@ -302,12 +298,17 @@ def _initial(scene, q0, omega0):
     return jnp.stack([jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float)])
 
 
-def _options(settings: dict) -> SensitivityOptions:
-    unknown = set(settings) - set(SensitivityOptions._fields)
+SENSITIVITY_SETTINGS = ("solver", "rtol", "atol", "dt", "max_steps")
+
+
+def _options(scene, settings: dict) -> SensitivityOptions:
+    own = {k: settings.pop(k) for k in ("method", "panels", "nodes") if k in settings}
+    unknown = set(settings) - set(SENSITIVITY_SETTINGS)
     if unknown:
-        raise AssurjaxError(f"adjoint='sensitivity' supports the settings {list(SensitivityOptions._fields)}; "
+        raise AssurjaxError(f"the sensitivity routes support the settings {list(SENSITIVITY_SETTINGS) + list(own)}; "
                             f"got also {sorted(unknown)}")
-    options = SensitivityOptions(**settings)
+    dt = settings.get("dt", scene.simulation.get("dt", None))
+    options = SensitivityOptions(settings=settings_from(scene, **settings), dt=dt, **own)
     if options.method not in ("loop", "quadrature"):
         raise AssurjaxError(f"sensitivity method must be 'loop' or 'quadrature', got {options.method!r}")
     if options.panels < 1 or options.nodes < 2:
@@ -327,11 +328,9 @@ def final_state_sensitivity(scene, t1, *, q0=None, omega0=None, mechanism=None, 
     ``"quadrature"``), ``panels``, ``nodes`` (quadrature).
     Fixed assembly branch, exact reduction, no stop events.
     """
-    options = _options(settings)
-    mechanism = scene.mechanism if mechanism is None else mechanism
-    gravity = jnp.asarray(scene.gravity if gravity is None else gravity, dtype=float)
-    loads = tuple(scene.loads if loads is None else loads)
-    p, rebuild = _split(mechanism, gravity, loads)
+    options = _options(scene, settings)
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    p, rebuild = _split(model)
     t0 = jnp.asarray(scene.state.get("t0", 0.0), dtype=float)
     y, result = _final_state_fn(_field(rebuild), options)(p, _initial(scene, q0, omega0), t0, jnp.asarray(t1, dtype=float))
     return y[0], y[1], result
@@ -346,14 +345,12 @@ def standstill_time_sensitivity(scene, *, t1=None, q0=None, omega0=None, mechani
     with dw/dP from the forward sensitivities integrated up to the event: one augmented
     solve for the whole gradient.
     """
-    options = _options(settings)
-    mechanism = scene.mechanism if mechanism is None else mechanism
-    gravity = jnp.asarray(scene.gravity if gravity is None else gravity, dtype=float)
-    loads = tuple(scene.loads if loads is None else loads)
-    p, rebuild = _split(mechanism, gravity, loads)
+    options = _options(scene, settings)
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    p, rebuild = _split(model)
     y0 = _initial(scene, q0, omega0)
     t0 = jnp.asarray(scene.state.get("t0", 0.0), dtype=float)
     t1 = jnp.asarray(scene.state.get("t1", 1.0) if t1 is None else t1, dtype=float)
-    force = generalized_force(mechanism, gravity, loads, y0[0], y0[1], t0)
+    force = generalized_force(model.mechanism, model.gravity, model.loads, y0[0], y0[1], t0)
     direction = jax.lax.stop_gradient(jnp.where(y0[1] != 0, jnp.sign(y0[1]), jnp.sign(force)))
     return _standstill_fn(_field(rebuild), options)(p, y0, t0, t1, direction)

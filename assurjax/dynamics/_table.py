@@ -50,11 +50,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._errors import AssurjaxError
-from ._jit import jit
-from ._loads import Polynomial, Table, Vector, any_velocity_dependent
-from ._mechanism import Mechanism
-from ._reduction import reduce_single
+from .._errors import AssurjaxError
+from .._jit import jit
+from .._loads import any_velocity_dependent
+from .._mechanism import Mechanism
+from .._reduction import reduce_single, reduced_acceleration
 
 DEFAULT_TABLE_NODES = 4096
 TWO_PI = 2.0 * math.pi
@@ -98,8 +98,7 @@ class ReducedTable(eqx.Module):
 
     def acceleration(self, q, w):
         """dw/dt (rad/s^2) of the reduced link from the interpolant (seed 000 eq. 1 in time form)."""
-        j, dj, tau = self(q)
-        return (tau - 0.5 * dj * w**2) / j
+        return reduced_acceleration(*self(q), w)
 
 
 def _node_terms(mechanism: Mechanism, gravity, loads, q):
@@ -125,19 +124,9 @@ def check_tabulable(mechanism: Mechanism, loads) -> None:
         raise AssurjaxError(f"reduction='table': the loads {names} depend on the driving velocity, so the reduction "
                             "is not a function of q alone. Use reduction='exact'.")
     for load in loads:
-        if _has_time_form(load):
+        if load.time_dependent():
             raise AssurjaxError(f"reduction='table': a {type(load).__name__} load depends on time t, so the "
                                 "reduction is not a function of q alone. Use reduction='exact'.")
-
-
-def _has_time_form(value) -> bool:
-    if isinstance(value, (Polynomial, Table)):
-        return value.variable == "t"
-    if isinstance(value, Vector):
-        return _has_time_form(value.x) or _has_time_form(value.y)
-    if isinstance(value, eqx.Module):
-        return any(_has_time_form(getattr(value, f)) for f in value.__dataclass_fields__ if hasattr(value, f))
-    return False
 
 
 def build_table_core(mechanism: Mechanism, gravity, loads, nodes: int = DEFAULT_TABLE_NODES) -> ReducedTable:

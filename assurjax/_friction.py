@@ -1,0 +1,226 @@
+"""Coulomb friction in the joints, driven by the joint reactions (Ruiz et al. 2010's
+extension of the modular method, named in Fernandez-Bustos et al.'s seed paper).
+
+- :class:`JointFriction` on a revolute: a friction circle of radius r and a
+  coefficient mu give the couple -mu r |F| sign(w_rel) on the later link (the one the
+  reaction F acts on), the opposite on the earlier one; w_rel = w_on - w_by. An
+  optional viscous term -c w_rel adds to it.
+- :class:`SlideFriction` on a prismatic pair: the normal force N and the couple M on
+  the slider (at its sliding point) are carried by a block of length L whose ends
+  press with N/2 -+ M/L; the friction force along the guide is
+  -mu (|N/2 - M/L| + |N/2 + M/L|) sign(v_rel) on the slider, the opposite on the
+  guide link, at the sliding point; v_rel is the slider's velocity relative to the
+  guide link along the guide. Plus an optional viscous -c v_rel.
+
+The friction values u (one per element) depend on the reactions, and the reactions on
+u and on the driving acceleration: with the reactions affine in both (d'Alembert),
+``solve_friction`` finds u by Newton's method (optimistix) on u = law(F(u)). In a
+one-degree-of-freedom mechanism every relative rate is (d phi/dq) w, so the signs
+follow sign(w) -- or, at rest, the direction the mechanism would start to move in
+(stiction, see ``dynamics._stick``).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array
+
+from ._errors import MechanismError
+from ._geometry import cross, dot, perp, rotation
+from ._loads import AbstractLoad
+from ._mechanism import Mechanism
+from .groups._base import GROUND
+
+
+class AbstractFriction(AbstractLoad):
+    """A friction element on one pair: its wrenches are linear in its value ``u``
+    (a couple or a force), and ``law`` gives u from the pair's reaction."""
+
+    pair: eqx.AbstractVar[str]
+    coefficient: eqx.AbstractVar[Array]
+    viscous: eqx.AbstractVar[Array]
+    needs_reactions: ClassVar[bool] = True
+    dissipative: ClassVar[bool] = True
+    kind: ClassVar[str]
+
+    def check(self, mechanism: Mechanism) -> None:
+        pairs = pairs_by_name(mechanism)
+        what = "revolute joint" if self.kind == "R" else "prismatic pair"
+        if self.pair not in pairs or pairs[self.pair].kind != self.kind:
+            known = sorted(name for name, p in pairs.items() if p.kind == self.kind)
+            raise MechanismError(f"{type(self).__name__}: '{self.pair}' is not a {what} of the mechanism (its {what}s: {known})")
+
+    def wrenches(self, mechanism, kin, t):
+        return []  # needs the reactions: see friction_wrenches
+
+    def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
+        """The relative rate per unit driving velocity (rad or m per unit of q), from the
+        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles)."""
+        raise NotImplementedError
+
+    def unit_wrenches(self, mechanism: Mechanism, kin) -> list[tuple[str, Array, Array]]:
+        """(link, force, moment about its COM) of a unit value u = 1."""
+        raise NotImplementedError
+
+    def limit(self, mechanism: Mechanism, kin, forces: dict, couples: dict) -> Array:
+        """The Coulomb magnitude from the pair's reaction (N m or N, >= 0)."""
+        raise NotImplementedError
+
+
+class JointFriction(AbstractFriction):
+    """Coulomb friction (and optional viscous damping) in a revolute joint.
+
+    ``joint``: the joint's name as in :attr:`assurjax.Reactions.forces` (a point name,
+    or ``"P[link]"`` where more than two links share a point); ``coefficient``: mu;
+    ``radius``: the friction-circle radius r (m, the pin radius); ``viscous``: c
+    (N m s/rad). Couple on the later link: -mu r |F| sign(w_rel) - c w_rel.
+
+    >>> assurjax.JointFriction("A", 0.1, radius=0.01)
+    """
+
+    pair: str = eqx.field(static=True)
+    coefficient: Array
+    radius: Array
+    viscous: Array
+    velocity_dependent: bool = eqx.field(static=True, default=True)
+    kind: ClassVar[str] = "R"
+
+    def __init__(self, joint: str, coefficient, radius, *, viscous=0.0):
+        self.pair = joint
+        self.coefficient, self.radius = jnp.asarray(coefficient, dtype=float), jnp.asarray(radius, dtype=float)
+        self.viscous = jnp.asarray(viscous, dtype=float)
+        self.velocity_dependent = True
+
+    def rate_coefficient(self, mechanism, x, dx):
+        p = pairs_by_name(mechanism)[self.pair]
+        return _angle(dx, p.on) - _angle(dx, p.by)
+
+    def unit_wrenches(self, mechanism, kin):
+        p = pairs_by_name(mechanism)[self.pair]
+        zero = jnp.zeros(2)
+        return [(link, zero, jnp.asarray(s)) for link, s in ((p.on, 1.0), (p.by, -1.0)) if link != GROUND]
+
+    def limit(self, mechanism, kin, forces, couples):
+        f = forces[self.pair]
+        return self.coefficient * self.radius * jnp.sqrt(dot(f, f) + 1e-300)
+
+
+class SlideFriction(AbstractFriction):
+    """Coulomb friction (and optional viscous damping) in a prismatic pair.
+
+    ``pair``: its name ``"<slider>/<guide link>"`` (as in :attr:`assurjax.Reactions.forces`);
+    ``coefficient``: mu; ``length``: the block length L (m) centred at the sliding
+    point; ``viscous``: c (N s/m). Force on the slider along the guide:
+    -mu (|N/2 - M/L| + |N/2 + M/L|) sign(v_rel) - c v_rel.
+
+    >>> assurjax.SlideFriction("block/ground", 0.15, length=0.05)
+    """
+
+    pair: str = eqx.field(static=True)
+    coefficient: Array
+    length: Array
+    viscous: Array
+    velocity_dependent: bool = eqx.field(static=True, default=True)
+    kind: ClassVar[str] = "P"
+
+    def __init__(self, pair: str, coefficient, length, *, viscous=0.0):
+        self.pair = pair
+        self.coefficient, self.length = jnp.asarray(coefficient, dtype=float), jnp.asarray(length, dtype=float)
+        self.viscous = jnp.asarray(viscous, dtype=float)
+        self.velocity_dependent = True
+
+    def _direction(self, kin, p):
+        return rotation(kin.angles[p.on])  # the slider's x axis lies along the guide
+
+    def rate_coefficient(self, mechanism, x, dx):
+        p = pairs_by_name(mechanism)[self.pair]
+        at = _point(mechanism, x, p.point)
+        rel = _material_rate(x, dx, p.on, at) - _material_rate(x, dx, p.by, at)
+        return dot(rel, rotation(x[2][p.on]))
+
+    def unit_wrenches(self, mechanism, kin):
+        p = pairs_by_name(mechanism)[self.pair]
+        e = self._direction(kin, p)
+        at = kin.points[p.point] if p.point in kin.points else mechanism.ground[p.point]
+        out = []
+        for link, s in ((p.on, 1.0), (p.by, -1.0)):
+            if link != GROUND:
+                out.append((link, s * e, cross(at - kin.coms[link], s * e)))
+        return out
+
+    def limit(self, mechanism, kin, forces, couples):
+        p = pairs_by_name(mechanism)[self.pair]
+        normal = dot(forces[self.pair], perp(self._direction(kin, p)))
+        half, end = 0.5 * normal, couples[self.pair] / self.length
+        return self.coefficient * (jnp.abs(half - end) + jnp.abs(half + end))
+
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def pairs_by_name(mechanism: Mechanism) -> dict:
+    from ._kinetostatics._layout import group_pairs  # the kinetostatics imports the loads
+
+    return {p.name: p for pairs in group_pairs(mechanism) for p in pairs}
+
+
+def _angle(dx, link):
+    return jnp.zeros(()) if link == GROUND else dx[2][link]
+
+
+def _point(mechanism, x, name):
+    return x[0][name] if name in x[0] else mechanism.ground[name]
+
+
+def _material_rate(x, dx, link, at):
+    """d/dq of the material point of ``link`` now at ``at``: dG/dq + dtheta/dq (P - G) turned by 90 degrees."""
+    if link == GROUND:
+        return jnp.zeros(2)
+    return dx[1][link] + dx[2][link] * perp(at - x[1][link])
+
+
+def frictions_of(loads) -> tuple[AbstractFriction, ...]:
+    """The loads that need the joint reactions (the friction elements)."""
+    return tuple(load for load in loads if load.needs_reactions)
+
+
+def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:
+    """link -> (force, moment about the COM) of friction values ``u`` (one per element)."""
+    out: dict = {}
+    for k, element in enumerate(frictions):
+        for link, f, m in element.unit_wrenches(mechanism, kin):
+            f0, m0 = out.get(link, (jnp.zeros(2), jnp.zeros(())))
+            out[link] = (f0 + u[k] * f, m0 + u[k] * m)
+    return out
+
+
+def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, direction, omega):
+    """Friction values u with u = law(reactions(u)): Newton's method (optimistix) on the
+    K values, the reactions being affine in u (linearized once: ``react(u)`` ->
+    (forces, couples) costs one kinetostatic solve, its K tangents one more each).
+    ``kin``: the positions the limits are read on; ``rates``: (K,) relative rates
+    per unit driving velocity; ``direction``: +1/-1, the sign of w or, at rest, the
+    direction of the motion tested. Returns (u, ok)."""
+    k = len(frictions)
+    signs = jnp.sign(rates) * direction
+    (forces0, couples0), linear = jax.linearize(react, jnp.zeros(k))
+    basis = jax.vmap(linear)(jnp.eye(k))
+    viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
+
+    def law(u):
+        forces = jax.tree.map(lambda f0, b: f0 + jnp.tensordot(u, b, axes=1), forces0, basis[0])
+        couples = jax.tree.map(lambda c0, b: c0 + jnp.tensordot(u, b, axes=1), couples0, basis[1])
+        limits = jnp.stack([f.limit(mechanism, kin, forces, couples) for f in frictions])
+        return -limits * signs - viscous
+
+    def residual(u, _):
+        return u - law(u)
+
+    u0 = law(jnp.zeros(k))
+    sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), u0, max_steps=64, throw=False)
+    return sol.value, sol.result == optx.RESULTS.successful

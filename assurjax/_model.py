@@ -1,0 +1,63 @@
+"""The Model: what every dynamics stage takes (mechanism, gravity, loads)."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._errors import AssurjaxError
+from ._loads import check_loads
+from ._mechanism import Mechanism
+
+
+class Model(eqx.Module):
+    """A mechanism with the loads acting on it: the input of every dynamics stage
+    (reduction, simulation, kinetostatics, sensitivities).
+
+    ``mechanism``: the :class:`assurjax.Mechanism`; ``gravity``: a 2-vector (m/s^2,
+    default 0); ``loads``: a tuple of loads (:class:`assurjax.Spring`, ...). Every
+    array inside is a traced leaf: a Model can be vmapped and differentiated.
+
+    **Example:**
+    >>> model = assurjax.Model(mechanism, gravity=(0.0, -9.81), loads=(assurjax.Drive(2.0),))
+    >>> model = assurjax.load_scene("watt_sixbar").model
+    """
+
+    mechanism: Mechanism
+    gravity: Array
+    loads: tuple
+
+    def __init__(self, mechanism: Mechanism, gravity=None, loads=()):
+        if not isinstance(mechanism, Mechanism):
+            raise AssurjaxError(f"Model: expected an assurjax.Mechanism, got {type(mechanism).__name__}")
+        self.mechanism = mechanism
+        self.gravity = jnp.zeros(2) if gravity is None else jnp.asarray(gravity, dtype=float)
+        self.loads = tuple(loads)
+        check_loads(mechanism, self.loads)
+
+
+def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=None) -> Model:
+    """The :class:`Model` of a Scene, a Model or a bare Mechanism (no loads, no
+    gravity), with any of its parts replaced."""
+    if isinstance(source, Model):
+        base = source
+    elif isinstance(source, Mechanism):
+        base = Model(source)
+    elif isinstance(source, _scene_class()):
+        base = source.model
+    else:
+        raise AssurjaxError(f"expected an assurjax Scene, Model or Mechanism, got {type(source).__name__}")
+    if mechanism is None and gravity is None and loads is None:
+        return base
+    return Model(
+        base.mechanism if mechanism is None else mechanism,
+        base.gravity if gravity is None else gravity,
+        base.loads if loads is None else loads,
+    )
+
+
+def _scene_class():
+    from .scene._scene import Scene  # the scene package imports this module
+
+    return Scene

@@ -1,0 +1,145 @@
+"""The vector field of the reduced link: the one place the equation of motion is assembled.
+
+The state is y = (q, w) plus, when asked for, the work W of every load outside the
+potential energy, the work D removed by dissipative loads, and the link angles of a
+tracked branch:
+
+    dq/dt = w,
+    dw/dt = (tau + tau_red - 0.5 dJ_red/dq w^2) / J_red     (:func:`reduced_acceleration`),
+    dW/dt = (tau + tau_red outside V) w,    dD/dt = dissipated power,
+    dtheta/dt = dtheta/dq w.
+
+Every evaluation redoes the reduction at (q, w, t) (seed 000's step v: velocity-dependent
+loads are updated at every stage); when no load depends on velocity the velocity part
+is never built. With a :class:`ReducedTable` the field interpolates it instead.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._friction import friction_wrenches, frictions_of, solve_friction
+from .._kinematics import coefficients
+from .._kinetostatics._api import from_kinematics
+from .._loads import dissipated_power
+from .._model import Model
+from .._reduction import reduce_coefficients, reduce_with_kinematics, reduced_acceleration
+from .._tracking import branch_rates
+from ._table import ReducedTable
+
+
+class State(NamedTuple):
+    """The integrated state: ``q`` (rad or m), ``omega`` (rad/s or m/s), and optional
+    quadratures ``work`` (J, loads outside V), ``dissipated`` (J) and the tracked
+    ``branch`` angles (link -> rad). Absent parts are None."""
+
+    q: Array
+    omega: Array
+    work: Array | None = None
+    dissipated: Array | None = None
+    branch: dict | None = None
+
+
+class FieldArgs(eqx.Module):
+    """What the vector field and the events read besides the state: the ``model``, an
+    optional ``table``, the start (``direction`` of motion, ``q0``) for the standstill
+    margin and the signs of the user events at t0."""
+
+    model: Model
+    table: ReducedTable | None
+    direction: Array
+    q0: Array
+    user_signs: tuple
+
+
+def field_args(model: Model, table: ReducedTable | None = None) -> FieldArgs:
+    """The arguments of the vector field evaluated on its own (no stop events)."""
+    zero = jnp.zeros(())
+    return FieldArgs(model=model, table=table, direction=zero, q0=zero, user_signs=())
+
+
+def vector_field(t, y: State, args: FieldArgs) -> State:
+    """dy/dt of the reduced link (see the module docstring)."""
+    if args.table is not None:
+        return State(y.omega, args.table.acceleration(y.q, y.omega))
+    model = args.model
+    if frictions_of(model.loads):  # at w = 0 the friction opposes the segment's direction of motion
+        direction = jnp.where(y.omega != 0, jnp.sign(y.omega), args.direction)
+        red, kin, alpha, friction_power = frictional(model, t, y, direction)
+    else:
+        red, kin = _reduce(model, t, y)
+        alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
+    return State(
+        q=y.omega,
+        omega=alpha,
+        work=None if y.work is None else red.work_force * y.omega + friction_power,
+        dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
+        branch=None if y.branch is None else branch_rates(red, y.branch, y.omega),
+    )
+
+
+def frictional(model: Model, t, y: State, direction):
+    """The reduction, its kinematics, dw/dt and the friction power (W, <= 0) of a model
+    with friction in its joints: the reduced equation with the friction's generalized
+    force sum_k u_k dphi_k/dq, u from ``solve_friction`` (signs from ``direction``:
+    sign(w), or at rest the direction tested for break-away)."""
+    mechanism, frictions = model.mechanism, frictions_of(model.loads)
+    coeffs = coefficients(mechanism, y.q, order=2, near=y.branch)
+    red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
+                                   rates=y.branch is not None)
+    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
+
+    def alpha_of(u):
+        return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.dot(rates, u), y.omega)
+
+    def react(u):
+        moving = coeffs.kinematics(y.omega, alpha_of(u))
+        forces, couples, _, _ = from_kinematics(model, moving, t, extra=friction_wrenches(mechanism, moving, frictions, u))
+        return forces, couples
+
+    u, _ = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
+    return red, kin, alpha_of(u), jnp.dot(rates, u) * y.omega
+
+
+def directional_accelerations(model: Model, t, y: State):
+    """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction."""
+    at_rest = y._replace(omega=jnp.zeros_like(y.omega))
+    return tuple(frictional(model, t, at_rest, jnp.asarray(s, dtype=float))[2] for s in (1.0, -1.0))
+
+
+def rest_direction(a_plus, a_minus):
+    """+1 / -1: the direction a mechanism at rest starts to move in; 0: it sticks."""
+    return jnp.where(a_plus > 0, 1.0, jnp.where(a_minus < 0, -1.0, 0.0))
+
+
+def acceleration_at(model: Model, t, y: State):
+    """dw/dt at a state, friction included; at rest with friction, 0 while it sticks,
+    else the acceleration of the direction it breaks away in."""
+    if not frictions_of(model.loads):
+        return _reduce(model, t, y)[0].acceleration(y.omega)
+    moving = frictional(model, t, y, jnp.sign(y.omega))[2]
+    a_plus, a_minus = directional_accelerations(model, t, y)
+    at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
+    return jnp.where(y.omega != 0, moving, at_rest)
+
+
+def vector_field_or_nan(t, y: State, args: FieldArgs) -> State:
+    """:func:`vector_field` with dw/dt NaN where a group cannot assemble (fixed steps
+    read the NaN as the end of the valid samples)."""
+    if args.table is not None:
+        return vector_field(t, y, args)
+    if frictions_of(args.model.loads):
+        red, _, alpha, _ = frictional(args.model, t, y, jnp.sign(y.omega))
+    else:
+        red, _ = _reduce(args.model, t, y)
+        alpha = red.acceleration(y.omega)
+    return State(y.omega, jnp.where(jnp.all(red.ok), alpha, jnp.nan))
+
+
+def _reduce(model: Model, t, y: State):
+    return reduce_with_kinematics(model.mechanism, model.gravity, model.loads, y.q, y.omega, t, near=y.branch,
+                                  work=y.work is not None)

@@ -1,0 +1,74 @@
+"""What a simulation's result codes and events mean, in words, with a remedy."""
+
+from __future__ import annotations
+
+import diffrax
+import numpy as np
+
+# Event codes in Solution.event.
+NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
+
+
+class RESULTS(diffrax.RESULTS):
+    """Outcome of a simulation, in diffrax's style (extends ``diffrax.RESULTS``):
+    ``sol.result == assurjax.RESULTS.successful``; ``assurjax.RESULTS[sol.result]``
+    is the message."""
+
+    start_not_assembled = "The mechanism cannot assemble at the starting state."
+
+
+def result_value(result):
+    """The integer code of a result item as a (traced) array: for outputs that must be
+    plain arrays, e.g. of a ``jax.custom_jvp``. ``RESULTS[...]`` reads it back."""
+    return result._value
+
+
+def result_code(result) -> np.ndarray:
+    """The integer code(s) of a result (host side), for summaries and counting."""
+    return np.asarray(getattr(result, "_value", result))
+
+
+_SUCCESS = int(RESULTS.successful._value)
+_EVENT = int(RESULTS.event_occurred._value)
+_MAX_STEPS = int(RESULTS.max_steps_reached._value)
+
+
+def result_text(code: int, *, max_steps: int | None = None) -> str:
+    """A sentence for a result code with what to change."""
+    if code in (_SUCCESS, _EVENT):
+        return "successful"
+    if code == _MAX_STEPS:
+        budget = "" if max_steps is None else f" (max_steps = {max_steps})"
+        return (f"the step budget{budget} was used up before t1: raise max_steps, loosen rtol/atol, "
+                "or shorten the time span")
+    try:
+        message = RESULTS[_item(code)]
+    except Exception:  # a code this version does not know
+        message = ""
+    return f"result code {code}" + (f": {message}" if message else "")
+
+
+def _item(code: int):
+    for name in getattr(RESULTS, "_name_to_item", {}):
+        item = getattr(RESULTS, name)
+        if int(item._value) == code:
+            return item
+    raise KeyError(code)
+
+
+def finished(result):
+    """True (traced) where a run ended as asked: reached t1 or stopped at an event."""
+    return (result == RESULTS.successful) | (result == RESULTS.event_occurred)
+
+
+def status_text(code: int, event: int, group: str | None, t_final: float, *, max_steps: int | None = None) -> str:
+    """A one-line summary of how a single run ended."""
+    if event == STANDSTILL:
+        return f"standstill at t = {t_final:.9g} s"
+    if event == LOCKUP:
+        return f"group '{group}' can no longer assemble at t = {t_final:.9g} s (lock-up / limit position)"
+    if event >= USER:
+        return f"user event #{event - USER} at t = {t_final:.9g} s"
+    if code in (_SUCCESS, _EVENT):
+        return f"reached t1 = {t_final:.9g} s"
+    return f"solver stopped at t = {t_final:.9g} s: {result_text(code, max_steps=max_steps)}"

@@ -1,0 +1,210 @@
+"""Simulation settings: one typed, validated set read by every entry point
+(``simulate``, ``batch_simulate``, the differentiable results and the sensitivities),
+and the diffrax objects they name."""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
+
+import diffrax
+
+from .._errors import AssurjaxError
+
+SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
+    "tsit5": diffrax.Tsit5,
+    "dopri5": diffrax.Dopri5,
+    "dopri8": diffrax.Dopri8,
+    "bosh3": diffrax.Bosh3,
+    "heun": diffrax.Heun,
+    "midpoint": diffrax.Midpoint,
+    "ralston": diffrax.Ralston,
+    "euler": diffrax.Euler,
+}
+BASELINES = ("seed_euler",)
+# Chosen from the work-precision run (benchmarks/README.md): on the Watt six-bar, Tsit5 at
+# rtol = atol = 1e-8 keeps the angle within 3.2e-7 rad of the converged motion over 2 s from
+# 64 starting angles (1e-7 lets it reach 4e-6), faster than Dopri5 or Dopri8 reaching that.
+DEFAULT_SOLVER = "tsit5"
+DEFAULT_RTOL = 1e-8
+DEFAULT_ATOL = 1e-8
+# Step-size safety factor (diffrax's default 0.9): at 0.8 fewer steps are rejected; measured on
+# the Watt six-bar (Tsit5 1e-8, 64 starting angles): 113 instead of 117 steps, max error 3.2e-7
+# instead of 4.0e-7 rad.
+CONTROLLER_SAFETY = 0.8
+DEFAULT_SAMPLES = 201
+DEFAULT_MAX_STEPS = 4096
+DEFAULT_TABLE_NODES = 4096
+
+# Gradients through diffeqsolve: "recursive" (RecursiveCheckpointAdjoint, reverse mode,
+# discretize-then-optimize: exact gradients of the computed solution), "forward"
+# (ForwardMode: jvp / jacfwd, cheapest for few parameters), "backsolve" (BacksolveAdjoint:
+# solves the adjoint ODE backwards, O(1) memory, gradients only to the solver tolerance).
+ADJOINTS: dict[str, Callable[[], diffrax.AbstractAdjoint]] = {
+    "recursive": diffrax.RecursiveCheckpointAdjoint,
+    "forward": diffrax.ForwardMode,
+    "backsolve": diffrax.BacksolveAdjoint,
+}
+BRANCHES = ("fixed", "tracked")
+REDUCTIONS = ("exact", "table", "auto")
+STOPS = ("standstill", "none")
+
+
+class Settings(NamedTuple):
+    """Static settings of :func:`assurjax.simulate_core` (hashable: one compile per distinct value).
+
+    Build them with :func:`settings_from` (validated, the scene's ``[simulation]`` and
+    ``[outputs]`` tables under keyword overrides) or directly for ``simulate_core``."""
+
+    solver: str = DEFAULT_SOLVER
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
+    fixed_step: bool = False  # True: constant steps of the traced ``dt``; False: adaptive (PID controller)
+    dt: float | None = None  # a static fixed step (s): compiles per value; prefer simulate_core's traced ``dt``
+    max_steps: int = DEFAULT_MAX_STEPS
+    standstill: bool = False
+    check_assembly: bool = True
+    events: tuple = ()  # user conditions cond(t, q, omega) -> real
+    samples: int = DEFAULT_SAMPLES  # saved times when no saveat is given
+    points: tuple[str, ...] = ()
+    angles: tuple[str, ...] = ()
+    energies: bool = False
+    domega: bool = True
+    branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
+    adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
+    reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
+    table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
+    steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
+
+
+# [simulation] keys of a scene file and what they must be: (type check, description).
+def _positive_number(v) -> bool:
+    return _number(v) and v > 0
+
+
+def _number(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
+
+
+def _positive_int(v) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool) and v > 0
+
+
+SIMULATION_KEYS: dict[str, tuple[Callable, str]] = {
+    "solver": (lambda v: isinstance(v, str) and (v in SOLVERS or v in BASELINES), f"one of {sorted(SOLVERS) + list(BASELINES)}"),
+    "rtol": (_positive_number, "a positive finite number"),
+    "atol": (_positive_number, "a positive finite number"),
+    "dt": (_positive_number, "a positive finite step (s)"),
+    "max_steps": (_positive_int, "a positive integer"),
+    "samples": (lambda v: _positive_int(v) and v >= 2, "an integer >= 2"),
+    "stop": (lambda v: isinstance(v, str) and v in STOPS, f"one of {list(STOPS)}"),
+    "branch": (lambda v: isinstance(v, str) and v in BRANCHES, f"one of {list(BRANCHES)}"),
+    "reduction": (lambda v: isinstance(v, str) and v in REDUCTIONS, f"one of {list(REDUCTIONS)}"),
+    "table_nodes": (lambda v: _positive_int(v) and v >= 8, "an integer >= 8"),
+    "steps": (_positive_int, "a positive integer"),
+}
+
+
+def check_simulation_table(table: Mapping, where: str = "[simulation]") -> dict:
+    """The ``[simulation]`` table checked key by key; raises :class:`AssurjaxError`
+    naming an unknown key (a typo such as ``rtoll``) or a value of the wrong type."""
+    out = {}
+    for key, value in table.items():
+        if key not in SIMULATION_KEYS:
+            raise AssurjaxError(f"{where}: unknown field '{key}' (known: {sorted(SIMULATION_KEYS)})")
+        check, what = SIMULATION_KEYS[key]
+        if not check(value):
+            raise AssurjaxError(f"{where}, field '{key}': expected {what}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def _pick(given, table: Mapping, key: str, default):
+    return given if given is not None else table.get(key, default)
+
+
+def settings_from(scene=None, **overrides) -> Settings:
+    """Validated :class:`Settings` from a scene's ``[simulation]`` and ``[outputs]``
+    tables (None: the defaults) under keyword overrides (None: keep the scene's).
+
+    Keywords: the fields of :class:`Settings`, plus ``stop`` (``"standstill"`` or
+    None: sets ``standstill``) and ``dt`` (a fixed step: sets ``fixed_step``; its value
+    is read by :func:`fixed_step_from`, since it is traced). Every entry point reads its
+    settings here, so a scene's tolerances apply to ``simulate``, ``batch_simulate``
+    and the differentiable results alike."""
+    sim = {} if scene is None else check_simulation_table(scene.simulation)
+    outs = {} if scene is None else dict(scene.outputs)
+    unknown = sorted(set(overrides) - set(Settings._fields) - {"stop"})
+    if unknown:
+        raise AssurjaxError(f"unknown setting(s) {unknown}; known: {sorted(set(Settings._fields) | {'stop'})}")
+    stop = overrides.pop("stop", ...)
+    stop = sim.get("stop", None) if stop is ... else stop
+    if stop not in (None, *STOPS):
+        raise AssurjaxError(f"stop must be 'standstill' or None, got {stop!r}")
+    from_scene = dict(
+        solver=sim.get("solver", DEFAULT_SOLVER), rtol=sim.get("rtol", DEFAULT_RTOL), atol=sim.get("atol", DEFAULT_ATOL),
+        max_steps=sim.get("max_steps", DEFAULT_MAX_STEPS), samples=sim.get("samples", DEFAULT_SAMPLES),
+        branch=sim.get("branch", "fixed"), reduction=sim.get("reduction", "auto"),
+        table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
+        fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
+        points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
+    )
+    if overrides.pop("dt", None) is not None:  # the step itself is traced: fixed_step_from
+        overrides["fixed_step"] = True
+    values = {**from_scene, **{k: v for k, v in overrides.items() if v is not None}}
+    for key in ("points", "angles", "events"):
+        if key in values:
+            values[key] = tuple(values[key])
+    settings = Settings(**values)
+    check(settings)
+    return settings
+
+
+def fixed_step_from(scene=None, dt=None):
+    """The fixed step (s): ``dt`` if given, else the scene's ``[simulation] dt``, else None."""
+    if dt is not None:
+        return dt
+    return None if scene is None else scene.simulation.get("dt", None)
+
+
+def check(settings: Settings) -> None:
+    """Types and ranges of every field, with errors naming the field."""
+    if settings.solver not in SOLVERS and settings.solver not in BASELINES:
+        raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
+    for key in ("rtol", "atol", "max_steps", "samples", "branch", "table_nodes"):
+        value = getattr(settings, key)
+        ok, what = SIMULATION_KEYS[key]
+        if not ok(value):
+            raise AssurjaxError(f"{key}: expected {what}, got {value!r}")
+    if settings.reduction not in ("exact", "table", "auto"):
+        raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
+    if settings.adjoint not in ADJOINTS:
+        raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
+    if settings.steps is not None and not _positive_int(settings.steps):
+        raise AssurjaxError(f"steps must be a positive number of steps, got {settings.steps}")
+    for cond in settings.events:
+        if not callable(cond):
+            raise AssurjaxError(f"events must be functions cond(t, q, omega), got {type(cond).__name__}")
+
+
+def solver_for(settings: Settings) -> diffrax.AbstractSolver:
+    if settings.solver not in SOLVERS:
+        raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
+    return SOLVERS[settings.solver]()
+
+
+def adjoint_for(settings: Settings) -> diffrax.AbstractAdjoint:
+    if settings.adjoint not in ADJOINTS:
+        raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
+    return ADJOINTS[settings.adjoint]()
+
+
+def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeController:
+    """Constant steps, or the PID controller with the package's safety factor (every
+    adaptive solve of the package, the sensitivities included, steps the same way)."""
+    if settings.fixed_step or settings.dt is not None:
+        return diffrax.ConstantStepSize()
+    kwargs = {} if norm is None else {"norm": norm}
+    return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, **kwargs)

@@ -1,0 +1,143 @@
+"""The Solution of a simulation and what is computed along it (outputs, trimming, summaries)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._loads import potential_energy
+from .._mechanism import Mechanism, positions
+from .._model import Model
+from .._reduction import reduce_with_pose
+from .._friction import frictions_of
+from ._field import State, acceleration_at
+from ._results import LOCKUP, STANDSTILL, USER, finished, result_code, status_text
+from ._settings import Settings
+
+
+class Solution(eqx.Module):
+    """A simulated motion of the reduced link and what the outputs asked for.
+
+    ``t`` (s), ``q`` (rad or m), ``omega`` (rad/s or m/s), ``domega`` (dw/dt) at the
+    saved times. ``kinetic``, ``potential``, ``total`` (J): energies (None unless
+    asked); ``work`` (J): work done since t0 by every load outside the potential
+    energy (driving torque or motor, applied forces and couples, dampers, friction;
+    None unless energies are asked, and with a tabulated reduction), so that
+    ``balance`` = T + V - W - (T + V at t0) stays 0 up to the solver's error;
+    ``dissipated`` (J): work removed by dissipative loads since t0 (None without them).
+    ``points``: name -> (n, 2) trajectories (m); ``angles``: link -> (n,) (rad).
+    ``t_stop``: time (s) at which a stop event fired (None when none did; under
+    jit/vmap an array, +inf when none did). ``event``: -1 none, 0 standstill, 1 a group
+    can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
+    ``valid``: the saved times reached, then the final state (at ``t_final``); the
+    entries after it repeat the final state (under jit/vmap only; :func:`simulate`
+    trims them). ``result``: an :class:`assurjax.RESULTS` item
+    (``sol.result == assurjax.RESULTS.successful``); ``status`` a readable summary
+    with a remedy when the solver stopped early.
+    """
+
+    t: Array
+    q: Array
+    omega: Array
+    domega: Array | None
+    kinetic: Array | None
+    potential: Array | None
+    total: Array | None
+    dissipated: Array | None
+    points: dict[str, Array]
+    angles: dict[str, Array]
+    valid: Array
+    t_final: Array
+    q_final: Array
+    omega_final: Array
+    t_stop: Any
+    event: Array
+    failed_group_index: Array
+    result: Any
+    num_steps: Array
+    work: Array | None = None
+    failed_group: str | None = eqx.field(static=True, default=None)
+    status: str = eqx.field(static=True, default="")
+
+    @property
+    def balance(self) -> Array | None:
+        """T + V - W minus its value at t0 (J): zero for an exact solution (None
+        unless energies and work were computed)."""
+        if self.total is None or self.work is None:
+            return None
+        closed = self.total - self.work
+        return closed - closed[..., :1]
+
+    @property
+    def successful(self) -> bool:
+        """True when the solver reached t1 or a stop event (no solver failure)."""
+        return bool(np.all(np.asarray(finished(self.result))))
+
+
+def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
+    """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
+    ``near``: saved link angles of a tracked branch (None: the fixed modes).
+    One vmapped evaluation per saved time: the reduction gives dw/dt and J_red
+    (T = J_red w^2 / 2), its position analysis gives points, angles and V."""
+    mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
+    out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
+    if not (settings.domega or settings.energies or settings.points or settings.angles):
+        return out
+
+    def sample(t, q, w, z):
+        values = {}
+        if settings.domega or settings.energies:
+            red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z)
+            if settings.domega:
+                values["domega"] = acceleration_at(model, t, State(q, w, branch=z)) if frictions_of(loads) else red.acceleration(w)
+            if settings.energies:
+                values["kinetic"] = 0.5 * red.inertia * w**2
+                values["potential"] = potential_energy(mechanism, gravity, loads, pose)
+        elif settings.angles:  # angles of any link: the full position analysis
+            pose = positions(mechanism, q, near=z)
+        else:  # only the groups the points need
+            pose = positions(mechanism, q, points=settings.points, near=z)
+        values["points"] = {p: pose.points[p] for p in settings.points}
+        values["angles"] = {a: pose.angles[a] for a in settings.angles}
+        return values
+
+    out.update(jax.vmap(sample)(t, q, w, near))
+    if settings.energies:
+        out["total"] = out["kinetic"] + out["potential"]
+    return out
+
+
+_SAVED = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "work", "points", "angles", "valid")
+
+
+def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
+    """Keep only the saved times reached, and turn codes into readable fields."""
+    # On the host, in one transfer: slicing device arrays to a new length n would
+    # compile per n. The trimmed Solution holds NumPy arrays.
+    sol = jax.device_get(sol)
+    n_saved = sol.valid.shape[0]
+    n = int(np.sum(sol.valid))
+    cut = lambda x: x[:n] if isinstance(x, np.ndarray) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
+    fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
+    event, failed = int(sol.event), int(sol.failed_group_index)
+    group = mechanism.groups[failed].name if failed >= 0 else None
+    t_stop = float(sol.t_final) if event >= 0 else None
+    status = status_text(int(result_code(sol.result)), event, group, float(sol.t_final), max_steps=settings.max_steps)
+    return dataclasses.replace(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+
+
+def batch_summary(sols: Solution) -> Solution:
+    """A batched Solution (host arrays) with a status counting the outcomes."""
+    events, results = np.asarray(sols.event), np.where(np.asarray(finished(sols.result)), 0, result_code(sols.result))
+    parts = [f"{np.sum(events == code)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
+             if np.any(events == code)]
+    parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
+    parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
+    parts += [f"{np.sum((events < 0) & (results != 0))} solver failures"] if np.any((events < 0) & (results != 0)) else []
+    return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))

@@ -1,0 +1,409 @@
+"""Forward dynamics of the reduced link (seed 000, steps ii-v), integrated with diffrax.
+
+:func:`simulate` (checks on the host, then one compiled program) and
+:func:`simulate_core` (pure, jittable) integrate :func:`~._field.vector_field`, with
+the stop events of ``_events`` and the outputs of ``_solution``. The seed's own scheme
+(Euler in q) is the baseline in ``_baseline``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import AssurjaxError
+from .._jit import checks_without_callbacks, jit
+from .._mechanism import Mechanism, positions
+from .._model import Model, as_model
+from .._tracking import branch_angles
+from ._events import assembles, stop_event, which_event
+from ._field import FieldArgs, State, vector_field, vector_field_or_nan
+from ._results import LOCKUP, NO_EVENT, RESULTS
+from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for)
+from ._solution import Solution, batch_summary, outputs, trim
+from ._stick import stick_slip
+from .._friction import frictions_of
+from ._table import ReducedTable, build_table, build_table_core
+
+AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
+
+
+def _initial_step(settings: Settings, dt):
+    """The fixed step, or the controller's first step (None: diffrax's automatic choice,
+    two right-hand-side evaluations; a small guess costs more steps to grow)."""
+    if dt is None:
+        dt = settings.dt
+    if dt is not None:
+        return jnp.asarray(dt, dtype=float)
+    if settings.fixed_step:
+        raise AssurjaxError("fixed_step needs a step dt")
+    return None
+
+
+def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, omega0=0.0, t0=0.0, t1=1.0, ts=None, dt=None,
+                  *, settings: Settings = Settings(), table: ReducedTable | None = None) -> Solution:
+    """The pure, jittable simulation (no Python-side checks or trimming).
+
+    ``mechanism`` with ``gravity`` and ``loads``, or a :class:`assurjax.Model` as the
+    first argument (then ``gravity`` and ``loads`` are ignored). ``q0``, ``omega0``,
+    ``t0``, ``t1`` and the arrays inside the model may be traced (vmap over them with
+    ``eqx.filter_vmap``); ``settings`` is static. ``ts``: save times (default
+    ``settings.samples`` times from t0 to t1). ``dt``: the step (s) when
+    ``settings.fixed_step`` (traced: a step-size sweep compiles once); else an optional
+    initial step.
+
+    ``settings.reduction == "table"``: the right-hand side interpolates ``table`` (a
+    :class:`ReducedTable`; None: built here from ``settings.table_nodes`` nodes, traced,
+    so differentiable in the mechanism's arrays but without the host-side checks of
+    :func:`build_table`). For a batch over q0 pass one table built outside the vmap.
+    Outputs are then computed from the saved (q, w) with the exact analysis, and the
+    assembly event is off (the table checked a full turn).
+
+    **Example** (10 starting angles at once):
+    >>> core = assurjax.jit(eqx.filter_vmap(
+    ...     lambda q0: assurjax.simulate_core(mech, gravity, (), q0, 0.0, 0.0, 2.0,
+    ...                                       settings=assurjax.SimulationSettings(samples=2))))
+    >>> sols = core(jnp.linspace(0.0, 1.0, 10))
+    """
+    model = mechanism if isinstance(mechanism, Model) else Model(mechanism, gravity, loads)
+    return _core(model, q0, omega0, t0, t1, ts, dt, settings, table)
+
+
+def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
+    q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    if _tabulated(settings):
+        settings = settings._replace(check_assembly=False)
+        table = build_table_core(model.mechanism, model.gravity, model.loads, settings.table_nodes) if table is None else table
+    else:
+        table = None
+    if settings.steps is not None:
+        return _steps_solve(model, q0, omega0, t0, t1, settings, table)
+    ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
+    y0 = _initial_state(model, q0, omega0, settings, table)
+    if frictions_of(model.loads) and not settings.standstill and table is None:
+        return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings)
+    user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
+    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs)
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(vector_field),
+        solver_for(settings),
+        t0=t0,
+        t1=t1,
+        dt0=_initial_step(settings, dt),
+        y0=y0,
+        args=args,
+        saveat=diffrax.SaveAt(ts=ts, t1=True),
+        stepsize_controller=controller_for(settings),
+        event=stop_event(settings),
+        max_steps=settings.max_steps,
+        adjoint=adjoint_for(settings),
+        throw=False,
+    )
+    return _package(model, sol, ts, args, settings)
+
+
+def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:
+    """(q0, w0) and the quadratures and branch the settings ask for."""
+    zero = jnp.zeros(())
+    exact = table is None
+    return State(
+        q=q0,
+        omega=omega0,
+        work=zero if settings.energies and exact else None,
+        dissipated=zero if settings.energies and exact and any(load.dissipative for load in model.loads) else None,
+        # the branch travels with the state, starting on the fixed modes
+        branch=branch_angles(model.mechanism, positions(model.mechanism, q0)) if settings.branch == "tracked" else None,
+    )
+
+
+def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) -> Solution:
+    """``settings.steps`` equal steps of the diffrax solver from t0 to t1, by
+    ``jax.lax.scan`` over the solver's own ``step`` (no step-size controller, no
+    event root finding, no dense output): the leanest use of diffrax for this
+    two-state ODE, whose adaptive loop costs more per step than a tabulated
+    right-hand side. Saves every step (``dissipated`` and ``work`` stay None). Without a
+    table, a step any of whose stages meets a configuration that cannot assemble ends
+    the valid samples before it (event 1, located to the step, not by root finding):
+    with the fixed mode, stepping over a limit position would otherwise bounce back
+    unphysically."""
+    check_steps(settings)
+    tabulated = table is not None
+    term = diffrax.ODETerm(vector_field_or_nan if settings.check_assembly else vector_field)
+    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=())
+    solver = solver_for(settings)
+    h = (t1 - t0) / settings.steps
+    y0 = State(q0, omega0)
+
+    def step(carry, k):
+        y, state = carry
+        t = t0 + k * h
+        y1, _, _, state, _ = solver.step(term, t, t + h, y, args, state, False)
+        return (y1, state), y1
+
+    _, ys = jax.lax.scan(step, (y0, solver.init(term, t0, t0 + h, y0, args)), jnp.arange(settings.steps))
+    t = t0 + h * jnp.arange(settings.steps + 1)
+    q, w = jnp.concatenate([q0[None], ys.q]), jnp.concatenate([omega0[None], ys.omega])
+    n = settings.steps
+    mechanism = model.mechanism
+    if tabulated or not settings.check_assembly:  # nothing can fail (the table checked a full turn)
+        valid, last, locked, failed = jnp.ones(n + 1, dtype=bool), n, jnp.asarray(False), jnp.asarray(-1)
+    else:  # a NaN marks a step that met a configuration that cannot assemble
+        assembled = jnp.isfinite(q) & jnp.isfinite(w)
+        locked = ~jnp.all(assembled)
+        last = jnp.where(locked, jnp.argmin(assembled) - 1, n)  # the last sample before it
+        valid = jnp.arange(n + 1) <= last
+        t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
+        ahead = positions(mechanism, q[last] + h * w[last]).ok  # the group failing one step on
+        failed = jnp.where(locked & ~jnp.all(ahead), jnp.argmin(ahead), -1)
+    values = outputs(model, t, q, w, settings)
+    return Solution(
+        t=t, q=q, omega=w, **values, dissipated=None, valid=valid,
+        t_final=t[last], q_final=q[last], omega_final=w[last],
+        t_stop=jnp.where(locked, t[last], jnp.inf), event=jnp.where(locked, LOCKUP, NO_EVENT),
+        failed_group_index=failed, result=RESULTS.successful, num_steps=jnp.asarray(n),
+    )
+
+
+def check_steps(settings: Settings) -> None:
+    if int(settings.steps) < 1:
+        raise AssurjaxError(f"steps must be a positive number of steps, got {settings.steps}")
+    if settings.standstill or settings.events:
+        raise AssurjaxError("steps= integrates with fixed steps and locates no events: use stop=None and no events, "
+                            "or the adaptive solver (steps=None) for stop='standstill' and user events")
+    if settings.branch == "tracked":
+        raise AssurjaxError("steps= needs branch='fixed' (a tracked branch travels in the adaptive solver's state)")
+
+
+def _tabulated(settings: Settings) -> bool:
+    """True in table mode; clear errors for unknown modes and unsupported combinations."""
+    if settings.reduction not in ("exact", "table", "auto"):
+        raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
+    if settings.reduction == "auto":
+        raise AssurjaxError("reduction='auto' is resolved by simulate(); simulate_core takes 'exact' or 'table'")
+    if settings.reduction == "table" and settings.branch == "tracked":
+        raise AssurjaxError("reduction='table' needs branch='fixed' (the table is sampled on the scene's assembly modes)")
+    return settings.reduction == "table"
+
+
+def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings) -> Solution:
+    # diffrax writes the final state right after the saved times reached (an event
+    # deletes those past it) and pads with inf.
+    last = jnp.sum(jnp.isfinite(sol.ts)) - 1
+    ys: State = sol.ys
+    t_final, q_final, w_final = sol.ts[last], ys.q[last], ys.omega[last]
+    # The times reached, then the final state itself (an event stops between two
+    # saved times); the rest repeat the final state, so every output stays finite.
+    valid = jnp.arange(ts.shape[0]) <= last
+    reached = jnp.arange(ts.shape[0]) < last
+    along = lambda z: jnp.where(reached, z[:-1], z[last])  # noqa: E731
+    q, w = along(ys.q), along(ys.omega)
+    t = jnp.where(reached, ts, t_final)
+    near = None if ys.branch is None else jax.tree.map(along, ys.branch)  # saved link angles (tracked branch)
+    near_final = None if ys.branch is None else jax.tree.map(lambda z: z[last], ys.branch)
+    mechanism = model.mechanism
+    ok_final = assembles(mechanism, q_final, w_final, near_final) if settings.check_assembly else None
+    event = which_event(sol, settings, args, last, ok_final)
+    values = outputs(model, t, q, w, settings, near)
+    failed = jnp.asarray(-1) if ok_final is None else jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
+    return Solution(
+        t=t, q=q, omega=w, **values,
+        dissipated=None if ys.dissipated is None else along(ys.dissipated),
+        work=None if ys.work is None else along(ys.work),
+        valid=valid, t_final=t_final, q_final=q_final, omega_final=w_final,
+        t_stop=jnp.where(event >= 0, t_final, jnp.inf), event=event, failed_group_index=failed,
+        result=RESULTS.promote(sol.result), num_steps=sol.stats["num_steps"],
+    )
+
+
+_core_jit = jit(_core)
+
+
+# ---------------------------------------------------------------------------- user-facing
+
+
+def simulate(
+    scene,
+    *,
+    q0=None,
+    omega0=None,
+    t0=None,
+    t1=None,
+    saveat=None,
+    stop: str | None | type(...) = ...,
+    solver: str | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    dt: float | None = None,
+    max_steps: int | None = None,
+    samples: int | None = None,
+    events: Sequence[Callable] = (),
+    check_assembly: bool = True,
+    mechanism: Mechanism | None = None,
+    loads=None,
+    gravity=None,
+    points: Sequence[str] | None = None,
+    angles: Sequence[str] | None = None,
+    energies: bool | None = None,
+    branch: str | None = None,
+    reduction: str | None = None,
+    table_nodes: int | None = None,
+    table: ReducedTable | None = None,
+    steps: int | None = None,
+    throw: bool = False,
+) -> Solution:
+    """Simulate a mechanism's motion from its initial state (seed 000's forward dynamics).
+
+    ``scene``: a :class:`assurjax.Scene` (its initial state, ``[simulation]`` settings
+    and ``[outputs]`` apply), a :class:`assurjax.Model` or a bare
+    :class:`assurjax.Mechanism` (defaults: q0 = omega0 = t0 = 0, t1 = 1 s).
+
+    Keyword arguments override the scene: ``q0`` (rad or m), ``omega0`` (rad/s or
+    m/s), ``t0``, ``t1`` (s) from ``[state]``; ``stop`` (``"standstill"`` or None; the
+    default is the scene's ``[simulation] stop``, and no stop without one: the motion
+    runs to t1), ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the
+    baseline ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
+    over seconds of motion; pass 1e-10 or tighter for reference-quality runs), ``dt`` (a
+    fixed step, s), ``max_steps``, ``samples`` from ``[simulation]``; ``points``,
+    ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
+    carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
+    loaded mechanisms). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
+    or ``"tracked"``: the link angles travel in the ODE state (d theta/dt =
+    d theta/dq w, from the same jvp) and every group takes the root nearest to them,
+    which keeps the motion on one continuous branch through singular configurations
+    (e.g. the N-four-bar's). ``reduction``: ``"exact"`` (the reduction at every
+    right-hand side), ``"table"``: a :class:`ReducedTable` of ``table_nodes`` (default
+    4096) nodes over one crank turn is built and checked first, and the right-hand side
+    interpolates it (crank drivers, loads of q only; see :func:`build_table`), or
+    ``"auto"`` (default): the table for a batch of at least AUTO_TABLE_BATCH starting
+    states when the scene allows one (its build then costs less than the exact
+    reduction saves), else exact. ``table``: a prebuilt :class:`ReducedTable` to use.
+    ``steps``: integrate with that many equal steps by ``jax.lax.scan`` over the
+    solver's own step (no step-size control, no events: ``stop`` must be None; saves
+    every step) -- the fastest path for short runs: with a table, ``steps=80``
+    (Tsit5) keeps the Watt six-bar within 4e-9 rad over 1 s in ~60 us.
+    ``saveat``: an array of times (s). ``events``: functions ``cond(t, q, omega)``;
+    the motion stops where one changes sign. ``mechanism``, ``loads``, ``gravity``
+    replace the scene's. ``throw``: raise :class:`assurjax.AssurjaxError` with the
+    status when the solver stops early (e.g. the step budget is used up) instead of
+    returning a Solution that says so.
+
+    ``q0`` and ``omega0`` may be 1-D arrays (broadcast together): then all starting
+    states are simulated at once (vmapped) and the :class:`Solution` has a leading
+    batch axis, untrimmed (read ``valid``; ``t_stop`` is +inf where no event fired).
+
+    Returns a :class:`Solution` trimmed to the times reached (a single run).
+
+    **Example:**
+    >>> sol = assurjax.simulate(assurjax.load_scene("watt_sixbar"))
+    >>> float(sol.t_stop)   # first standstill after falling from rest (the scene asks for stop = "standstill")
+    >>> batch = assurjax.simulate(scene, q0=np.linspace(0, 6, 10_000), stop=None)
+    """
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
+    state = {} if scene_or_none is None else scene_or_none.state
+    settings = settings_from(
+        scene_or_none, stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
+        events=tuple(events), check_assembly=bool(check_assembly), points=points, angles=angles, energies=energies,
+        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps,
+    )
+    _check_outputs(model.mechanism, settings)
+    q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)
+                          for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
+    step = fixed_step_from(scene_or_none, dt)
+    if settings.solver in BASELINES:
+        from ._baseline import simulate_seed_euler
+
+        if np.ndim(q0) or np.ndim(omega0):
+            raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
+        return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
+                                   standstill=settings.standstill)
+    if settings.steps is not None:
+        check_steps(settings)
+    # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
+    # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
+    q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
+    batch = _batch_shape(q0, omega0)
+    step = None if step is None else np.asarray(step, dtype=float)
+    settings, table = _resolve_reduction(settings, table, model, batch)
+    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
+        if batch is None:
+            sol = trim(_core_jit(model, q0, omega0, t0, t1, saveat, step, settings, table), model.mechanism, settings)
+            if throw and not sol.successful:
+                raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
+            return sol
+        q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
+        sols = _batch_jit(model, q0, omega0, t0, t1, saveat, step, settings, table)
+    sols = batch_summary(jax.device_get(sols))
+    if throw and not sols.successful:
+        raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
+    return sols
+
+
+def _checked_saveat(saveat, t0, t1) -> np.ndarray:
+    """The save times as a 1-D float array, sorted from t0 towards t1 and inside [t0, t1]."""
+    saveat = np.asarray(saveat, dtype=float)
+    if saveat.ndim != 1:
+        raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
+    steps = np.diff(saveat) * np.sign(t1 - t0)
+    if np.any(steps < 0) or not np.all(np.isfinite(saveat)):
+        raise AssurjaxError("saveat must be finite times in the direction from t0 to t1")
+    if np.any((saveat - t0) * (saveat - t1) > 0):
+        raise AssurjaxError(f"saveat must lie between t0 = {float(t0)} and t1 = {float(t1)} s; "
+                            f"got times from {saveat.min()} to {saveat.max()}")
+    return saveat
+
+
+def _batch_shape(q0, omega0):
+    """None for one starting state, else the common 1-D shape of q0 and omega0."""
+    if q0.ndim == 0 and omega0.ndim == 0:
+        return None
+    try:
+        shape = np.broadcast_shapes(q0.shape, omega0.shape)
+    except ValueError:
+        raise AssurjaxError(f"q0 (shape {q0.shape}) and omega0 (shape {omega0.shape}) do not broadcast together") from None
+    if len(shape) != 1:
+        raise AssurjaxError(f"a batch of starting states needs 1-D q0/omega0, got shape {shape}")
+    return shape
+
+
+def _resolve_reduction(settings: Settings, table, model: Model, batch):
+    """(settings with reduction 'exact' or 'table', the table or None). The table is
+    built and checked on the host, once, outside the jitted core."""
+    if table is not None:
+        if not isinstance(table, ReducedTable):
+            raise AssurjaxError(f"table must be an assurjax.ReducedTable (from assurjax.build_table), got {type(table).__name__}")
+        return settings._replace(reduction="table"), table
+    if settings.reduction == "auto":
+        wanted = batch is not None and batch[0] >= AUTO_TABLE_BATCH and settings.branch == "fixed"
+        if wanted:
+            try:
+                return settings._replace(reduction="table"), build_table(model.mechanism, model.gravity, model.loads,
+                                                                         settings.table_nodes)
+            except AssurjaxError:  # not tabulable (slider, velocity/time loads, a crank that cannot turn fully)
+                pass
+        return settings._replace(reduction="exact"), None
+    if _tabulated(settings):
+        return settings, build_table(model.mechanism, model.gravity, model.loads, settings.table_nodes)
+    return settings, None
+
+
+def _batch(model, q0, omega0, t0, t1, ts, dt, settings, table):
+    return jax.vmap(lambda q, w: _core(model, q, w, t0, t1, ts, dt, settings, table))(q0, omega0)
+
+
+_batch_jit = jit(_batch)
+
+
+def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:
+    for p in settings.points:
+        if p not in mechanism.point_names:
+            raise AssurjaxError(f"outputs: unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    for a in settings.angles:
+        if a not in mechanism.links:
+            raise AssurjaxError(f"outputs: unknown link '{a}' (known: {sorted(mechanism.links)})")
+

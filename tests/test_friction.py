@@ -1,0 +1,155 @@
+"""Joint friction (Coulomb with stiction, viscous joint damping): forward and inverse dynamics.
+
+Independent checks: the frictionless package at mu = 0, the energy balance (T + V - W
+with W the work of the friction and the other loads outside V), a crank hanging on a
+rough pivot whose break-away time under a ramped torque is mu r m g / k in closed form,
+self-locking, and central differences for the gradient in mu. (The joint-based reference
+with Coulomb friction is compared in test_friction_reference.py.)
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax as aj
+
+MU, RADIUS, BLOCK = 0.2, 0.02, 0.05
+T1 = 2.0
+TIMES = np.linspace(0.0, T1, 81)
+
+
+def frictions(mechanism, mu=MU, viscous=0.0):
+    names = aj.joint_names(mechanism)
+    return tuple(aj.JointFriction(j, mu, RADIUS, viscous=viscous) for j in names if "/" not in j) + tuple(
+        aj.SlideFriction(j, mu, BLOCK, viscous=viscous) for j in names if "/" in j)
+
+
+@pytest.fixture(scope="module")
+def slider():
+    return aj.load_scene("slider_crank")
+
+
+def run(scene, mu, q0=0.5, viscous=0.0, **kw):
+    """One compiled program for every mu, q0 and viscous value (they are traced)."""
+    return aj.simulate(scene, loads=frictions(scene.mechanism, mu, viscous), q0=q0, stop=None, t1=T1, saveat=TIMES,
+                       energies=True, rtol=1e-10, atol=1e-10, **kw)
+
+
+@pytest.fixture(scope="module")
+def rough(slider):
+    return run(slider, MU, viscous=1e-3)
+
+
+def test_falls_oscillates_and_sticks(rough):
+    """From rest under gravity: it moves, loses its energy to the friction and stops for good
+    (w exactly 0 and q constant from then on, no creep, no chatter)."""
+    assert rough.status.startswith("reached t1"), rough.status
+    moving = np.flatnonzero(rough.omega != 0.0)
+    assert moving.size > 10
+    last = moving[-1]
+    assert rough.t[last] < 0.75 * T1
+    assert np.all(rough.omega[last + 1:] == 0.0) and np.all(rough.domega[last + 1:] == 0.0)
+    assert np.all(rough.q[last + 1:] == rough.q[last + 1])
+    assert rough.dissipated[-1] > 0.0 and np.all(np.diff(rough.dissipated) >= -1e-12)
+
+
+def test_energy_balance_closes_with_friction(rough):
+    """T + V - W stays at its initial value (W: the friction's and dampers' work)."""
+    scale = np.max(np.abs(rough.total))
+    assert np.max(np.abs(rough.balance)) < 1e-8 * scale
+    # the friction work is all dissipated work here (no other load outside V)
+    np.testing.assert_allclose(rough.work, -rough.dissipated, atol=1e-12 * scale)
+
+
+def test_self_locking_stays_at_rest(slider):
+    """With friction larger than gravity's effort the mechanism never starts: exact rest."""
+    locked = run(slider, 5.0)
+    assert np.all(locked.q == 0.5) and np.all(locked.omega == 0.0), locked.status
+    assert np.all(np.isfinite(locked.total))
+
+
+def test_zero_friction_reproduces_the_frictionless_motion(slider):
+    """mu = 0 on every pair: until the first standstill the same steps as without friction
+    (to round-off); past it, the stick-slip segments agree to the solver's tolerance."""
+    plain = aj.simulate(slider, stop="standstill", t1=T1, rtol=1e-10, atol=1e-10)
+    smooth = aj.simulate(slider, loads=frictions(slider.mechanism, 0.0), stop="standstill", t1=T1, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(smooth.q, plain.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(smooth.t_stop, plain.t_stop, rtol=0, atol=1e-12)
+    free = aj.simulate(slider, stop=None, t1=T1, saveat=TIMES, rtol=1e-10, atol=1e-10)
+    segmented = run(slider, 0.0)
+    np.testing.assert_allclose(segmented.q, free.q, rtol=0, atol=1e-7)
+
+
+HANGING = """
+[scene]
+name = "rough_pendulum"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+[links.arm]
+points = { O = [0.0, 0.0], A = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 2.0
+inertia = 0.015
+[[formation]]
+group = "crank"
+name = "arm"
+link = "arm"
+pivot = "O"
+[state]
+q0 = -1.5707963267948966
+t1 = 1.0
+[[loads]]
+type = "drive"
+value = { polynomial = [0.0, 0.5], variable = "t" }
+[[loads]]
+type = "joint_friction"
+joint = "O"
+coefficient = 0.3
+radius = 0.04
+"""
+
+
+def test_breakaway_at_the_static_limit(write_scene):
+    """An arm hanging on a rough pivot under a torque k t: at rest the pivot carries m g, so
+    it breaks away when k t = mu r m g, not before (exact rest), and moves right after."""
+    scene = aj.load_scene(write_scene(HANGING))
+    t_star = 0.3 * 0.04 * 2.0 * 9.81 / 0.5
+    eps = 1e-6
+    sol = aj.simulate(scene, saveat=np.array([0.0, 0.5 * t_star, t_star - eps, t_star + eps, 0.9]), stop=None,
+                      rtol=1e-11, atol=1e-11)
+    assert np.all(sol.q[:3] == scene.state["q0"]) and np.all(sol.omega[:3] == 0.0)
+    assert sol.omega[3] > 0.0 and sol.q[4] > scene.state["q0"] + 1e-3
+
+
+def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
+    """Along the rough motion the driving effort needed is zero (there is no drive), and
+    the reactions put friction on every pair: the frictionless reactions differ."""
+    scene = slider.model
+    model = aj.Model(scene.mechanism, scene.gravity, frictions(scene.mechanism, MU, 1e-3))
+    moving = rough.omega != 0.0
+    state = (rough.q[moving], rough.omega[moving], rough.domega[moving])
+    r = aj.reactions(model, state)
+    np.testing.assert_allclose(r.driving, 0.0, atol=1e-8)
+    bare = aj.reactions(scene, state)
+    assert np.max(np.abs(bare.driving)) > 1e-3  # without friction the same motion needs a drive
+
+
+def test_gradient_in_mu_against_differences(slider):
+    """d t_stop / d mu (standstill, reverse mode through the solve and the friction's Newton
+    solve by the implicit function theorem) against central differences."""
+
+    def t_stop(mu):
+        scene = slider.replace_mechanism(slider.mechanism)
+        loaded = aj.Scene(mechanism=scene.mechanism, gravity=scene.gravity, loads=frictions(scene.mechanism, mu),
+                          state=scene.state, simulation=scene.simulation, outputs=scene.outputs, name=scene.name)
+        return aj.synthesis.standstill_time(loaded, rtol=1e-11, atol=1e-11)[0]
+
+    grad = jax.grad(t_stop)(jnp.asarray(MU))
+    h = 1e-5
+    fd = (t_stop(jnp.asarray(MU + h)) - t_stop(jnp.asarray(MU - h))) / (2 * h)
+    assert math.isfinite(float(grad))
+    np.testing.assert_allclose(float(grad), float(fd), rtol=1e-4)
