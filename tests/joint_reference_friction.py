@@ -399,7 +399,7 @@ class FrictionSystem(jr.System):
                     events.append((t, "stick", None))
                     tb, s = self._break_away(z, zq, q, t, t1, tau, scan)
                     t_end = t1 if tb is None else tb
-                    ts = np.array([t, t_end]) if te is None else pending(t, t_end)
+                    ts = np.linspace(t, t_end, 3) if te is None else pending(t, t_end)
                     keep(ts, np.full(len(ts), q), np.zeros(len(ts)), np.repeat(works[:, None], len(ts), 1), None)
                     if tb is None:
                         break
@@ -424,8 +424,15 @@ class FrictionSystem(jr.System):
             out = self.forward(z, y[1], ta, zq, signs)
             return [y[1], out["wdot"], out["p_drive"], out["p_friction"], out["p_damping"]]
 
+        t0, a0 = t, None
+        if w == 0.0:  # from rest: s w / (t - t0) -> s dw/dt > 0, so t0 is not taken as the root
+            z, zq = assemble(q)
+            a0 = s * self.forward(z, 0.0, tau(t, q, 0.0), zq, signs)["wdot"]
+
         def rest(tt, y):
-            return s * y[1]
+            if a0 is None:
+                return s * y[1]
+            return s * y[1] / (tt - t0) if tt > t0 else a0
 
         rest.terminal, rest.direction = True, -1
         evs, names = [rest], ["rest"]
@@ -441,19 +448,23 @@ class FrictionSystem(jr.System):
             evs.append(switch)
             names.append(name)
         sol = solve_ivp(rhs, (t, t1), [q, w, *works], method=method, rtol=rtol, atol=atol,
-                        events=evs, max_step=max_step,
-                        t_eval=None if te is None else pending(t, t1))
+                        events=evs, max_step=max_step, dense_output=te is not None)
         if not sol.success:
             raise RuntimeError(sol.message)
-        keep(sol.t, sol.y[0], sol.y[1], sol.y[2:], signs)
-        if sol.status != 1:
-            return t1, sol.y[0, -1], sol.y[1, -1], sol.y[2:, -1]
-        hit = [k for k, tk in enumerate(sol.t_events) if len(tk)]
-        k = min(hit, key=lambda k: sol.t_events[k][0])
-        t_end, y_end = sol.t_events[k][0], sol.y_events[k][0]
-        events.append((t_end, names[k], None if k == 0 else names[k]))
-        w_end = 0.0 if k == 0 else y_end[1]
-        return t_end, y_end[0], w_end, y_end[2:].copy()
+        k = None
+        if sol.status == 1:
+            hit = [k for k, tk in enumerate(sol.t_events) if len(tk)]
+            k = min(hit, key=lambda k: sol.t_events[k][0])
+            events.append((sol.t[-1], names[k], None if k == 0 else names[k]))
+        ts, Y = sol.t, sol.y.copy()
+        if te is not None:  # requested times from the dense output (as solve_ivp's t_eval does)
+            ts = pending(t, sol.t[-1])
+            Y = sol.sol(ts) if len(ts) else np.zeros((5, 0))
+        if k == 0:  # a rest event: w is zero there by definition
+            Y[1, ts == sol.t[-1]] = 0.0
+        keep(ts, Y[0], Y[1], Y[2:], signs)
+        w_end = 0.0 if k == 0 else sol.y[1, -1]
+        return sol.t[-1], sol.y[0, -1], w_end, sol.y[2:, -1].copy()
 
     def _postprocess(self, samples, events, z0, q0, tau):
         nt = len(samples)
