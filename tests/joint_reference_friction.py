@@ -362,109 +362,27 @@ class FrictionSystem(jr.System):
     def simulate(self, init: jr.Initial, t1, tau: Callable | None = None, t_eval=None, rtol=1e-12,
                  atol=1e-13, method="DOP853", scan=1e-3, max_step=np.inf, max_segments=10000):
         """Piecewise integration from init to t1 with friction and stiction (see the module
-        docstring).  tau(t, q, w): driver generalized force.  t_eval: output times (default:
-        the solver's steps).  scan: step [s] of the break-away scan while stuck.
-        Returns a FrictionResult."""
-        tau = tau or _zero_effort
-        t, q, w = 0.0, float(init.q), float(init.w)
-        works = np.zeros(3)  # drive, Coulomb friction, damping
-        z0 = self.newton(q, self.to_internal(init.coords))[0]
-        cache = [q, z0, None]
-
-        def assemble(qq):
-            z, _, zq = self.track(qq, *cache)
-            cache[:] = qq, z, zq
-            return z, zq
-
-        te = None if t_eval is None else np.asarray(t_eval, float)
-        samples, events = [], []  # samples: (t, q, w, works, signs or None if stuck)
-
-        def keep(ts, qs, ws, W, signs):
-            for k in range(len(ts)):
-                if not samples or ts[k] > samples[-1][0]:
-                    samples.append((ts[k], qs[k], ws[k], W[:, k].copy(), signs))
-
-        def pending(lo, hi):
-            """Requested output times not yet produced, in [lo, hi]."""
-            last = samples[-1][0] if samples else -np.inf
-            return te[(te > last) & (te >= lo) & (te <= hi)]
-
+        docstring).  tau(t, q, w): driver generalized force (None = 0).  t_eval: output times
+        (default: the solver's steps, and three samples per stuck interval).  scan: step [s]
+        of the break-away scan while stuck.  Returns a FrictionResult."""
+        run = _Run(self, init, tau or _zero_effort, t_eval,
+                   dict(rtol=rtol, atol=atol, method=method, max_step=max_step))
         for _ in range(max_segments):
-            if t >= t1:
+            if run.t >= t1:
                 break
-            z, zq = assemble(q)
-            if w == 0.0:
-                s = self.start_direction(z, zq, tau(t, q, 0.0))
+            z, zq = run.assemble(run.q)
+            if run.w == 0.0:
+                s = self.start_direction(z, zq, run.tau(run.t, run.q, 0.0))
                 if s == 0:
-                    events.append((t, "stick", None))
-                    tb, s = self._break_away(z, zq, q, t, t1, tau, scan)
-                    t_end = t1 if tb is None else tb
-                    ts = np.linspace(t, t_end, 3) if te is None else pending(t, t_end)
-                    keep(ts, np.full(len(ts), q), np.zeros(len(ts)), np.repeat(works[:, None], len(ts), 1), None)
-                    if tb is None:
+                    s = run.stick(z, zq, t1, scan)
+                    if s == 0:
                         break
-                    events.append((tb, "break", None))
-                    t = tb
             else:
-                s = int(np.sign(w))
-            sigma = self.rate_signs(z, zq, s)
-            signs = s * sigma
-            t, q, w, works = self._segment(t, t1, q, w, works, s, sigma, signs, tau, assemble,
-                                           te, pending, keep, events, rtol, atol, method, max_step)
+                s = int(np.sign(run.w))
+            run.segment(t1, s, self.rate_signs(z, zq, s))
         else:
             raise RuntimeError(f"more than {max_segments} segments (chattering?)")
-        return self._postprocess(samples, events, z0, float(init.q), tau)
-
-    def _segment(self, t, t1, q, w, works, s, sigma, signs, tau, assemble, te, pending, keep,
-                 events, rtol, atol, method, max_step):
-        """One solve_ivp run with frozen Coulomb signs until t1 or the first event."""
-        def rhs(tt, y):
-            z, zq = assemble(y[0])
-            ta = tau(tt, y[0], y[1])
-            out = self.forward(z, y[1], ta, zq, signs)
-            return [y[1], out["wdot"], out["p_drive"], out["p_friction"], out["p_damping"]]
-
-        t0, a0 = t, None
-        if w == 0.0:  # from rest: s w / (t - t0) -> s dw/dt > 0, so t0 is not taken as the root
-            z, zq = assemble(q)
-            a0 = s * self.forward(z, 0.0, tau(t, q, 0.0), zq, signs)["wdot"]
-
-        def rest(tt, y):
-            if a0 is None:
-                return s * y[1]
-            return s * y[1] / (tt - t0) if tt > t0 else a0
-
-        rest.terminal, rest.direction = True, -1
-        evs, names = [rest], ["rest"]
-        for f, name in enumerate(self.friction_joints):
-            if self._mu[f] == 0.0:
-                continue  # no Coulomb sign to switch
-
-            def switch(tt, y, f=f, sg=sigma[f]):
-                z, zq = assemble(y[0])
-                return sg * (self.directions(z)[0][f] @ zq)
-
-            switch.terminal, switch.direction = True, -1
-            evs.append(switch)
-            names.append(name)
-        sol = solve_ivp(rhs, (t, t1), [q, w, *works], method=method, rtol=rtol, atol=atol,
-                        events=evs, max_step=max_step, dense_output=te is not None)
-        if not sol.success:
-            raise RuntimeError(sol.message)
-        k = None
-        if sol.status == 1:
-            hit = [k for k, tk in enumerate(sol.t_events) if len(tk)]
-            k = min(hit, key=lambda k: sol.t_events[k][0])
-            events.append((sol.t[-1], names[k], None if k == 0 else names[k]))
-        ts, Y = sol.t, sol.y.copy()
-        if te is not None:  # requested times from the dense output (as solve_ivp's t_eval does)
-            ts = pending(t, sol.t[-1])
-            Y = sol.sol(ts) if len(ts) else np.zeros((5, 0))
-        if k == 0:  # a rest event: w is zero there by definition
-            Y[1, ts == sol.t[-1]] = 0.0
-        keep(ts, Y[0], Y[1], Y[2:], signs)
-        w_end = 0.0 if k == 0 else sol.y[1, -1]
-        return sol.t[-1], sol.y[0, -1], w_end, sol.y[2:, -1].copy()
+        return self._postprocess(run.samples, run.events, run.z0, float(init.q), run.tau)
 
     def _postprocess(self, samples, events, z0, q0, tau):
         nt = len(samples)
@@ -510,6 +428,103 @@ class FrictionSystem(jr.System):
         return res
 
 
+class _Run:
+    """State of one piecewise simulation: the current (t, q, w, works), the samples kept
+    and the events met."""
+
+    def __init__(self, system, init, tau, t_eval, solver):
+        self.system, self.tau, self.solver = system, tau, solver
+        self.t, self.q, self.w = 0.0, float(init.q), float(init.w)
+        self.works = np.zeros(3)  # drive, Coulomb friction, damping
+        self.z0 = system.newton(self.q, system.to_internal(init.coords))[0]
+        self._cache = [self.q, self.z0, None]
+        self.t_eval = None if t_eval is None else np.asarray(t_eval, float)
+        self.samples, self.events = [], []  # samples: (t, q, w, works, signs or None if stuck)
+
+    def assemble(self, q):
+        """(z, dz/dq) at q, continued from the last assembly (keeps the branch)."""
+        z, _, zq = self.system.track(q, *self._cache)
+        self._cache[:] = q, z, zq
+        return z, zq
+
+    def keep(self, ts, qs, ws, W, signs):
+        """Append samples later than the last one kept."""
+        for k in range(len(ts)):
+            if not self.samples or ts[k] > self.samples[-1][0]:
+                self.samples.append((ts[k], qs[k], ws[k], W[:, k].copy(), signs))
+
+    def pending(self, lo, hi):
+        """Requested output times in [lo, hi] not yet produced."""
+        last = self.samples[-1][0] if self.samples else -np.inf
+        te = self.t_eval
+        return te[(te > last) & (te >= lo) & (te <= hi)]
+
+    def stick(self, z, zq, t1, scan):
+        """Stuck from now: keep the stuck samples, move to the break-away time.  Returns the
+        break-away direction, or 0 if it stays stuck until t1."""
+        self.events.append((self.t, "stick", None))
+        tb, s = self.system._break_away(z, zq, self.q, self.t, t1, self.tau, scan)
+        t_end = t1 if tb is None else tb
+        ts = np.linspace(self.t, t_end, 3) if self.t_eval is None else self.pending(self.t, t_end)
+        n = len(ts)
+        self.keep(ts, np.full(n, self.q), np.zeros(n), np.repeat(self.works[:, None], n, 1), None)
+        if tb is not None:
+            self.events.append((tb, "break", None))
+            self.t = tb
+        return s
+
+    def segment(self, t1, s, sigma):
+        """One solve_ivp run in direction s with the Coulomb signs s * sigma frozen, until t1
+        or the first rest / switch event."""
+        system, tau, t0, signs = self.system, self.tau, self.t, s * sigma
+
+        def rhs(t, y):
+            z, zq = self.assemble(y[0])
+            out = system.forward(z, y[1], tau(t, y[0], y[1]), zq, signs)
+            return [y[1], out["wdot"], out["p_drive"], out["p_friction"], out["p_damping"]]
+
+        a0 = None
+        if self.w == 0.0:  # from rest: s w / (t - t0) -> s dw/dt > 0, so t0 is not taken as the root
+            z, zq = self.assemble(self.q)
+            a0 = s * system.forward(z, 0.0, tau(t0, self.q, 0.0), zq, signs)["wdot"]
+
+        def rest(t, y):
+            if a0 is None:
+                return s * y[1]
+            return s * y[1] / (t - t0) if t > t0 else a0
+
+        events, joints = [rest], [None]
+        for f, name in enumerate(system.friction_joints):
+            if system._mu[f] == 0.0 or sigma[f] == 0.0:
+                continue  # no Coulomb sign to switch
+
+            def switch(t, y, f=f, sg=sigma[f]):
+                z, zq = self.assemble(y[0])
+                return sg * (system.directions(z)[0][f] @ zq)
+
+            events.append(switch)
+            joints.append(name)
+        for ev in events:
+            ev.terminal, ev.direction = True, -1
+        sol = solve_ivp(rhs, (t0, t1), [self.q, self.w, *self.works], events=events,
+                        dense_output=self.t_eval is not None, **self.solver)
+        if not sol.success:
+            raise RuntimeError(sol.message)
+        hit = None
+        if sol.status == 1:
+            hit = min((k for k, tk in enumerate(sol.t_events) if len(tk)), key=lambda k: sol.t_events[k][0])
+            self.events.append((sol.t[-1], "rest" if hit == 0 else "switch", joints[hit]))
+        ts, Y = sol.t, sol.y.copy()
+        if self.t_eval is not None:  # requested times from the dense output (as t_eval would)
+            ts = self.pending(t0, sol.t[-1])
+            Y = sol.sol(ts) if len(ts) else np.zeros((5, 0))
+        if hit == 0:  # a rest event: w is zero there by definition
+            Y[1, ts == sol.t[-1]] = 0.0
+        self.keep(ts, Y[0], Y[1], Y[2:], signs)
+        self.t, self.q, self.works = sol.t[-1], sol.y[0, -1], sol.y[2:, -1].copy()
+        self.w = 0.0 if hit == 0 else sol.y[1, -1]
+
+
 @dataclass
 class FrictionResult:
     """Output of FrictionSystem.simulate, one row per sample time (SI units).
@@ -526,8 +541,8 @@ class FrictionResult:
     guides[prismatic]: (nt, 2) guide direction e;
     T, V: kinetic and gravity potential energy; work_drive, work_friction (<= 0),
     work_damping (<= 0): quadratures from t = 0; balance = T + V - all work (constant);
-    events: [(t, kind, joint)], kind in {"rest", "stick", "break"} or a joint name's switch
-    (kind = joint name, joint = joint name); z, zd, zdd: COM coordinates as in jr.Result.
+    events: [(t, kind, joint)], kind in {"rest", "stick", "break", "switch"}, joint the
+    switching joint's name (None for the others); z, zd, zdd: COM coordinates as in jr.Result.
     Samples are strictly increasing in t; at an event the sample is the left limit."""
     t: np.ndarray
     q: np.ndarray
@@ -568,9 +583,10 @@ class FrictionResult:
     def balance(self):
         return self.T + self.V - self.work
 
-    def event_times(self, kind):
-        """Times of the events of one kind ("rest", "stick", "break", or a joint name)."""
-        return np.array([t for t, k, _ in self.events if k == kind])
+    def event_times(self, kind, joint=None):
+        """Times of the events of one kind ("rest", "stick", "break", "switch"), optionally
+        of one joint."""
+        return np.array([t for t, k, j in self.events if k == kind and joint in (None, j)])
 
 
 # ----------------------------------------------------------------------------- model

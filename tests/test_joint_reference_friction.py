@@ -201,7 +201,7 @@ def test_slider_crank_ramp_breaks_away_where_inverse_dynamics_says():
     k = 2.0
     lo, hi = jf.slider_crank(1.0).holding_range(1.0)
     assert lo < hi
-    r = jf.slider_crank(1.0, 0.0, tau=lambda t, q, w: lo + k * t).simulate(1.0)
+    r = jf.slider_crank(1.0, 0.0, tau=lambda t, q, w: lo + k * t).simulate(0.5)
     assert [kind for _, kind, _ in r.events][:2] == ["stick", "break"]
     assert abs(r.event_times("break")[0] - (hi - lo) / k) < 1e-12
     assert r.w[-1] > 0.0
@@ -326,3 +326,15 @@ def test_bad_friction_input_is_rejected():
         jf.slider_crank(friction=dict(Q=jf.Friction(mu=0.1)))
     with pytest.raises(ValueError, match="block length"):
         jf.slider_crank(friction=dict(P=jf.Friction(mu=0.1)))
+
+
+def test_switch_events_where_the_relative_rates_reverse(runs):
+    """Slider-crank closed forms: the slider's velocity vanishes at the dead centres
+    (sin q = 0), the rod's angular velocity (joint B: rod on slider) where cos q = 0."""
+    r = runs["slider_crank"]
+    tP, tB = r.event_times("switch", "P"), r.event_times("switch", "B")
+    assert len(tP) and len(tB) and len(r.event_times("switch")) == len(tP) + len(tB)
+    for times, f in ((tP, np.sin), (tB, np.cos)):
+        for t in times:
+            k = np.flatnonzero(r.t == t)[0]  # the event is a sample (the left limit)
+            assert abs(f(r.q[k])) < 1e-10
