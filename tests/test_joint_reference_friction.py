@@ -24,12 +24,28 @@ def _drive(t, q, w):
     return 0.3 * np.sin(5 * t)
 
 
+def _other(model, friction):
+    return jf.with_friction(model, {k: jf.Friction(**v) for k, v in friction.items()})
+
+
+RUNS = {
+    # sticks and breaks away twice
+    "slider_crank": (lambda: jf.slider_crank(0.5, 3.0, tau=_drive), 2.0),
+    "watt": (lambda: jf.watt_sixbar(0.3, 1.0), 2.0),
+    # a moving guide (the block slides on the rocker)
+    "quick_return": (lambda: _other(jr.quick_return(0.4, 4.0, tau=lambda t, q, w: 0.5), dict(
+        O=dict(mu=0.2, radius=0.005, damping=1e-3), A=dict(mu=0.2, radius=0.005),
+        P=dict(mu=0.2, length=0.03, damping=0.2), O4=dict(mu=0.2, radius=0.01))), 0.7),
+    # the driver is the slider (q = x, tau a force); it swings once and sticks
+    "slider_driven": (lambda: _other(jr.slider_driven(0.2, 0.1), dict(
+        P=dict(mu=0.2, length=0.03, damping=0.2), B=dict(mu=0.2, radius=0.005),
+        C=dict(mu=0.2, radius=0.005), O3=dict(mu=0.2, radius=0.005))), 0.5),
+}
+
+
 @pytest.fixture(scope="module")
 def runs():
-    """A driven slider-crank with friction in every joint (it sticks and breaks away twice)
-    and the Watt six-bar with friction in every joint thrown from theta2 = 0.3."""
-    return dict(slider_crank=jf.slider_crank(0.5, 3.0, tau=_drive).simulate(2.0),
-                watt=jf.watt_sixbar(0.3, 1.0).simulate(2.0))
+    return {name: build().simulate(t1) for name, (build, t1) in RUNS.items()}
 
 
 # ----------------------------------------------------------------------------- mu -> 0
@@ -61,10 +77,10 @@ def test_watt_without_friction_matches_the_frictionless_reference():
 
 
 # ----------------------------------------------------------------------------- energy
-@pytest.mark.parametrize("name", ["slider_crank", "watt"])
+@pytest.mark.parametrize("name", RUNS)
 def test_energy_balance_with_friction_and_damping(name, runs):
     r = runs[name]
-    assert r.work_friction[-1] < -1e-2 and r.work_damping[-1] < -1e-3  # friction really acts
+    assert r.work_friction[-1] < -1e-3 and r.work_damping[-1] < -1e-5  # friction really acts
     assert np.all(np.diff(r.work_friction) <= 1e-15) and np.all(np.diff(r.work_damping) <= 1e-15)
     assert np.ptp(r.balance) / r.T.max() < 1e-9
 
@@ -154,7 +170,8 @@ def test_pendulum_matches_its_scalar_equation(theta0, omega0, tau):
 def test_hanging_pendulum_holds_below_and_moves_above_its_static_limit():
     """At rest hanging down the pivot carries the weight: limit mu r m g (closed form)."""
     limit = 0.5 * 0.02 * jf.PENDULUM["m"] * jr.G
-    held = jf.pendulum(-np.pi / 2, 0.0, tau=lambda *_: 0.99 * limit).simulate(2.0)
+    # constant load: a coarse break-away scan is enough
+    held = jf.pendulum(-np.pi / 2, 0.0, tau=lambda *_: 0.99 * limit).simulate(2.0, scan=0.01)
     assert held.stuck.all() and np.all(held.w == 0.0) and np.all(held.q == -np.pi / 2)
     assert [k for _, k, _ in held.events] == ["stick"]
     np.testing.assert_allclose(jf.pendulum(-np.pi / 2).holding_range(-np.pi / 2), [-limit, limit], rtol=1e-12)
@@ -169,7 +186,7 @@ def test_self_locking_slider_crank_stays_at_rest():
                B=jf.Friction(mu=0.5, radius=0.02), P=jf.Friction(mu=0.5, length=0.02))
     lo, hi = jf.slider_crank(1.0, 0.0, friction=big).holding_range(1.0)
     assert lo < 0.0 < 0.5 < hi
-    r = jf.slider_crank(1.0, 0.0, tau=lambda *_: 0.5, friction=big).simulate(2.0)
+    r = jf.slider_crank(1.0, 0.0, tau=lambda *_: 0.5, friction=big).simulate(2.0, scan=0.01)
     assert r.stuck.all() and np.all(r.w == 0.0) and np.all(r.q == 1.0) and r.t[-1] == 2.0
     assert [k for _, k, _ in r.events] == ["stick"]
     moved = jf.slider_crank(1.0, 0.0, tau=lambda *_: hi + 0.01, friction=big).simulate(0.2)
@@ -177,7 +194,7 @@ def test_self_locking_slider_crank_stays_at_rest():
 
 
 def test_pendulum_comes_to_rest_without_chatter():
-    r = jf.pendulum(-np.pi / 2 + 0.8, 0.0).simulate(3.0)
+    r = jf.pendulum(-np.pi / 2 + 0.8, 0.0).simulate(3.0, scan=0.01)
     kinds = [k for _, k, _ in r.events]
     assert kinds[-1] == "stick" and kinds.count("stick") == 1 and "break" not in kinds
     after = r.t >= r.event_times("stick")[0]
@@ -223,7 +240,7 @@ def _point_velocity(system, z, zd, body, P):
     return np.zeros(2) if k < 0 else zd[3 * k: 3 * k + 2] + jr._perp(P - z[3 * k: 3 * k + 2]) * zd[3 * k + 2]
 
 
-@pytest.mark.parametrize("name", ["slider_crank", "watt"])
+@pytest.mark.parametrize("name", RUNS)
 def test_friction_law_from_the_reported_reactions(name, runs):
     """Every reported friction load re-evaluated from the reported reactions and body rates."""
     r = runs[name]
@@ -273,7 +290,7 @@ def _friction_wrench(system, z, friction, damping):
     return out
 
 
-@pytest.mark.parametrize("name", ["slider_crank", "watt"])
+@pytest.mark.parametrize("name", RUNS)
 def test_reported_loads_satisfy_newton_euler_per_body(name, runs):
     r = runs[name]
     s = r.system
@@ -286,7 +303,7 @@ def test_reported_loads_satisfy_newton_euler_per_body(name, runs):
         assert np.abs(res - wrench).max() < 1e-10
 
 
-@pytest.mark.parametrize("name", ["slider_crank", "watt"])
+@pytest.mark.parametrize("name", RUNS)
 def test_inverse_dynamics_recovers_the_applied_effort(name, runs):
     r = runs[name]
     moving = ~r.stuck
