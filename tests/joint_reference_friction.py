@@ -48,8 +48,9 @@ Stiction and piecewise integration (one degree of freedom)
 ----------------------------------------------------------
 Every relative rate is proportional to the driver rate w: ``u_f = k_f(q) w`` with
 ``k_f = g_f . dz/dq``.  The motion is integrated in segments with ``solve_ivp`` (DOP853,
-rtol = 1e-12, atol = 1e-13 by default) over which every Coulomb sign is frozen (``sign(k_f) * sign(w)``),
-so the right-hand side is smooth inside a segment.  A segment ends at an event:
+rtol = 1e-12, atol = 1e-13 by default) over which every Coulomb sign is frozen
+(``sign(k_f) * sign(w)``), so the right-hand side is smooth inside a segment.  A segment ends
+at an event:
 
 * ``switch``: some ``k_f(q)`` crosses zero (that joint's relative rate reverses while the
   mechanism moves on): the segment restarts with that sign flipped.
@@ -73,6 +74,14 @@ Work quadratures (integrated with the motion; constant while stuck):
 ``work_drive = int tau w dt``, ``work_friction = int sum_f coulomb_f u_f dt <= 0`` (Coulomb),
 ``work_damping = int (sum_f viscous_f u_f + translational-damper power) dt <= 0``; then
 ``T + V - work_drive - work_friction - work_damping`` is constant.
+
+Example::
+
+    import joint_reference_friction as jf
+    model = jf.slider_crank(0.5, 3.0, tau=lambda t, q, w: 0.3 * np.sin(5 * t))
+    r = model.simulate(2.0, t_eval=np.linspace(0, 2, 41))   # FrictionResult
+    r.q, r.w, r.stuck, r.friction["P"], r.event_times("break")
+    model.inverse(1.0, 2.0, 0.5)["tau"]                      # effort needed, with friction
 """
 
 from __future__ import annotations
