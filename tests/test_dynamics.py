@@ -291,3 +291,75 @@ def test_no_retrace_for_new_initial_state_or_horizon(watt):
     first = len(traces)
     aj.simulate(watt, loads=loads, q0=0.3, omega0=1.0, t1=0.3, **lean)
     assert first > 0 and len(traces) == first
+
+
+SLIDER_DRIVEN = """
+[scene]
+name = "slider_driven"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+O3 = [0.0, 0.3]
+[links.slider]
+points = { B = [0.0, 0.0] }
+mass = 0.5
+[links.rod]
+points = { B = [0.0, 0.0], C = [0.25, 0.0] }
+mass = 0.3
+inertia = 0.0015625
+[links.rocker]
+points = { O3 = [0.0, 0.0], C = [0.2, 0.0] }
+mass = 0.4
+inertia = 0.0013
+[[formation]]
+group = "slider"
+link = "slider"
+point = "B"
+guide_point = "O"
+direction = [1.0, 0.0]
+[[formation]]
+group = "RRR"
+name = "dyad"
+links = ["rod", "rocker"]
+joints = ["B", "O3", "C"]
+mode = "left"
+[state]
+q0 = 0.2
+"""
+
+
+def test_unassemblable_start_raises_naming_the_group(write_scene):
+    """A start where the mechanism cannot close is an AssemblyError naming the group and
+    q0, never a frozen or zero motion: a slider driver pushed past |B O3| = rod + rocker
+    (0.6 m: sqrt(0.6^2 + 0.3^2) > 0.45), and a crank-driven scene at an angle where its
+    own assembly flags (a sweep of the position analysis) say a group does not close."""
+    slider = aj.load_scene(write_scene(SLIDER_DRIVEN))
+    assert aj.simulate(slider, t1=0.05).status.startswith("reached t1")
+    for q0 in (0.6, -0.6):
+        with pytest.raises(aj.AssemblyError, match=r"group 'dyad' \(RRR\) cannot assemble at the start q0 = -?0\.6") as info:
+            aj.simulate(slider, q0=q0, t1=0.05)
+        assert info.value.group == "dyad"
+    roberts = aj.load_scene("roberts")
+    qs = np.linspace(-np.pi, np.pi, 721)
+    ok = np.asarray(aj.kinematics(roberts.mechanism, qs, order=0, check=False).ok)
+    bad = np.flatnonzero(~ok.all(-1))
+    assert bad.size, "the Roberts linkage's crank does not turn fully"
+    group = roberts.mechanism.groups[int(np.argmin(ok[bad[0]]))].name
+    with pytest.raises(aj.AssemblyError, match=f"group '{group}'"):
+        aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05)
+
+
+def test_point_and_link_rates_along_a_simulation(watt):
+    """Velocities and accelerations in the Solution against central differences of the
+    saved trajectories (and the centre of mass of a link against its two end points)."""
+    ts = np.linspace(0.2, 0.6, 401)
+    sol = aj.simulate(watt, stop=None, saveat=ts, points=["E"], angles=["link5"], coms=["link3"], velocities=True,
+                      accelerations=True, rtol=1e-11, atol=1e-11)
+    h = ts[1] - ts[0]
+    mid = slice(1, -1)
+    diff = lambda x: (x[2:] - x[:-2]) / (2 * h)  # noqa: E731
+    np.testing.assert_allclose(sol.velocities["E"][mid], diff(sol.points["E"]), atol=1e-4 * np.abs(sol.velocities["E"]).max())
+    np.testing.assert_allclose(sol.accelerations["E"][mid], diff(sol.velocities["E"]), atol=1e-3 * np.abs(sol.accelerations["E"]).max())
+    np.testing.assert_allclose(sol.angular_velocities["link5"][mid], diff(np.unwrap(sol.angles["link5"])), atol=1e-4)
+    np.testing.assert_allclose(sol.com_velocities["link3"][mid], diff(sol.coms["link3"]), atol=1e-6)
+    np.testing.assert_allclose(sol.angular_accelerations["link5"][mid], diff(sol.angular_velocities["link5"]), atol=1e-2)

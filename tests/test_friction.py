@@ -72,10 +72,11 @@ def test_self_locking_stays_at_rest(slider):
 
 
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
-    """mu = 0 on every pair: until the first standstill the same steps as without friction
-    (to round-off); past it, the stick-slip segments agree to the solver's tolerance."""
-    plain = aj.simulate(slider, stop="standstill", t1=T1, rtol=1e-10, atol=1e-10)
-    smooth = aj.simulate(slider, loads=frictions(slider.mechanism, 0.0), stop="standstill", t1=T1, rtol=1e-10, atol=1e-10)
+    """mu = 0 on every pair: with the same (fixed) steps up to the first standstill, the same
+    motion as without friction to round-off; past it, the stick-slip segments (adaptive)
+    agree with the frictionless run to the solver's tolerance."""
+    plain = aj.simulate(slider, stop="standstill", t1=T1, dt=2e-3)
+    smooth = aj.simulate(slider, loads=frictions(slider.mechanism, 0.0), stop="standstill", t1=T1, dt=2e-3)
     np.testing.assert_allclose(smooth.q, plain.q, rtol=0, atol=1e-12)
     np.testing.assert_allclose(smooth.t_stop, plain.t_stop, rtol=0, atol=1e-12)
     free = aj.simulate(slider, stop=None, t1=T1, saveat=TIMES, rtol=1e-10, atol=1e-10)
@@ -138,6 +139,7 @@ def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     assert np.max(np.abs(bare.driving)) > 1e-3  # without friction the same motion needs a drive
 
 
+@pytest.mark.slow
 def test_gradient_in_mu_against_differences(slider):
     """d t_stop / d mu (standstill, reverse mode through the solve and the friction's Newton
     solve by the implicit function theorem) against central differences."""
@@ -153,3 +155,62 @@ def test_gradient_in_mu_against_differences(slider):
     fd = (t_stop(jnp.asarray(MU + h)) - t_stop(jnp.asarray(MU - h))) / (2 * h)
     assert math.isfinite(float(grad))
     np.testing.assert_allclose(float(grad), float(fd), rtol=1e-4)
+
+
+# ---------------------------------------------------------------------------- against the joint-based reference
+
+
+def _package_frictions(mechanism, table: dict):
+    """The reference's friction table (tests/joint_reference_friction.py) as package loads."""
+    out = []
+    for name in aj.joint_names(mechanism):
+        ref = table["P" if "/" in name else name]
+        if "/" in name:
+            out.append(aj.SlideFriction(name, ref.mu, ref.length, viscous=ref.damping))
+        else:
+            out.append(aj.JointFriction(name, ref.mu, ref.radius, viscous=ref.damping))
+    return tuple(out)
+
+
+@pytest.mark.parametrize("case", ["slider_crank", pytest.param("watt_sixbar", marks=pytest.mark.slow)])
+def test_agrees_with_the_joint_based_reference(case):
+    """Friction in every joint (viscous terms too), 2 s of motion through rests, sticking
+    and sign reversals of the relative rates: q within 1e-8 rad of the reference."""
+    import joint_reference_friction as jrf
+
+    scene = aj.load_scene(case)
+    if case == "slider_crank":
+        q0, w0, table, ref = 0.5, 0.0, jrf.SLIDER_CRANK_FRICTION, jrf.slider_crank(0.5, 0.0)
+    else:
+        q0, w0, table, ref = 0.3, 1.0, jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
+    expected = ref.simulate(T1, t_eval=TIMES)
+    sol = aj.simulate(scene, loads=_package_frictions(scene.mechanism, table), q0=q0, omega0=w0, stop=None, t1=T1,
+                      saveat=TIMES, energies=True, rtol=1e-10, atol=1e-10)
+    assert sol.status.startswith("reached t1"), sol.status
+    np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
+    # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is 0
+    moving = ~expected.stuck
+    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, _package_frictions(scene.mechanism, table)),
+                     (expected.q[moving], expected.w[moving], expected.wdot[moving]))
+    np.testing.assert_allclose(r.driving, 0.0, atol=1e-7)
+
+
+def test_inverse_dynamics_of_a_prescribed_motion_with_friction():
+    """assurjax.inverse_dynamics along q(t) = 0.5 + 3 t + 0.2 sin 5t (a JAX function: w and
+    dw/dt by jvp) of the slider-crank with friction in every joint: the driving torque and
+    the pin reactions against the joint-based reference's inverse dynamics."""
+    import joint_reference_friction as jrf
+
+    scene = aj.load_scene("slider_crank")
+    model = aj.Model(scene.mechanism, scene.gravity, _package_frictions(scene.mechanism, jrf.SLIDER_CRANK_FRICTION))
+    t = np.linspace(0.0, 1.0, 11)
+    r = aj.inverse_dynamics(model, lambda t: 0.5 + 3.0 * t + 0.2 * jnp.sin(5.0 * t), t)
+    ref = jrf.slider_crank(0.5, 0.0)
+    for k, tk in enumerate(t):
+        q, w, a = 0.5 + 3.0 * tk + 0.2 * np.sin(5 * tk), 3.0 + np.cos(5 * tk), -5.0 * np.sin(5 * tk)
+        expected = ref.inverse(q, w, a)
+        assert abs(float(r.driving[k]) - expected["tau"]) < 1e-9 * (1 + abs(expected["tau"]))
+        for joint in ("O", "A", "B"):  # the reference reports the force on its body_i, the earlier link
+            np.testing.assert_allclose(r[joint][k], -expected["reactions"][joint], atol=1e-9)

@@ -3,6 +3,7 @@ formation order (seed 000 section 3.3; class-IV group with special Assur points,
 
 from ._api import (
     Reactions as Reactions,
+    inverse_dynamics as inverse_dynamics,
     SingularConfigurationError as SingularConfigurationError,
     reactions as reactions,
     static_reactions as static_reactions,

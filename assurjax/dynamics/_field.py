@@ -67,9 +67,10 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     if args.table is not None:
         return State(y.omega, args.table.acceleration(y.q, y.omega))
     model = args.model
-    if frictions_of(model.loads):  # at w = 0 the friction opposes the segment's direction of motion
-        direction = jnp.where(y.omega != 0, jnp.sign(y.omega), args.direction)
-        red, kin, alpha, friction_power = frictional(model, t, y, direction)
+    if frictions_of(model.loads):
+        # the Coulomb signs of the segment's direction of motion, frozen until w returns to 0
+        # (an event ends the segment there): the field stays smooth across the stop
+        red, kin, alpha, friction_power = frictional(model, t, y, args.direction)
     else:
         red, kin = _reduce(model, t, y)
         alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
@@ -114,6 +115,24 @@ def directional_accelerations(model: Model, t, y: State):
 def rest_direction(a_plus, a_minus):
     """+1 / -1: the direction a mechanism at rest starts to move in; 0: it sticks."""
     return jnp.where(a_plus > 0, 1.0, jnp.where(a_minus < 0, -1.0, 0.0))
+
+
+def start_direction(model: Model, t0, y0: State):
+    """The direction of motion at the start: sign(w0), or from rest the break-away
+    direction (0 when the friction holds the mechanism)."""
+    a_plus, a_minus = directional_accelerations(model, t0, y0)
+    return jnp.where(y0.omega != 0, jnp.sign(y0.omega), rest_direction(a_plus, a_minus))
+
+
+def arrival_acceleration(model: Model, t, q, omega, q0, omega0, t0):
+    """dw/dt at (t, q, omega) on the way there from (t0, q0, omega0), before any reversal:
+    with friction, the Coulomb signs are those of the start's direction of motion (the
+    left limit at a standstill, where the law switches)."""
+    y = State(q, omega)
+    if not frictions_of(model.loads):
+        return _reduce(model, t, y)[0].acceleration(omega)
+    start = start_direction(model, t0, State(q0, omega0))
+    return frictional(model, t, y, jnp.where(start != 0, start, 1.0))[2]
 
 
 def acceleration_at(model: Model, t, y: State):

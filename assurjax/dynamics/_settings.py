@@ -71,6 +71,9 @@ class Settings(NamedTuple):
     points: tuple[str, ...] = ()
     angles: tuple[str, ...] = ()
     energies: bool = False
+    velocities: bool = False  # point, COM and link velocities along the motion (for the points, coms, angles asked)
+    accelerations: bool = False  # and their accelerations
+    coms: tuple[str, ...] = ()  # links whose centre-of-mass trajectories are saved
     domega: bool = True
     branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
     adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
@@ -150,11 +153,13 @@ def settings_from(scene=None, **overrides) -> Settings:
         table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
         fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
         points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
+        velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
+        coms=tuple(outs.get("coms", ())),
     )
     if overrides.pop("dt", None) is not None:  # the step itself is traced: fixed_step_from
         overrides["fixed_step"] = True
     values = {**from_scene, **{k: v for k, v in overrides.items() if v is not None}}
-    for key in ("points", "angles", "events"):
+    for key in ("points", "angles", "events", "coms"):
         if key in values:
             values[key] = tuple(values[key])
     settings = Settings(**values)

@@ -17,7 +17,8 @@ from .._model import Model
 from .._reduction import reduce_with_pose
 from .._friction import frictions_of
 from ._field import State, acceleration_at
-from ._results import LOCKUP, STANDSTILL, USER, finished, result_code, status_text
+from .._errors import AssemblyError
+from ._results import RESULTS, LOCKUP, STANDSTILL, USER, finished, result_code, status_text
 from ._settings import Settings
 
 
@@ -31,7 +32,12 @@ class Solution(eqx.Module):
     None unless energies are asked, and with a tabulated reduction), so that
     ``balance`` = T + V - W - (T + V at t0) stays 0 up to the solver's error;
     ``dissipated`` (J): work removed by dissipative loads since t0 (None without them).
-    ``points``: name -> (n, 2) trajectories (m); ``angles``: link -> (n,) (rad).
+    ``points``: name -> (n, 2) trajectories (m); ``angles``: link -> (n,) (rad);
+    ``coms``: link -> (n, 2) centre-of-mass trajectories (m). With ``velocities`` /
+    ``accelerations`` asked: ``velocities``, ``accelerations`` (m/s, m/s^2) of those
+    points, ``com_velocities``, ``com_accelerations`` of those centres of mass and
+    ``angular_velocities``, ``angular_accelerations`` (rad/s, rad/s^2) of those links
+    (from the kinematic coefficients and the simulated w, dw/dt).
     ``t_stop``: time (s) at which a stop event fired (None when none did; under
     jit/vmap an array, +inf when none did). ``event``: -1 none, 0 standstill, 1 a group
     can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
@@ -62,6 +68,13 @@ class Solution(eqx.Module):
     result: Any
     num_steps: Array
     work: Array | None = None
+    velocities: dict[str, Array] = eqx.field(default_factory=dict)
+    accelerations: dict[str, Array] = eqx.field(default_factory=dict)
+    coms: dict[str, Array] = eqx.field(default_factory=dict)
+    com_velocities: dict[str, Array] = eqx.field(default_factory=dict)
+    com_accelerations: dict[str, Array] = eqx.field(default_factory=dict)
+    angular_velocities: dict[str, Array] = eqx.field(default_factory=dict)
+    angular_accelerations: dict[str, Array] = eqx.field(default_factory=dict)
     failed_group: str | None = eqx.field(static=True, default=None)
     status: str = eqx.field(static=True, default="")
 
@@ -87,7 +100,8 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
     (T = J_red w^2 / 2), its position analysis gives points, angles and V."""
     mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
     out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
-    if not (settings.domega or settings.energies or settings.points or settings.angles):
+    rates = settings.velocities or settings.accelerations
+    if not (settings.domega or settings.energies or settings.points or settings.angles or settings.coms):
         return out
 
     def sample(t, q, w, z):
@@ -99,12 +113,16 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)
-        elif settings.angles:  # angles of any link: the full position analysis
+        elif settings.angles or settings.coms:  # angles or centres of any link: the full position analysis
             pose = positions(mechanism, q, near=z)
         else:  # only the groups the points need
             pose = positions(mechanism, q, points=settings.points, near=z)
         values["points"] = {p: pose.points[p] for p in settings.points}
         values["angles"] = {a: pose.angles[a] for a in settings.angles}
+        values["coms"] = {c: pose.coms[c] for c in settings.coms} if settings.coms else {}
+        if rates:
+            alpha = values["domega"] if "domega" in values else None
+            values.update(_rates(mechanism, q, w, alpha, z, settings))
         return values
 
     out.update(jax.vmap(sample)(t, q, w, near))
@@ -113,7 +131,25 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
     return out
 
 
-_SAVED = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "work", "points", "angles", "valid")
+def _rates(mechanism, q, w, alpha, near, settings: Settings) -> dict:
+    """Velocities (and accelerations) of the points, centres of mass and links asked for."""
+    from .._kinematics import coefficients
+
+    order = 2 if settings.accelerations else 1
+    kin = coefficients(mechanism, q, order=order, near=near).kinematics(w, alpha if order == 2 else None)
+    pick = lambda d, names: {} if d is None else {k: d[k] for k in names}  # noqa: E731
+    out = dict(velocities=pick(kin.velocities, settings.points), com_velocities=pick(kin.com_velocities, settings.coms),
+               angular_velocities=pick(kin.angular_velocities, settings.angles))
+    if order == 2:
+        out.update(accelerations=pick(kin.accelerations, settings.points),
+                   com_accelerations=pick(kin.com_accelerations, settings.coms),
+                   angular_accelerations=pick(kin.angular_accelerations, settings.angles))
+    return out
+
+
+_SAVED = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "work", "points", "angles", "valid",
+          "velocities", "accelerations", "coms", "com_velocities", "com_accelerations", "angular_velocities",
+          "angular_accelerations")
 
 
 def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
@@ -127,6 +163,10 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
     event, failed = int(sol.event), int(sol.failed_group_index)
     group = mechanism.groups[failed].name if failed >= 0 else None
+    if bool(np.asarray(sol.result == RESULTS.start_not_assembled)):
+        raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(sol.q[0]):.6g}: "
+                            "choose a starting driving coordinate where the mechanism closes (or, for a triad or class-IV "
+                            "group, a better 'guess' of its inner joints)", group=group)
     t_stop = float(sol.t_final) if event >= 0 else None
     status = status_text(int(result_code(sol.result)), event, group, float(sol.t_final), max_steps=settings.max_steps)
     return dataclasses.replace(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
@@ -139,5 +179,8 @@ def batch_summary(sols: Solution) -> Solution:
              if np.any(events == code)]
     parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
     parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
-    parts += [f"{np.sum((events < 0) & (results != 0))} solver failures"] if np.any((events < 0) & (results != 0)) else []
+    unassembled = np.asarray(sols.result == RESULTS.start_not_assembled)
+    parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
+    failures = (events < 0) & (results != 0) & ~unassembled
+    parts += [f"{np.sum(failures)} solver failures"] if np.any(failures) else []
     return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))

@@ -11,22 +11,23 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
+from .._friction import frictions_of
 from .._jit import checks_without_callbacks, jit
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
 from .._tracking import branch_angles
 from ._events import assembles, stop_event, which_event
-from ._field import FieldArgs, State, vector_field, vector_field_or_nan
+from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
 from ._results import LOCKUP, NO_EVENT, RESULTS
-from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for)
+from ._settings import BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for
 from ._solution import Solution, batch_summary, outputs, trim
 from ._stick import stick_slip
-from .._friction import frictions_of
 from ._table import ReducedTable, build_table, build_table_core
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
@@ -75,6 +76,18 @@ def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, 
 
 def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    sol = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
+    if not settings.check_assembly or _tabulated(settings):
+        return sol
+    # a start where some group cannot assemble is no motion at all: say so, whatever the solver did
+    ok = positions(model.mechanism, q0).ok
+    bad = ~jnp.all(ok)
+    return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
+                       (RESULTS.where(bad, RESULTS.start_not_assembled, sol.result),
+                        jnp.where(bad, jnp.argmin(ok), sol.failed_group_index)))
+
+
+def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
     if _tabulated(settings):
         settings = settings._replace(check_assembly=False)
         table = build_table_core(model.mechanism, model.gravity, model.loads, settings.table_nodes) if table is None else table
@@ -84,10 +97,17 @@ def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -
         return _steps_solve(model, q0, omega0, t0, t1, settings, table)
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
-    if frictions_of(model.loads) and not settings.standstill and table is None:
+    frictional = bool(frictions_of(model.loads)) and table is None
+    if frictional and not settings.standstill:
         return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
-    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs)
+    # with friction, up to the first standstill: one segment with the Coulomb signs of the
+    # start's direction (a start held by the friction stops at once: w turns against +1)
+    direction = jnp.sign(omega0)
+    if frictional:
+        direction = start_direction(model, t0, y0)
+        direction = jnp.where(direction != 0, direction, 1.0)
+    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
         solver_for(settings),
@@ -168,7 +188,10 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     )
 
 
-def check_steps(settings: Settings) -> None:
+def check_steps(settings: Settings, model: Model | None = None) -> None:
+    if model is not None and frictions_of(model.loads):
+        raise AssurjaxError("steps= (fixed steps) cannot locate where a mechanism with joint friction comes to rest "
+                            "or breaks away: use the adaptive solver (steps=None)")
     if int(settings.steps) < 1:
         raise AssurjaxError(f"steps must be a positive number of steps, got {settings.steps}")
     if settings.standstill or settings.events:
@@ -248,6 +271,9 @@ def simulate(
     points: Sequence[str] | None = None,
     angles: Sequence[str] | None = None,
     energies: bool | None = None,
+    velocities: bool | None = None,
+    accelerations: bool | None = None,
+    coms: Sequence[str] | None = None,
     branch: str | None = None,
     reduction: str | None = None,
     table_nodes: int | None = None,
@@ -270,7 +296,9 @@ def simulate(
     fixed step, s), ``max_steps``, ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
-    loaded mechanisms). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
+    loaded mechanisms); ``coms`` (links whose centres of mass to save), ``velocities``,
+    ``accelerations`` (True: also the velocities / accelerations of the saved points,
+    centres of mass and link angles). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
     or ``"tracked"``: the link angles travel in the ODE state (d theta/dt =
     d theta/dq w, from the same jvp) and every group takes the root nearest to them,
     which keeps the motion on one continuous branch through singular configurations
@@ -308,6 +336,7 @@ def simulate(
     settings = settings_from(
         scene_or_none, stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
         events=tuple(events), check_assembly=bool(check_assembly), points=points, angles=angles, energies=energies,
+        velocities=velocities, accelerations=accelerations, coms=coms,
         branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps,
     )
     _check_outputs(model.mechanism, settings)
@@ -322,7 +351,7 @@ def simulate(
         return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
                                    standstill=settings.standstill)
     if settings.steps is not None:
-        check_steps(settings)
+        check_steps(settings, model)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
@@ -403,7 +432,7 @@ def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:
     for p in settings.points:
         if p not in mechanism.point_names:
             raise AssurjaxError(f"outputs: unknown point '{p}' (known: {sorted(mechanism.point_names)})")
-    for a in settings.angles:
+    for a in settings.angles + settings.coms:
         if a not in mechanism.links:
             raise AssurjaxError(f"outputs: unknown link '{a}' (known: {sorted(mechanism.links)})")
 

@@ -10,7 +10,9 @@ direction s whose a_s points that way, when a time-dependent load makes that cha
 The motion is integrated by diffrax in segments inside one ``lax.while_loop``: a slip
 segment ends where w returns to 0 (a diffrax.Event located by root finding), a stick
 segment (w = 0, q fixed) where the break-away margin max(a_+, -a_-) crosses 0 (another
-Event). Each segment saves the requested times that fall inside it.
+Event). Each segment saves the requested times that fall inside it. Forward-mode
+derivatives go through the loop; reverse mode does not (JAX cannot reverse a
+while_loop): differentiate runs up to the first standstill, or use ``jax.jvp``.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ import optimistix as optx
 
 from .._errors import AssurjaxError
 from .._model import Model
-from ._events import assembles, margins
-from ._field import FieldArgs, State, directional_accelerations, rest_direction, vector_field
+from ._events import assembles, stop_event
+from ._field import FieldArgs, State, directional_accelerations, rest_direction, start_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, finished
 from ._settings import Settings, adjoint_for, controller_for, solver_for
 from ._solution import Solution, outputs
@@ -37,8 +39,7 @@ def _stuck_field(t, y, args):
 
 
 def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings) -> Solution:
-    """The motion with stick and slip (see the module docstring); ``settings.standstill``
-    must be off (a standstill stop needs no sticking) and no user events."""
+    """The motion with stick and slip (see the module docstring); no user events."""
     if settings.events:
         raise AssurjaxError("user events are not supported yet with joint friction when the motion runs on past "
                             "standstill; use stop='standstill' or no events")
@@ -58,7 +59,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                       saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, t1), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=controller_for(settings),  # noqa: E731
-                                           event=_slip_event(slip_settings), **kwargs)
+                                           event=stop_event(slip_settings), **kwargs)
         hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
         sol = jax.lax.cond(stuck, hold, slip)
@@ -92,17 +93,15 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return ~carry[-1] & (carry[6] < MAX_SEGMENTS)
 
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
-    a_plus, a_minus = directional_accelerations(model, t0, y0)
-    go0 = jnp.where(omega0 != 0, jnp.sign(omega0), rest_direction(a_plus, a_minus))
+    go0 = start_direction(model, t0, y0)
     carry = (t0, y0, jnp.where(go0 != 0, go0, 1.0), go0 == 0, saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
     end, y_end, _, _, saved, filled, _, steps, result, event, failed, _ = jax.lax.while_loop(cond, body, carry)
-    valid = filled
-    last = jnp.sum(valid) - 1
-    t = jnp.where(valid, ts, end)
-    q, w = (jnp.where(valid, z, z[jnp.maximum(last, 0)]) for z in (saved.q, saved.omega))
+    valid = filled  # the times reached; the rest repeat the last one reached
+    last = jnp.maximum(jnp.sum(valid) - 1, 0)
+    pick = lambda z: None if z is None else jnp.where(valid, z, z[last])  # noqa: E731
+    t, q, w = jnp.where(valid, ts, end), pick(saved.q), pick(saved.omega)
     values = outputs(model, t, q, w, settings)
-    pick = lambda z: None if z is None else jnp.where(valid, z, z[jnp.maximum(last, 0)])  # noqa: E731
     return Solution(
         t=t, q=q, omega=w, **values, dissipated=pick(saved.dissipated), work=pick(saved.work), valid=valid,
         t_final=end, q_final=y_end.q, omega_final=y_end.omega,
@@ -114,12 +113,3 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 def _expand(mask, like):
     return mask.reshape(mask.shape + (1,) * (jnp.ndim(like) - 1))
 
-
-def _slip_event(settings: Settings):
-    """Slip ends where w returns to 0 against the segment's direction (or a group cannot assemble)."""
-
-    def cond_fn(t, y, args, **kwargs):
-        return jnp.minimum(jnp.min(jnp.stack(margins(settings, t, y, args))), _TINY)
-
-    tol = min(1e-3 * settings.rtol, 1e-12)
-    return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)

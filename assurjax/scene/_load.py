@@ -11,7 +11,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import MechanismError, SceneError
+from .._errors import AssurjaxError, MechanismError, SceneError
+from ..dynamics._settings import check_simulation_table
 from .._mechanism import Mechanism
 from ..groups import GROUND, Link
 from ..groups import _drivers, _prp, _rpr, _rrp, _rrr
@@ -250,7 +251,10 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     state.reject_unknown()
     mechanism = _newton.resolve_guess_q(mechanism, state_values["q0"])  # iterative groups' guesses refer to q0
     simulation = Fields(top.raw("simulation", {}), "[simulation]", source)
-    sim_values = dict(simulation.table)
+    try:
+        sim_values = check_simulation_table(simulation.table)
+    except AssurjaxError as e:
+        raise SceneError(f"{source}: {e}") from None
     outputs = Fields(top.raw("outputs", {}), "[outputs]", source)
     out_values = _outputs(outputs, mechanism)
 

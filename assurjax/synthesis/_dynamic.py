@@ -36,7 +36,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._reduction import reduce_single
+from ..dynamics._field import arrival_acceleration
 from ..dynamics._settings import fixed_step_from, settings_from
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
@@ -97,8 +97,9 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     t1 = state.get("t1", 1.0) if t1 is None else t1
     sol = simulate_core(scene.model, None, (), q0, omega0, state.get("t0", 0.0), t1, None, fixed_step_from(scene, settings.get("dt")),
                         settings=opts)
-    red = reduce_single(scene.mechanism, scene.gravity, scene.loads, sol.q_final, sol.omega_final, sol.t_final)
-    alpha = jax.lax.stop_gradient(red.acceleration(sol.omega_final))
+    alpha = jax.lax.stop_gradient(arrival_acceleration(scene.model, sol.t_final, sol.q_final, sol.omega_final,
+                                                       jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float),
+                                                       jnp.asarray(state.get("t0", 0.0), dtype=float)))
     w = sol.omega_final
     t_star = sol.t_final - (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha)
     return t_star, sol.event == 0

@@ -1,0 +1,78 @@
+"""Cost of joint friction: one right-hand side and one simulation, with and without friction.
+
+With friction every right-hand side linearizes the kinetostatics once and solves the
+friction values by Newton's method (see assurjax/_friction.py); the target is at most
+2x the cost of a frictionless step. Measured per right-hand-side evaluation (the
+vector field alone, jitted, vmapped over 256 states so that dispatch does not count),
+and per simulation (the user's call ``assurjax.simulate``: steps, time, time per step).
+
+    python benchmarks/bench_friction.py            # writes results/friction.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import assurjax
+from assurjax.dynamics._field import State, field_args, vector_field
+
+sys.path.insert(0, os.path.dirname(__file__))
+from _timing import best_time  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def frictions(mechanism, mu=0.2):
+    names = assurjax.joint_names(mechanism)
+    return tuple(assurjax.JointFriction(j, mu, 0.02, viscous=1e-3) for j in names if "/" not in j) + tuple(
+        assurjax.SlideFriction(j, mu, 0.05, viscous=1e-3) for j in names if "/" in j)
+
+
+def per_evaluation(scene, loads, n=256) -> float:
+    """Seconds per right-hand-side evaluation (vmapped over n states)."""
+    args = field_args(assurjax.Model(scene.mechanism, scene.gravity, loads))
+    args = args.__class__(model=args.model, table=None, direction=jnp.asarray(1.0), q0=args.q0, user_signs=())
+    field = assurjax.jit(jax.vmap(lambda q, w: vector_field(0.0, State(q, w), args).omega))
+    q, w = jnp.linspace(0.3, 2.5, n), jnp.full(n, 1.5)
+    return best_time(lambda: field(q, w)) / n
+
+
+def per_simulation(scene, loads, q0, t1) -> dict:
+    kwargs = dict(loads=loads, q0=q0, stop=None, t1=t1, rtol=1e-8, atol=1e-8)
+    start = time.perf_counter()
+    sol = assurjax.simulate(scene, **kwargs)
+    first = time.perf_counter() - start
+    seconds = best_time(lambda: assurjax.simulate(scene, **kwargs).q, repeats=5)
+    steps = int(np.asarray(sol.num_steps))
+    return dict(first_call_s=first, run_s=seconds, steps=steps, us_per_step=1e6 * seconds / steps, status=sol.status)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", default=os.path.join(HERE, "results", "friction.json"))
+    args = parser.parse_args()
+    out = dict(machine=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__, cases={})
+    for name, q0, t1 in (("slider_crank", 0.5, 2.0), ("watt_sixbar", 0.3, 2.0)):
+        scene = assurjax.load_scene(name)
+        rough = scene.loads + frictions(scene.mechanism)
+        case = dict(rhs_us=1e6 * per_evaluation(scene, scene.loads), rhs_friction_us=1e6 * per_evaluation(scene, rough),
+                    simulate=per_simulation(scene, scene.loads, q0, t1), simulate_friction=per_simulation(scene, rough, q0, t1))
+        case["rhs_ratio"] = case["rhs_friction_us"] / case["rhs_us"]
+        case["step_ratio"] = case["simulate_friction"]["us_per_step"] / case["simulate"]["us_per_step"]
+        out["cases"][name] = case
+        print(name, json.dumps(case, indent=1))
+    with open(args.out, "w") as f:
+        json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
