@@ -35,11 +35,18 @@ from ._objectives import (
 )
 from ._problems import (
     ROBERTS_Q0 as ROBERTS_Q0,
+    StraightLineObjective as StraightLineObjective,
     add_point_mass as add_point_mass,
     standstill_time_problem as standstill_time_problem,
     straight_line_problem as straight_line_problem,
 )
-from ._optimize import History as History, SynthesisResult as SynthesisResult, assembles as assembles, optimize as optimize
+from ._optimize import (
+    History as History,
+    StartResults as StartResults,
+    SynthesisResult as SynthesisResult,
+    assembles as assembles,
+    optimize as optimize,
+)
 from ._parameters import (
     flatten_parameters as flatten_parameters,
     gradient as gradient,
