@@ -64,7 +64,7 @@ def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_
     - the six lengths (AD, AB, DC, BC, BP, CP) in m (see :func:`roberts_like`),
       each within ``(1 -/+ spread)`` times its start value (relative bounds) or
       within absolute ``lower``/``upper`` (six values, m); ``fixed``: names of
-      lengths that stay at their start values (e.g. ``("AD",)``);
+      lengths (or ``"centre"``) that stay at their start values (e.g. ``("AD",)``);
     - the middle of the stroke: with ``drive="x"`` (the driving-dimension
       formulation, recommended) global x of the coupler point P (m, within
       ``centre_range``, default 0.1 m, of its start: the middle of the stretch of
@@ -97,7 +97,7 @@ def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_
         raise AssurjaxError(f"straight_line_problem: frame must be 'fixed' or 'free', got {frame!r}")
     if drive not in ("x", "angle"):
         raise AssurjaxError(f"straight_line_problem: drive must be 'x' or 'angle', got {drive!r}")
-    unknown = [f for f in fixed if f not in LENGTH_NAMES]
+    unknown = [f for f in fixed if f not in LENGTH_NAMES + ("centre",)]
     if unknown:
         raise AssurjaxError(f"straight_line_problem: unknown fixed length(s) {unknown} (known: {LENGTH_NAMES})")
     if drive == "x":
@@ -113,7 +113,7 @@ def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_
         base.append(jnp.stack([given[1] - given[0] * jnp.tan(given[2]), given[2]]))
         lows.append(base[2] - jnp.array([0.1, 0.2]))
         highs.append(base[2] + jnp.array([0.1, 0.2]))
-    mask = (jnp.array([n in fixed for n in LENGTH_NAMES]),) + (False,) * (len(base) - 1)
+    mask = (jnp.array([n in fixed for n in LENGTH_NAMES]), "centre" in fixed) + (False,) * (len(base) - 2)
     design = Design(tuple(base), _whole, lower=tuple(lows), upper=tuple(highs), fixed=mask)
     objective = StraightLineObjective(stroke=jnp.asarray(stroke, dtype=float), q0=jnp.asarray(q0, dtype=float),
                                       sharpness=jnp.asarray(sharpness, dtype=float), line=given, samples=samples,
