@@ -201,12 +201,13 @@ class _Loop(eqx.Module):
     history: dict
 
 
-def _run_stage(problem: _Problem, options: dict, params, z0, evaluations0):
+def _run_stage(problem: _Problem, options: dict, params, z0):
     """Minimize from z0 with the stage's objective parameters: returns (best z, best loss, status, evaluations, history)."""
     optimizer = problem.optimizer(options["method"])
     value_fn = problem.line_search_value(params)
     cap = problem.capacity
     shapes = jax.eval_shape(lambda z: problem.evaluate(z, params), z0)
+    inf = jnp.asarray(jnp.inf, dtype=shapes[0].dtype)
     zeros = lambda s: jnp.zeros((cap,) + s.shape, s.dtype)  # noqa: E731
     history = dict(loss=jnp.full((cap,), jnp.inf), grad_norm=jnp.zeros(cap), evaluations=jnp.zeros(cap, int),
                    backtracks=jnp.zeros(cap, int), aux=jax.tree.map(zeros, shapes[3]), grad=jax.tree.map(zeros, shapes[1]),
@@ -229,7 +230,7 @@ def _run_stage(problem: _Problem, options: dict, params, z0, evaluations0):
             loss, grad, ok, aux = problem.evaluate(z_try, params)
             return k + 1, evals + 1, z_try, (loss, grad, aux), ok, k
 
-        dummy = (jnp.asarray(jnp.inf, dtype=shapes[0].dtype), jax.tree.map(jnp.zeros_like, loop.z), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[3]))
+        dummy = (inf, jax.tree.map(jnp.zeros_like, loop.z), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[3]))
         start = (jnp.array(0), jnp.array(0), loop.z, dummy, jnp.array(False), jnp.array(0))
         _, evals, z, (loss, grad, aux), ok, k = jax.lax.while_loop(cond, body, start)
         return z, loss, grad, aux, ok, k, evals
@@ -246,9 +247,10 @@ def _run_stage(problem: _Problem, options: dict, params, z0, evaluations0):
         again = loop.restarts_left > 0
         fresh = optimizer.init(loop.best_z)
         pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(again, x, y), a, b)  # noqa: E731
+        zero = jax.tree.map(jnp.zeros_like, loop.z)
         return eqx.tree_at(lambda s: (s.z, s.state, s.update, s.restarts_left, s.since_better, s.status), loop,
-                           (pick(loop.best_z, loop.z), pick(fresh, loop.state), pick(jax.tree.map(jnp.zeros_like, loop.z), loop.update),
-                            loop.restarts_left - again, jnp.where(again, 0, loop.since_better), jnp.where(again, _RUNNING, status)))
+                           (pick(loop.best_z, loop.z), pick(fresh, loop.state), pick(zero, loop.update), loop.restarts_left - again,
+                            jnp.where(again, 0, loop.since_better), jnp.where(again, _RUNNING, status)))
 
     def body(loop: _Loop) -> _Loop:
         z, loss, grad, aux, ok, k, evals = tries(loop)
@@ -279,10 +281,10 @@ def _run_stage(problem: _Problem, options: dict, params, z0, evaluations0):
 
         return jax.lax.cond(ok, accepted, rejected, loop)
 
-    state0 = optimizer.init(z0)
-    loop0 = _Loop(z=z0, state=state0, update=jax.tree.map(jnp.zeros_like, z0), loss=jnp.asarray(jnp.inf, dtype=shapes[0].dtype), grad=jax.tree.map(jnp.zeros_like, z0),
-                  step=jnp.array(0), evaluations=evaluations0, restarts_left=jnp.asarray(options["restarts"]),
-                  best_loss=jnp.asarray(jnp.inf, dtype=shapes[0].dtype), best_z=z0, since_better=jnp.array(0), status=jnp.array(_RUNNING), history=history)
+    zero_z = jax.tree.map(jnp.zeros_like, z0)
+    loop0 = _Loop(z=z0, state=optimizer.init(z0), update=zero_z, loss=inf, grad=zero_z, step=jnp.array(0), evaluations=jnp.array(0),
+                  restarts_left=jnp.asarray(options["restarts"]), best_loss=inf, best_z=z0, since_better=jnp.array(0),
+                  status=jnp.array(_RUNNING), history=history)
     last = jax.lax.while_loop(lambda s: (s.status == _RUNNING) & (s.step < cap), body, loop0)
     status = jnp.where(last.status == _RUNNING, _STEPS, last.status)
     return last.best_z, last.best_loss, status, last.evaluations, jnp.minimum(last.step, cap), last.history
@@ -292,7 +294,7 @@ def _run_one(problem: _Problem, options: dict, schedule, z0):
     """Every continuation stage from one start (a stage starts from the previous stage's best design)."""
 
     def stage(z, params):
-        best_z, best_loss, status, evaluations, count, history = _run_stage(problem, options, params, z, jnp.array(0))
+        best_z, best_loss, status, evaluations, count, history = _run_stage(problem, options, params, z)
         found = jnp.isfinite(best_loss)
         next_z = jax.tree.map(lambda a, b: jnp.where(found, a, b), best_z, z)
         return next_z, (best_z, best_loss, status, evaluations, count, history)
@@ -414,7 +416,8 @@ def optimize(
     z0 = jax.vmap(design.unconstrained)(initial)
     if batch == "auto":
         batch = "sequential" if _has_line_search(problem, numeric, design.init()) else "vmap"
-    best_z, best_loss, status, evaluations, counts, history = jax.device_get(_run(problem, run_options, stages, z0, batch if _count(z0) > 1 else "single"))
+    out = _run(problem, run_options, stages, z0, batch if _count(z0) > 1 else "single")
+    best_z, best_loss, status, evaluations, counts, history = jax.device_get(out)
     elapsed = time.perf_counter() - started
     return _result(design, initial, best_z, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed, callback)
 
@@ -437,7 +440,8 @@ def _split_options(optimizer, options):
             raise AssurjaxError("optimize: options go with an optax factory (e.g. optax.adam), not with a built GradientTransformation")
         return {}, ()
     if not callable(optimizer):
-        raise AssurjaxError(f"optimize: optimizer must be an optax GradientTransformation or a factory of one, got {type(optimizer).__name__}")
+        raise AssurjaxError("optimize: optimizer must be an optax GradientTransformation or a factory of one, "
+                            f"got {type(optimizer).__name__}")
     numeric = {k: jnp.asarray(v, dtype=float) for k, v in options.items() if isinstance(v, float) or eqx.is_inexact_array(v)}
     static = tuple(sorted((k, v) for k, v in options.items() if k not in numeric))
     try:
@@ -474,13 +478,16 @@ def _starting_values(design: Design, starts, seed: int):
             if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
                 raise AssurjaxError("optimize: random starts need finite lower and upper bounds on every design variable")
         rng = np.random.default_rng(seed)
-        draw = lambda x, lo, hi: np.concatenate(  # noqa: E731
-            [np.asarray(x)[None], np.asarray(lo) + (np.asarray(hi) - np.asarray(lo)) * rng.uniform(0.02, 0.98, (starts - 1,) + np.shape(x))])
-        return jax.tree.map(lambda x, lo, hi, f: jnp.where(f, x, jnp.asarray(draw(x, lo, hi))), x0, design.lower, design.upper, design.fixed)
+        def draw(x, lo, hi, fixed):
+            lo, hi = np.asarray(lo), np.asarray(hi)
+            random = lo + (hi - lo) * rng.uniform(0.02, 0.98, (starts - 1,) + np.shape(x))
+            return jnp.where(fixed, x, jnp.asarray(np.concatenate([np.asarray(x)[None], random])))
+
+        return jax.tree.map(draw, x0, design.lower, design.upper, design.fixed)
     try:
         given = jax.tree.map(lambda x, s: jnp.asarray(s, dtype=x.dtype).reshape((-1,) + jnp.shape(x)), x0, starts)
     except (ValueError, TypeError) as e:
-        raise AssurjaxError(f"optimize: starts must be parameter values shaped like the selection with a leading start axis ({e})") from None
+        raise AssurjaxError(f"optimize: starts must be parameter values shaped like the selection, with a leading start axis ({e})") from None
     return given
 
 
