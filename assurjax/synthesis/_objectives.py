@@ -188,13 +188,18 @@ def _line_residuals(x, y):
 
 def _given_line_residuals(x, y, line):
     """Signed distances from a given line: y = c (a number) or ((x0, y0), angle)."""
+    x0, y0, angle = line_pose(line)
+    return (y - y0) * jnp.cos(angle) - (x - x0) * jnp.sin(angle)
+
+
+def line_pose(line):
+    """(x0, y0, angle) of a line given as a number c (the line y = c) or as ((x0, y0), angle)."""
     if isinstance(line, (tuple, list)) and len(line) == 2:
         (x0, y0), angle = line
-    elif np.ndim(line) == 0:
-        x0, y0, angle = 0.0, line, 0.0
-    else:
-        raise AssurjaxError(f"straight_line_deviation: line must be None, a number c (y = c) or ((x0, y0), angle), got {line!r}")
-    return (y - y0) * jnp.cos(angle) - (x - x0) * jnp.sin(angle)
+        return x0, y0, angle
+    if np.ndim(line) == 0 and np.issubdtype(np.asarray(line).dtype, np.number):
+        return 0.0, line, 0.0
+    raise AssurjaxError(f"line must be None, a number c (y = c) or ((x0, y0), angle), got {line!r}")
 
 
 def _bracket_on_branch(mechanism, point, q0, targets, half_width, n):

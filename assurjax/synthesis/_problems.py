@@ -14,7 +14,7 @@ from .._errors import AssemblyError, AssurjaxError
 from ._design import Design
 from ._dynamic import standstill_time
 from ._linkages import roberts_like
-from ._objectives import coupler_curve, straight_line_deviation
+from ._objectives import coupler_curve, line_pose, straight_line_deviation
 
 ROBERTS_Q0 = math.acos(1.0 / 3.0)  # the Roberts linkage's symmetric position (seed 001)
 
@@ -127,12 +127,7 @@ def _whole(values):
 
 def _line_array(line):
     """A given line as the array (x0, y0, angle)."""
-    if isinstance(line, (tuple, list)) and len(line) == 2:
-        (x0, y0), angle = line
-        return jnp.array([x0, y0, angle], dtype=float)
-    if np.ndim(line) == 0:
-        return jnp.array([0.0, float(line), 0.0])
-    raise AssurjaxError(f"straight_line_problem: line must be None, a number c (y = c) or ((x0, y0), angle), got {line!r}")
+    return jnp.array([float(v) for v in line_pose(line)])
 
 
 def _reachable_centre(mechanism, q0: float, stroke: float, half_width: float = 1.5, n: int = 601) -> float:
