@@ -241,6 +241,10 @@ def test_tolerance_stops_and_multistart_keeps_every_start():
         again = syn.optimize(design, _path_objective, optax.adam, 50, options={"learning_rate": 0.01}, has_aux=True,
                              starts=starts, batch=batch)
         assert again.starts.loss.shape == (3,)
+    drawn = syn.optimize(design, _path_objective, optax.adam, 50, options={"learning_rate": 0.01}, has_aux=True, starts=3, seed=1)
+    first = np.asarray(drawn.starts.initial[0])
+    np.testing.assert_allclose(first[0], np.asarray(design.start()[0]))  # the design's own start comes first
+    assert np.all((first > lo) & (first < hi)) and len(np.unique(first[:, 0])) == 3
 
 
 def test_fixed_variables_and_absolute_bounds():
