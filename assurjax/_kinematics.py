@@ -277,7 +277,7 @@ def pose_at(mechanism: Mechanism, q) -> Pose:
 
 def inverse_kinematics(
     mechanism: Mechanism,
-    quantity: Callable[[Pose], Array],
+    quantity: Callable[[Pose], Array] | tuple[str, str | int],
     value,
     q0,
     *,
@@ -288,13 +288,25 @@ def inverse_kinematics(
     """Turn a driven quantity into the driving one (seed 001's driving dimension).
 
     Finds q near ``q0`` (on the mechanism's assembly modes) with
-    ``quantity(pose) == value`` by Newton's method (optimistix), e.g.
-    ``quantity=lambda pose: pose.points["P"][0]`` and ``value=0.05`` for
-    x_P = 50 mm. Returns (q, pose); raises :class:`AssemblyError` when the target
-    is out of reach. Differentiable by the implicit function theorem.
+    ``quantity(pose) == value`` by Newton's method (optimistix). ``quantity`` is a
+    point coordinate ``(point, "x" | "y")`` (e.g. ``("P", "x")`` with
+    ``value=0.05`` for x_P = 50 mm) or a function of the :class:`Pose`, e.g.
+    ``lambda pose: pose.points["P"][0]``. The solve is compiled once per
+    mechanism structure and quantity: a function written again with the same
+    code (a notebook cell run twice, a lambda in a loop) reuses it, and ``value``
+    and ``q0`` are traced (new numbers do not recompile). Returns (q, pose);
+    raises :class:`AssemblyError` when the target is out of reach.
+    Differentiable by the implicit function theorem (one Newton step at the root
+    carries the gradient: no host callback in a differentiated program).
     """
+    from ._structure import by_structure
+
+    if isinstance(quantity, tuple):
+        quantity = _point_coordinate(mechanism, quantity)
+    elif not callable(quantity):
+        raise AssurjaxError(f"inverse kinematics: quantity must be (point, 'x' | 'y') or a function of the pose, got {quantity!r}")
     value = jnp.asarray(value, dtype=float)
-    q, ok = _inverse_jit(mechanism, quantity, value, jnp.asarray(q0, dtype=float), rtol, atol, max_steps)
+    q, ok = _inverse_jit(mechanism, by_structure(quantity), value, jnp.asarray(q0, dtype=float), rtol, atol, max_steps)
     if not isinstance(ok, jax.core.Tracer) and not bool(ok):
         raise AssemblyError(
             f"inverse kinematics: no configuration near q0 = {float(q0):.6g} reaches the target value {float(value):.6g} "
@@ -303,13 +315,40 @@ def inverse_kinematics(
     return q, pose_at(mechanism, q) if not isinstance(q, jax.core.Tracer) else positions(mechanism, q)
 
 
+class _PointCoordinate(eqx.Module):
+    """The quantity ``pose.points[point][axis]`` (hashable: one compiled solve per point and axis)."""
+
+    point: str = eqx.field(static=True)
+    axis: int = eqx.field(static=True)
+
+    def __call__(self, pose: Pose) -> Array:
+        return pose.points[self.point][self.axis]
+
+
+def _point_coordinate(mechanism: Mechanism, spec) -> _PointCoordinate:
+    point, axis = spec if len(spec) == 2 else (None, None)
+    axis = {"x": 0, "y": 1, 0: 0, 1: 1}.get(axis)
+    if point not in mechanism.point_names or axis is None:
+        raise AssurjaxError(f"inverse kinematics: quantity {spec!r} must be (point, 'x' | 'y') with a point of "
+                            f"mechanism '{mechanism.name}' (known: {sorted(mechanism.point_names)})")
+    return _PointCoordinate(point, axis)
+
+
 @jit
 def _inverse_jit(mechanism, quantity, value, q0, rtol, atol, max_steps):
-    def residual(q, _):
-        pose = positions(mechanism, q)
-        return quantity(pose) - value
+    frozen, fixed_value = jax.lax.stop_gradient((mechanism, value))
 
-    sol = optx.root_find(residual, optx.Newton(rtol=rtol, atol=atol), q0, max_steps=max_steps, throw=False)
-    pose = positions(mechanism, sol.value)
-    ok = (sol.result == optx.RESULTS.successful) & jnp.all(pose.ok) & (jnp.abs(residual(sol.value, None)) < 1e-9 * (1 + jnp.abs(value)))
-    return sol.value, ok
+    def residual(q, m, v):
+        return quantity(positions(m, q)) - v
+
+    sol = optx.root_find(lambda q, _: residual(q, frozen, fixed_value), optx.Newton(rtol=rtol, atol=atol), jax.lax.stop_gradient(q0),
+                         max_steps=max_steps, throw=False)
+    root = jax.lax.stop_gradient(sol.value)
+    # gradients by the implicit function theorem, carried by one Newton step from the root
+    # (dq = -dr/dtheta / dr/dq) instead of the adjoint's checked linear solve (a host callback)
+    miss, slope = jax.jvp(lambda q: residual(q, mechanism, value), (root,), (jnp.ones_like(root),))
+    slope = jax.lax.stop_gradient(slope)
+    q = root - miss / jnp.where(slope == 0, 1.0, slope)
+    pose = positions(frozen, root)
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(pose.ok) & (jnp.abs(jax.lax.stop_gradient(miss)) < 1e-9 * (1 + jnp.abs(fixed_value)))
+    return q, ok & (slope != 0)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
+from .._structure import by_structure
 from ._parameters import _selected
 
 
@@ -25,9 +26,15 @@ class Design(eqx.Module):
 
     keeps every parameter strictly inside its bounds whatever step the optimizer
     takes. Entries whose lower and upper bounds are both infinite are left
-    unbounded (x = z). ``lower``/``upper`` are pytrees like the selection or
-    numbers (broadcast); ``relative``/``absolute`` give bounds
-    ``x0 -/+ (relative |x0| + absolute)`` instead.
+    unbounded (x = z). ``lower``/``upper`` are absolute bounds: pytrees like the
+    selection or numbers (broadcast); ``relative``/``absolute`` give bounds
+    ``x0 -/+ (relative |x0| + absolute)`` around the start values x0 instead.
+    ``fixed``: a pytree of booleans like the selection (or one boolean): the
+    entries that stay at their start values whatever ``z`` (their gradient is 0).
+
+    Bounds and start values are arrays: a new Design with other bounds or start
+    values (same ``select`` code) runs through :func:`optimize`'s compiled program
+    without recompiling.
 
     **Example:**
     >>> design = Design(mech, lambda m: (m.links["link4"].points["P"], m.ground["D"]), relative=0.2, absolute=0.01)
@@ -38,10 +45,12 @@ class Design(eqx.Module):
     base: Any
     lower: Any
     upper: Any
+    fixed: Any
     select: Callable = eqx.field(static=True)
 
-    def __init__(self, base: Any, select: Callable, lower: Any = None, upper: Any = None, *, relative: float | None = None, absolute: float | None = None):
-        self.base, self.select = base, select
+    def __init__(self, base: Any, select: Callable, lower: Any = None, upper: Any = None, *, relative: float | None = None,
+                 absolute: float | None = None, fixed: Any = False):
+        self.base, self.select = base, by_structure(select)
         x0, _ = _selected(base, select)
         if relative is not None or absolute is not None:
             if lower is not None or upper is not None:
@@ -51,11 +60,21 @@ class Design(eqx.Module):
             upper = jax.tree.map(lambda x, w: x + w, x0, width)
         self.lower = _bound(x0, lower, -jnp.inf, "lower")
         self.upper = _bound(x0, upper, jnp.inf, "upper")
-        _check_inside(x0, self.lower, self.upper)
+        try:
+            per_leaf = jax.tree.map(lambda x: fixed, x0) if isinstance(fixed, bool) else fixed
+            self.fixed = jax.tree.map(lambda x, f: jnp.broadcast_to(jnp.asarray(f, dtype=bool), x.shape), x0, per_leaf)
+        except ValueError as e:
+            raise AssurjaxError(f"Design: fixed must be a boolean or a pytree of booleans shaped like the selection ({e})") from None
+        _check_inside(x0, self.lower, self.upper, self.fixed)
+
+    def start(self) -> Any:
+        """The selected parameter values of the base design (the start values)."""
+        return _selected(self.base, self.select)[0]
 
     def values(self, z: Any) -> Any:
-        """The bounded parameter values at the unconstrained variables ``z``."""
-        return jax.tree.map(_to_bounded, z, self.lower, self.upper)
+        """The bounded parameter values at the unconstrained variables ``z`` (fixed entries at their start values)."""
+        free = jax.tree.map(_to_bounded, z, self.lower, self.upper)
+        return jax.tree.map(lambda f, x, x0: jnp.where(f, x0, x), self.fixed, free, self.start())
 
     def unconstrained(self, values: Any) -> Any:
         """The unconstrained variables of given parameter values (inverse of :meth:`values`)."""
@@ -85,10 +104,11 @@ def _bound(x0, bound, default, which: str):
         raise AssurjaxError(f"Design: {which} bounds must be a number or a pytree shaped like the selection ({e})") from None
 
 
-def _check_inside(x0, lower, upper):
+def _check_inside(x0, lower, upper, fixed):
     paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(x0)[0]]
-    for name, x, lo, hi in zip(paths, jax.tree.leaves(x0), jax.tree.leaves(lower), jax.tree.leaves(upper)):
-        x, lo, hi = np.asarray(x), np.asarray(lo), np.asarray(hi)
+    for name, x, lo, hi, f in zip(paths, jax.tree.leaves(x0), jax.tree.leaves(lower), jax.tree.leaves(upper), jax.tree.leaves(fixed)):
+        free = ~np.asarray(f)
+        x, lo, hi = np.asarray(x)[free], np.asarray(lo)[free], np.asarray(hi)[free]
         where = f"selected parameter {name or '(the selection)'}"
         if np.any(lo > hi) or np.any(~np.isinf(lo) & ~np.isinf(hi) & (lo == hi)):
             raise AssurjaxError(f"Design: {where}: empty bounds (lower {lo} must be below upper {hi})")

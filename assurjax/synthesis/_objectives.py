@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
@@ -61,16 +62,17 @@ def assembly_margin(mechanism: Mechanism, q) -> Array:
 class StraightLine(eqx.Module):
     """Result of :func:`straight_line_deviation` (lengths in m).
 
-    ``deviation``: half the width of the narrowest band parallel to the
-    least-squares line that holds every sample, (max r - min r) / 2, with r the
-    signed perpendicular distances from that line (the minimum-zone straightness
-    for the least-squares direction); ``smooth``: the same with both extremes
-    replaced by log-sum-exp soft maxima of sharpness ``p / max|r|`` (a
-    differentiable stand-in, at most ``log(samples) max|r| / p`` above it,
-    whose gradient is the derivative of its value);
-    ``x``, ``y``: coupler point at the sample positions; ``q``: the driving
-    coordinates there; ``residuals``: signed distances from the line; ``ok``:
-    every sample assembled and was reached on the branch through ``q0``.
+    ``deviation``: with the best line (``line=None``), half the width of the
+    narrowest band parallel to the least-squares line that holds every sample,
+    (max r - min r) / 2 (the minimum-zone straightness for the least-squares
+    direction); with a given line, the largest distance max |r| from it;
+    ``smooth``: the same with the extremes replaced by log-sum-exp soft maxima of
+    sharpness ``p / max|r|`` (a differentiable stand-in, at most
+    ``log(2 samples) max|r| / p`` above it, whose gradient is the derivative of
+    its value); ``x``, ``y``: coupler point at the sample positions; ``q``: the
+    driving coordinates there; ``residuals``: signed distances r from the line;
+    ``ok``: every sample assembled (and, driving by x, was reached on the branch
+    through ``q0``).
     """
 
     deviation: Array
@@ -92,43 +94,89 @@ def straight_line_deviation(
     p: float = 50.0,
     search: tuple[float, int] = (1.5, 601),
     center=None,
+    line=None,
+    drive: str = "x",
 ) -> StraightLine:
     """How straight the path of ``point`` is over a stroke (seed 001: < 1 mm over 260 mm).
 
-    The stroke is ``x`` from ``center - stroke/2`` to ``center + stroke/2`` (m,
-    global x; ``center`` defaults to x of the point at ``q0``), sampled at
-    ``samples`` evenly spaced x. The driving coordinate of each sample is found on
-    the branch through ``q0``: a scan of ``search = (half-width, points)`` around
-    ``q0`` brackets it, Newton's method (optimistix) refines it, and gradients
-    follow by the implicit function theorem (never through iterations). The
-    deviation is measured from the least-squares line through the samples.
+    **Stroke.** ``drive="x"`` (the driving-dimension formulation, recommended for
+    straight-line synthesis): the stroke is global ``x`` of the point from
+    ``center - stroke/2`` to ``center + stroke/2`` (m; ``center`` defaults to x of
+    the point at ``q0``), sampled at ``samples`` evenly spaced x. The driving
+    coordinate of each sample is found on the branch through ``q0``: a scan of
+    ``search = (half-width, points)`` around ``q0`` brackets it, Newton's method
+    (optimistix) refines it, and gradients follow by the implicit function
+    theorem (one Newton step at the converged root carries them: never through
+    iterations, and no host callback in the differentiated program).
+    ``drive="angle"``: the stroke is the crank angle from ``center - stroke/2``
+    to ``center + stroke/2`` (rad; ``center`` defaults to ``q0``); the coverage of
+    x is then up to the design, which usually needs a penalty.
+
+    **Line.** ``line=None``: deviation from the best (least-squares) line;
+    ``line=c`` (a number): from the line y = c (m); ``line=((x0, y0), angle)``:
+    from the line through (x0, y0) (m) at ``angle`` (rad) from +x.
+
+    ``p``: sharpness of the smooth maxima (may be traced, e.g. a continuation
+    schedule in :func:`optimize`).
+
+    **Example:**
+    >>> line = straight_line_deviation(mech, "P", stroke=0.2, q0=1.23, line=0.0)
+    >>> line.deviation   # m, the largest |y| of P over 200 mm of x
     """
     q0 = jnp.asarray(q0, dtype=float)
-    x_of = lambda q: positions(mechanism, q, points=(point,)).points[point][0]  # noqa: E731
-    if center is None:
-        center = x_of(q0)
-    targets = center + jnp.linspace(-0.5, 0.5, samples) * stroke
-    guess, bracketed = _bracket_on_branch(mechanism, point, q0, targets, *search)
-
-    def residual(q, x_target):
-        return x_of(q) - x_target
-
-    solver = optx.Newton(rtol=1e-12, atol=1e-13)
-    sol = jax.vmap(lambda g, xt: optx.root_find(residual, solver, g, args=xt, max_steps=32, throw=False))(guess, targets)
-    q = sol.value
-    pts, ok = coupler_curve(mechanism, point, q)
-    converged = (sol.result == optx.RESULTS.successful) & (jnp.abs(pts[:, 0] - targets) < 1e-9)
-    ok = jnp.all(ok & bracketed & converged)
+    if drive == "x":
+        q, pts, ok = _stroke_by_x(mechanism, point, stroke, q0, samples, search, center)
+    elif drive == "angle":
+        centre = q0 if center is None else jnp.asarray(center, dtype=float)
+        q = centre + jnp.linspace(-0.5, 0.5, samples) * stroke
+        pts, assembled = coupler_curve(mechanism, point, q)
+        ok = jnp.all(assembled)
+    else:
+        raise AssurjaxError(f"straight_line_deviation: drive must be 'x' or 'angle', got {drive!r}")
     x, y = pts[:, 0], pts[:, 1]
-    r = _line_residuals(x, y)
+    if line is None:
+        r = _line_residuals(x, y)
+        extremes = jnp.stack([r, -r])
+    else:
+        r = _given_line_residuals(x, y, line)
+        extremes = jnp.concatenate([r, -r])[None]
     # the scale is differentiated too (no stop_gradient), so the gradient of `smooth` is the
     # derivative of its value (a stopped scale is off by up to ~log(samples)/p, a few per cent)
     sharpness = p / (jnp.max(jnp.abs(r)) + 1e-300)
-    return StraightLine(
-        deviation=0.5 * (jnp.max(r) - jnp.min(r)),
-        smooth=0.5 * (smooth_max(r, sharpness) + smooth_max(-r, sharpness)),
-        x=x, y=y, q=q, residuals=r, ok=ok,
-    )
+    smooth = jnp.mean(jax.vmap(lambda e: smooth_max(e, sharpness))(extremes))
+    deviation = jnp.mean(jnp.max(extremes, axis=1))
+    return StraightLine(deviation=deviation, smooth=smooth, x=x, y=y, q=q, residuals=r, ok=ok)
+
+
+def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
+    """Driving coordinates where ``point`` has evenly spaced x over the stroke, the point there,
+    and whether every sample was found (assembled, on the branch through q0)."""
+    if center is None:
+        center = positions(mechanism, q0, points=(point,)).points[point][0]
+    targets = center + jnp.linspace(-0.5, 0.5, samples) * stroke
+    guess, bracketed = _bracket_on_branch(mechanism, point, q0, targets, *search)
+    frozen, fixed_targets = jax.lax.stop_gradient((mechanism, targets))
+    x_of = lambda q, t: positions(frozen, q, points=(point,)).points[point][0] - t  # noqa: E731
+    solver = optx.Newton(rtol=1e-12, atol=1e-13)
+    sol = jax.vmap(lambda g, t: optx.root_find(x_of, solver, g, args=t, max_steps=32, throw=False))(guess, fixed_targets)
+    root = jax.lax.stop_gradient(sol.value)
+
+    # The root is found without gradients; one Newton step from it carries them (implicit function
+    # theorem, dq = -(dx/dtheta) / (dx/dq)), with no checked linear solve (no host callback) in the
+    # differentiated program. The point and its slope dP/dq at the root come from one jvp; the
+    # point at the stepped q is P(root) + dP/dq (q - root), exact to first order in the ~1e-13 step.
+    def at_root(r):
+        pose, dpose = jax.jvp(lambda s: positions(mechanism, s, points=(point,)), (r,), (jnp.ones_like(r),))
+        return pose.points[point], jax.lax.stop_gradient(dpose.points[point]), jnp.all(pose.ok)
+
+    p_root, slope, assembled = jax.vmap(at_root)(root)
+    miss = p_root[:, 0] - targets
+    dx = jnp.where(slope[:, 0] == 0, 1.0, slope[:, 0])
+    step = -miss / dx
+    q = root + step
+    pts = p_root + slope * step[:, None]
+    converged = (sol.result == optx.RESULTS.successful) & (jnp.abs(jax.lax.stop_gradient(miss)) < 1e-9) & (slope[:, 0] != 0)
+    return q, pts, jnp.all(bracketed & converged & assembled)
 
 
 def _line_residuals(x, y):
@@ -136,6 +184,22 @@ def _line_residuals(x, y):
     xm, ym = jnp.mean(x), jnp.mean(y)
     b = jnp.sum((x - xm) * (y - ym)) / jnp.sum((x - xm) ** 2)
     return ((y - ym) - b * (x - xm)) / jnp.sqrt(1.0 + b**2)
+
+
+def _given_line_residuals(x, y, line):
+    """Signed distances from a given line: y = c (a number) or ((x0, y0), angle)."""
+    x0, y0, angle = line_pose(line)
+    return (y - y0) * jnp.cos(angle) - (x - x0) * jnp.sin(angle)
+
+
+def line_pose(line):
+    """(x0, y0, angle) of a line given as a number c (the line y = c) or as ((x0, y0), angle)."""
+    if isinstance(line, (tuple, list)) and len(line) == 2:
+        (x0, y0), angle = line
+        return x0, y0, angle
+    if np.ndim(line) == 0 and np.issubdtype(np.asarray(line).dtype, np.number):
+        return 0.0, line, 0.0
+    raise AssurjaxError(f"line must be None, a number c (y = c) or ((x0, y0), angle), got {line!r}")
 
 
 def _bracket_on_branch(mechanism, point, q0, targets, half_width, n):

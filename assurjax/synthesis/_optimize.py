@@ -1,8 +1,14 @@
-"""Gradient-based synthesis: any optax optimizer over a :class:`Design`, keeping designs assemblable."""
+"""Gradient-based synthesis: any optax method over a :class:`Design`, in one compiled loop.
+
+The whole run -- every step, line search, backtracking, restart, continuation stage and
+start -- is one program compiled with :func:`assurjax.jit`. Everything numeric (start values,
+bounds, options such as the learning rate, target and tolerances, the continuation schedule's
+values, the number of steps) is an argument of that program, so a new call with the same
+objective, design structure and method runs without recompiling.
+"""
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -15,20 +21,27 @@ import optax
 
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import jit
-from .._sweep import _progress_bar
+from .._structure import by_structure
 from ._design import Design
+
+STATUSES = ("steps", "target", "converged", "infeasible")
+_STEPS, _TARGET, _CONVERGED, _INFEASIBLE, _RUNNING = 0, 1, 2, 3, -1
 
 
 class History(eqx.Module):
-    """One entry per accepted step (entry 0: the starting design).
+    """One entry per accepted step (entry 0 of each stage: its starting design).
 
     ``loss``: objective value; ``grad_norm``: 2-norm of the gradient with respect
-    to the unconstrained variables; ``time``: wall time since the start (s,
-    compilation included); ``evaluations``: cumulative objective+gradient
-    evaluations; ``backtracks``: step halvings needed to stay assemblable;
-    ``aux``: the objective's auxiliary output per step (when it has one);
-    ``grad``: the gradient with respect to the unconstrained variables per step
-    (a pytree like ``z``, each leaf stacked over steps).
+    to the unconstrained variables; ``time``: wall time since the start of the call
+    (s, compilation included), apportioned to the steps by their evaluations (the
+    loop runs compiled, without calling back to Python); ``evaluations``:
+    cumulative objective evaluations (each with its gradient: the accepted points,
+    the designs tried by backtracking, and the line search's trial points);
+    ``backtracks``: step halvings needed to stay assemblable; ``stage``: the
+    continuation stage of the entry; ``aux``: the objective's auxiliary output per
+    step (when it has one); ``grad``: the gradient with respect to the
+    unconstrained variables per step (a pytree like ``z``, each leaf stacked over
+    steps); ``z``: the unconstrained variables per step.
     """
 
     loss: np.ndarray
@@ -38,18 +51,42 @@ class History(eqx.Module):
     backtracks: np.ndarray
     aux: Any = None
     grad: Any = None
+    stage: np.ndarray | None = None
+    z: Any = None
+
+
+class StartResults(eqx.Module):
+    """Every start of a multi-start :func:`optimize` (leading axis: the start).
+
+    ``values``/``z``: each start's best design (parameter values / unconstrained
+    variables); ``loss``: its objective (last stage); ``status``: one of
+    ``"steps"``, ``"target"``, ``"converged"``, ``"infeasible"`` per start;
+    ``evaluations``: objective evaluations per start; ``initial``: the starting
+    parameter values.
+    """
+
+    values: Any
+    z: Any
+    loss: np.ndarray
+    status: tuple
+    evaluations: np.ndarray
+    initial: Any
 
 
 class SynthesisResult(eqx.Module):
     """What :func:`optimize` found.
 
-    ``mechanism``: the best design found (lowest loss among assemblable designs);
-    ``values``: its selected parameters; ``z``: its unconstrained variables;
-    ``loss``: its objective; ``status``: ``"target"`` (loss reached ``target``),
-    ``"converged"`` (relative loss change below ``rtol`` for ``patience`` steps),
-    ``"steps"`` (ran out of steps) or ``"infeasible"`` (no assemblable step
-    even after backtracking; ``message`` says more); ``evaluations``: objective+gradient
-    evaluations used; ``history``: a :class:`History`.
+    ``mechanism``: the best design found (lowest loss among assemblable designs
+    in the last continuation stage, best start); ``values``: its selected
+    parameters; ``z``: its unconstrained variables; ``loss``: its objective;
+    ``status``: ``"target"`` (loss reached ``target``), ``"converged"`` (gradient
+    norm below ``gtol``, or the best loss improved by less than ``rtol`` over
+    ``patience`` steps with no restart left), ``"steps"`` (ran out of steps) or
+    ``"infeasible"`` (no assemblable step even after backtracking and restarts;
+    ``message`` says more); ``evaluations``: objective evaluations used (all
+    starts); ``history``: a :class:`History` of the best start; ``starts``: a
+    :class:`StartResults` for every start; ``time``: wall time of the call (s,
+    compilation included when there was one).
     """
 
     mechanism: Any
@@ -60,6 +97,8 @@ class SynthesisResult(eqx.Module):
     message: str = eqx.field(static=True)
     evaluations: int = eqx.field(static=True)
     history: History
+    starts: StartResults | None = None
+    time: float = 0.0
 
 
 def assembles(mechanism_or_flags) -> jax.Array:
@@ -68,178 +107,430 @@ def assembles(mechanism_or_flags) -> jax.Array:
     return jnp.all(ok)
 
 
-def _split_objective(objective: Callable, has_aux: bool):
-    """Normalize the objective to ``tree -> (loss, (feasible, aux))``."""
+# --------------------------------------------------------------------------- the compiled problem
 
-    def normalized(tree):
-        out = objective(tree)
-        if has_aux:
-            loss, aux = out
-        else:
-            loss, aux = out, None
-        feasible = jnp.array(True)
-        if isinstance(aux, dict) and "ok" in aux:
-            feasible = jnp.all(aux["ok"])
-        return loss, (feasible, aux)
 
-    return normalized
+class _Problem(eqx.Module):
+    """Everything the compiled loop needs; its arrays are traced, the rest is the program's structure."""
+
+    design: Design
+    objective: Any  # a plain function (compared by structure) or an equinox Module (its arrays traced)
+    feasible: Any
+    method: Any = eqx.field(static=True)  # an optax factory, or a GradientTransformation
+    method_static: tuple = eqx.field(static=True)  # the factory's non-numeric options
+    has_aux: bool = eqx.field(static=True)
+    takes_params: bool = eqx.field(static=True)
+    capacity: int = eqx.field(static=True)  # history entries per stage
+
+    def optimizer(self, numeric: dict) -> optax.GradientTransformationExtraArgs:
+        if isinstance(self.method, optax.GradientTransformation):
+            return optax.with_extra_args_support(self.method)
+        return optax.with_extra_args_support(self.method(**dict(self.method_static), **numeric))
+
+    def loss_and_aux(self, z, params):
+        """(loss, (acceptable, aux)): the loss is +inf where the design is not acceptable."""
+        tree = self.design.build(z)
+        out = self.objective(tree, params) if self.takes_params else self.objective(tree)
+        loss, aux = out if self.has_aux else (out, None)
+        ok = jnp.all(aux["ok"]) if isinstance(aux, dict) and "ok" in aux else jnp.array(True)
+        if self.feasible is not None:
+            ok = ok & jnp.all(self.feasible(tree))
+        ok = ok & jnp.isfinite(loss)
+        return jnp.where(ok, loss, jnp.inf), (ok, aux)
+
+    def evaluate(self, z, params):
+        """Loss, gradient (w.r.t. z), acceptability and aux at z (a non-finite gradient is not acceptable)."""
+        (loss, (ok, aux)), grad = jax.value_and_grad(self.loss_and_aux, has_aux=True)(z, params)
+        ok = ok & _all_finite(grad)
+        grad = jax.tree.map(lambda g: jnp.where(ok, g, 0.0), grad)
+        return jnp.where(ok, loss, jnp.inf), grad, ok, aux
+
+    def line_search_value(self, params):
+        """The scalar function a line search evaluates (+inf and a zero gradient where not acceptable)."""
+        return lambda z: self.loss_and_aux(_finite_cotangent(z), params)[0]
+
+
+@jax.custom_vjp
+def _finite_cotangent(z):
+    return z
+
+
+def _finite_cotangent_fwd(z):
+    return z, None
+
+
+def _finite_cotangent_bwd(_, g):
+    # a line search's trial point that cannot assemble has value +inf; its gradient is not used
+    # but must not poison the search with NaN
+    return (jax.tree.map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), g),)
+
+
+_finite_cotangent.defvjp(_finite_cotangent_fwd, _finite_cotangent_bwd)
+
+
+def _all_finite(tree) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+def _norm(tree) -> jax.Array:
+    return jnp.sqrt(sum(jnp.sum(x**2) for x in jax.tree.leaves(tree)))
+
+
+def _linesearch_evaluations(state) -> jax.Array:
+    """Trial points a line search inside the optimizer evaluated in its last update (0 without one)."""
+    found = optax.tree_utils.tree_get(state, "num_linesearch_steps", default=None)
+    return jnp.asarray(0 if found is None else found, dtype=int)
+
+
+# --------------------------------------------------------------------------- one stage
+
+
+class _Loop(eqx.Module):
+    z: Any
+    state: Any
+    update: Any  # the step to try next from z (zero at a start or restart)
+    loss: jax.Array
+    grad: Any
+    step: jax.Array
+    evaluations: jax.Array
+    restarts_left: jax.Array
+    best_loss: jax.Array
+    best_z: Any
+    since_better: jax.Array
+    status: jax.Array
+    history: dict
+
+
+def _run_stage(problem: _Problem, options: dict, params, z0):
+    """Minimize from z0 with the stage's objective parameters: returns (best z, best loss, status, evaluations, history)."""
+    optimizer = problem.optimizer(options["method"])
+    value_fn = problem.line_search_value(params)
+    cap = problem.capacity
+    shapes = jax.eval_shape(lambda z: problem.evaluate(z, params), z0)
+    inf = jnp.asarray(jnp.inf, dtype=shapes[0].dtype)
+    zeros = lambda s: jnp.zeros((cap,) + s.shape, s.dtype)  # noqa: E731
+    history = dict(loss=jnp.full((cap,), jnp.inf), grad_norm=jnp.zeros(cap), evaluations=jnp.zeros(cap, int),
+                   backtracks=jnp.zeros(cap, int), aux=jax.tree.map(zeros, shapes[3]), grad=jax.tree.map(zeros, shapes[1]),
+                   z=jax.tree.map(lambda x: jnp.zeros((cap,) + jnp.shape(x)), z0))
+
+    def tries(loop):
+        """Evaluate z + 0.5^k * update for k = 0, 1, ... until acceptable or out of halvings."""
+
+        # halving a zero step (at a start or restart) or a finished run's step (under vmap the
+        # finished starts still run the loop body) would only repeat the same evaluation
+        may_halve = (loop.step > 0) & (loop.status == _RUNNING) & (options["max_backtracks"] > 0)
+
+        def cond(c):
+            k, _, _, _, ok, _ = c
+            return ~ok & ((k == 0) | (may_halve & (k <= options["max_backtracks"])))
+
+        def body(c):
+            k, evals, _, _, _, _ = c
+            z_try = jax.tree.map(lambda a, u: a + 0.5**k * u, loop.z, loop.update)
+            loss, grad, ok, aux = problem.evaluate(z_try, params)
+            return k + 1, evals + 1, z_try, (loss, grad, aux), ok, k
+
+        dummy = (inf, jax.tree.map(jnp.zeros_like, loop.z), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[3]))
+        start = (jnp.array(0), jnp.array(0), loop.z, dummy, jnp.array(False), jnp.array(0))
+        _, evals, z, (loss, grad, aux), ok, k = jax.lax.while_loop(cond, body, start)
+        return z, loss, grad, aux, ok, k, evals
+
+    def record(h, i, z, loss, grad, aux, evals, k):
+        put = lambda buf, v: buf.at[i].set(v)  # noqa: E731
+        return dict(loss=put(h["loss"], loss), grad_norm=put(h["grad_norm"], _norm(grad)),
+                    evaluations=put(h["evaluations"], evals), backtracks=put(h["backtracks"], k),
+                    aux=jax.tree.map(put, h["aux"], aux), grad=jax.tree.map(put, h["grad"], grad),
+                    z=jax.tree.map(put, h["z"], z))
+
+    def restart_or(loop, status):
+        """Restart the method from the best design when restarts are left, else stop with ``status``."""
+        again = loop.restarts_left > 0
+        fresh = optimizer.init(loop.best_z)
+        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(again, x, y), a, b)  # noqa: E731
+        zero = jax.tree.map(jnp.zeros_like, loop.z)
+        return eqx.tree_at(lambda s: (s.z, s.state, s.update, s.restarts_left, s.since_better, s.status), loop,
+                           (pick(loop.best_z, loop.z), pick(fresh, loop.state), pick(zero, loop.update), loop.restarts_left - again,
+                            jnp.where(again, 0, loop.since_better), jnp.where(again, _RUNNING, status)))
+
+    def body(loop: _Loop) -> _Loop:
+        z, loss, grad, aux, ok, k, evals = tries(loop)
+        evaluations = loop.evaluations + evals
+        first = loop.step == 0
+
+        def accepted(loop):
+            better = jnp.isinf(loop.best_loss) | (loss < loop.best_loss - options["rtol"] * jnp.abs(loop.best_loss))
+            history = record(loop.history, jnp.minimum(loop.step, cap - 1), z, loss, grad, aux, evaluations, k)
+            new_best = loss < loop.best_loss
+            updates, state = optimizer.update(grad, loop.state, z, value=loss, grad=grad, value_fn=value_fn)
+            loop = _Loop(z=z, state=state, update=updates, loss=loss, grad=grad, step=loop.step + 1,
+                         evaluations=evaluations + _linesearch_evaluations(state), restarts_left=loop.restarts_left,
+                         best_loss=jnp.where(new_best, loss, loop.best_loss),
+                         best_z=jax.tree.map(lambda a, b: jnp.where(new_best, a, b), z, loop.best_z),
+                         since_better=jnp.where(better, 0, loop.since_better + 1), status=loop.status, history=history)
+            stalled = (options["rtol"] > 0) & (loop.since_better >= options["patience"])
+            status = jnp.where(loss <= options["target"], _TARGET,
+                               jnp.where(_norm(grad) <= options["gtol"], _CONVERGED,
+                                         jnp.where(loop.step > options["steps"], _STEPS, _RUNNING)))
+            loop = eqx.tree_at(lambda s: s.status, loop, status)
+            return jax.lax.cond(stalled & (status == _RUNNING), lambda s: restart_or(s, _CONVERGED), lambda s: s, loop)
+
+        def rejected(loop):
+            loop = eqx.tree_at(lambda s: s.evaluations, loop, evaluations)
+            return jax.lax.cond(first, lambda s: eqx.tree_at(lambda t: t.status, s, jnp.array(_INFEASIBLE)),
+                                lambda s: restart_or(s, _INFEASIBLE), loop)
+
+        return jax.lax.cond(ok, accepted, rejected, loop)
+
+    zero_z = jax.tree.map(jnp.zeros_like, z0)
+    loop0 = _Loop(z=z0, state=optimizer.init(z0), update=zero_z, loss=inf, grad=zero_z, step=jnp.array(0), evaluations=jnp.array(0),
+                  restarts_left=jnp.asarray(options["restarts"]), best_loss=inf, best_z=z0, since_better=jnp.array(0),
+                  status=jnp.array(_RUNNING), history=history)
+    last = jax.lax.while_loop(lambda s: (s.status == _RUNNING) & (s.step < cap), body, loop0)
+    status = jnp.where(last.status == _RUNNING, _STEPS, last.status)
+    return last.best_z, last.best_loss, status, last.evaluations, jnp.minimum(last.step, cap), last.history
+
+
+def _run_one(problem: _Problem, options: dict, schedule, z0):
+    """Every continuation stage from one start (a stage starts from the previous stage's best design)."""
+
+    def stage(z, params):
+        best_z, best_loss, status, evaluations, count, history = _run_stage(problem, options, params, z)
+        found = jnp.isfinite(best_loss)
+        next_z = jax.tree.map(lambda a, b: jnp.where(found, a, b), best_z, z)
+        return next_z, (best_z, best_loss, status, evaluations, count, history)
+
+    _, per_stage = jax.lax.scan(stage, z0, schedule)
+    return per_stage
+
+
+@jit
+def _run(problem: _Problem, options: dict, schedule, z0, batch: str):
+    """Every start: side by side (vmap) or one after the other (lax.map); one start alone unbatched
+    (a vmapped loop takes seconds longer to compile)."""
+    one = lambda z: _run_one(problem, options, schedule, z)  # noqa: E731
+    if batch == "single":
+        return jax.tree.map(lambda x: x[None], one(jax.tree.map(lambda x: x[0], z0)))
+    return jax.vmap(one)(z0) if batch == "vmap" else jax.lax.map(one, z0)
+
+
+# --------------------------------------------------------------------------- the public entry point
 
 
 def optimize(
     design: Design,
-    objective: Callable[[Any], Any],
-    optimizer: optax.GradientTransformation,
+    objective: Callable[..., Any],
+    optimizer: optax.GradientTransformation | Callable[..., optax.GradientTransformation],
     steps: int,
     *,
+    options: dict | None = None,
     has_aux: bool = False,
     feasible: Callable[[Any], jax.Array] | None = None,
     target: float | None = None,
     rtol: float = 0.0,
+    gtol: float = 0.0,
     patience: int = 10,
+    restarts: int = 0,
     max_backtracks: int = 10,
+    schedule: dict | None = None,
+    starts: Any = None,
+    batch: str = "auto",
+    seed: int = 0,
     progress: bool | None = None,
     callback: Callable[[int, float, Any], None] | None = None,
 ) -> SynthesisResult:
-    """Minimize ``objective(design.build(z))`` over the unconstrained variables ``z`` with ``optimizer``.
+    """Minimize ``objective(design.build(z))`` over the unconstrained variables ``z``.
+
+    The run is one compiled program (a ``lax.while_loop`` per continuation stage,
+    all stages in a ``lax.scan``, starts vmapped), compiled once per problem
+    structure: the same objective (same code), design structure and method with
+    new start values, bounds, ``options``, ``target``/``rtol``/``gtol``/
+    ``patience``/``restarts``, ``schedule`` values or ``steps`` (up to the next
+    power of two) run without recompiling.
 
     **Arguments:**
     - ``objective``: pure JAX function of the built mechanism (or scene) returning
       a scalar loss, or ``(loss, aux)`` with ``has_aux=True``. When ``aux`` is a
       dict with an ``"ok"`` entry (e.g. ``Kinematics.ok``), the design must
-      have every flag True to be accepted.
-    - ``optimizer``: any ``optax.GradientTransformation`` (e.g. ``optax.adam(1e-2)``).
-    - ``steps``: maximum number of optimizer steps.
+      have every flag True to be accepted. With a ``schedule`` it is called as
+      ``objective(tree, params)``, ``params`` a dict of the stage's values.
+      An equinox Module works too (its arrays are traced, not compiled in).
+    - ``optimizer``: any optax method, given either as a factory with its
+      ``options`` (recommended: numeric options such as ``learning_rate`` are
+      then traced, so changing them does not recompile; e.g. ``optax.lbfgs`` or
+      ``optax.adam`` with ``options={"learning_rate": 0.05}``), or as a built
+      ``optax.GradientTransformation`` (compiled per object: reuse the object).
+      Line-search methods (``optax.lbfgs()``, ``optax.scale_by_zoom_linesearch``
+      ...) get ``value``, ``grad`` and ``value_fn`` as optax documents; designs
+      that cannot assemble have value +inf there, so the search steps back.
+    - ``steps``: maximum number of optimizer steps per stage.
     - ``feasible``: optional extra test ``mechanism -> bool`` (e.g. a minimum
       transmission angle).
     - ``target``: stop as soon as the loss is at or below it.
-    - ``rtol``/``patience``: stop when the best loss improved by less than
-      ``rtol`` (relative) over the last ``patience`` steps.
+    - ``gtol``: stop ("converged") when the gradient norm is at or below it.
+    - ``rtol``/``patience``: when the best loss improved by less than ``rtol``
+      (relative) over ``patience`` steps, restart the method from the best design
+      (fresh optimizer state) while ``restarts`` remain, else stop ("converged").
     - ``max_backtracks``: a step that leads to a design that cannot assemble (or
       a non-finite loss or gradient) is halved up to this many times; then the
-      run stops with status ``"infeasible"``. Such designs are never scored.
-    - ``progress``: tqdm bar (default: only when stderr is a terminal).
-    - ``callback(step, loss, mechanism)``: called after every accepted step.
+      method restarts from the best design (while ``restarts`` remain) or the run
+      stops with status ``"infeasible"``. Such designs are never scored.
+    - ``schedule``: continuation, e.g. ``{"sharpness": [20., 50., 200., 1000.]}``:
+      one stage per value (every entry the same length), each starting from the
+      previous stage's best design with a fresh optimizer state; the values are
+      traced.
+    - ``starts``: multi-start. ``None``: the design's start; an int ``n``: the
+      design's start and ``n - 1`` random starts uniform within the bounds
+      (``seed``); or parameter values with a leading axis (a pytree like the
+      selection). The best start is returned, every start in ``result.starts``.
+    - ``batch``: ``"vmap"`` (the starts run side by side), ``"sequential"``
+      (``lax.map``: one after the other) or ``"auto"``: sequential for
+      line-search methods (under vmap every start would wait for the slowest line
+      search, and a start that cannot assemble keeps searching at +inf) and for
+      nothing else.
+    - ``callback(step, loss, mechanism)``: called for every accepted step of the
+      best start after the compiled run. ``progress`` is accepted for
+      compatibility and ignored (the loop does not call back into Python).
 
-    Raises :class:`AssemblyError` if the starting design cannot assemble.
+    Raises :class:`AssemblyError` if no starting design can assemble.
+
+    **Example** (L-BFGS with a sharpening smooth max and four starts):
+    >>> design, objective = syn.straight_line_problem(lengths)
+    >>> result = syn.optimize(design, objective, optax.lbfgs, 200, has_aux=True, rtol=1e-6, restarts=3,
+    ...                       schedule={"sharpness": [50.0, 200.0, 1000.0]}, starts=4)
+    >>> result.loss, result.values, result.evaluations
     """
     if steps < 0:
         raise AssurjaxError(f"steps must be non-negative, got {steps}")
-    evaluate = _evaluator(design, _split_objective(objective, has_aux), feasible)
-    update = jax.jit(optimizer.update)
-    z = design.init()
-    opt_state = optimizer.init(z)
-    start = time.perf_counter()
-    loss, grad, ok, aux = evaluate(z)
-    n_eval = 1
-    if not _acceptable(loss, grad, ok):
-        raise AssemblyError("optimize: the starting design " + _why(loss, grad, ok))
-    rec = _Recorder()
-    rec.add(loss, grad, time.perf_counter() - start, n_eval, 0, aux)
-    best = (float(loss), z)
-    status, message = "steps", f"ran {steps} steps"
-    bar = _progress_bar(steps, progress, "optimize", unit="step")
-    for step in range(1, steps + 1):
-        updates, new_state = update(grad, opt_state, z)
-        for k in range(max_backtracks + 1):
-            scale = 0.5**k
-            z_try = jax.tree.map(lambda a, u: a + scale * u, z, updates)
-            loss_t, grad_t, ok_t, aux_t = evaluate(z_try)
-            n_eval += 1
-            if _acceptable(loss_t, grad_t, ok_t):
-                break
-        else:
-            status = "infeasible"
-            message = f"step {step}: every trial design after {max_backtracks} halvings " + _why(loss_t, grad_t, ok_t)
-            break
-        z, opt_state, loss, grad, aux = z_try, new_state, loss_t, grad_t, aux_t
-        rec.add(loss, grad, time.perf_counter() - start, n_eval, k, aux)
-        if float(loss) < best[0]:
-            best = (float(loss), z)
-        bar.update(1)
-        bar.set_postfix(loss=f"{float(loss):.4g}")
-        if callback is not None:
-            callback(step, float(loss), design.build(z))
-        if target is not None and float(loss) <= target:
-            status, message = "target", f"loss {float(loss):.6g} reached the target {target:.6g} at step {step}"
-            break
-        if rtol > 0 and step >= patience and _stalled(rec.loss, rtol, patience):
-            status, message = "converged", f"best loss improved by less than {rtol:g} (relative) over {patience} steps"
-            break
-    bar.close()
-    best_loss, best_z = best
-    return SynthesisResult(
-        mechanism=design.build(best_z),
-        values=design.values(best_z),
-        z=best_z,
-        loss=best_loss,
-        status=status,
-        message=message,
-        evaluations=n_eval,
-        history=rec.history(),
-    )
+    if batch not in ("auto", "vmap", "sequential"):
+        raise AssurjaxError(f"optimize: batch must be 'auto', 'vmap' or 'sequential', got {batch!r}")
+    started = time.perf_counter()
+    numeric, static = _split_options(optimizer, options)
+    problem = _Problem(design=design, objective=by_structure(objective), feasible=by_structure(feasible), method=optimizer,
+                       method_static=static, has_aux=has_aux, takes_params=schedule is not None,
+                       capacity=int(2 ** np.ceil(np.log2(steps + 2))))
+    run_options = dict(method=numeric, steps=jnp.asarray(steps), target=jnp.asarray(-np.inf if target is None else target, dtype=float),
+                       rtol=jnp.asarray(rtol, dtype=float), gtol=jnp.asarray(gtol, dtype=float), patience=jnp.asarray(patience),
+                       restarts=jnp.asarray(restarts), max_backtracks=jnp.asarray(max_backtracks))
+    stages = _stages(schedule)
+    initial = _starting_values(design, starts, seed)
+    z0 = jax.vmap(design.unconstrained)(initial)
+    if batch == "auto":
+        batch = "sequential" if _has_line_search(problem, numeric, design.init()) else "vmap"
+    out = _run(problem, run_options, stages, z0, batch if _count(z0) > 1 else "single")
+    best_z, best_loss, status, evaluations, counts, history = jax.device_get(out)
+    elapsed = time.perf_counter() - started
+    return _result(design, initial, best_z, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed, callback)
 
 
-def _evaluator(design: Design, objective, feasible):
-    """One jitted call: loss, gradient (w.r.t. z), feasibility and aux at z."""
-
-    @jit
-    def evaluate(design, z):
-        def loss_of(z):
-            tree = design.build(z)
-            loss, (ok, aux) = objective(tree)
-            if feasible is not None:
-                ok = ok & jnp.all(feasible(tree))
-            return loss, (ok, aux)
-
-        (loss, (ok, aux)), grad = jax.value_and_grad(loss_of, has_aux=True)(z)
-        return loss, grad, ok, aux
-
-    return lambda z: evaluate(design, z)
+def _has_line_search(problem: _Problem, numeric: dict, z) -> bool:
+    """Whether the method's state holds a line search (its value and gradient at the current point)."""
+    state = jax.eval_shape(lambda n: problem.optimizer(n).init(z), numeric)
+    return optax.tree_utils.tree_get(state, "value", default=None) is not None
 
 
-def _acceptable(loss, grad, ok) -> bool:
-    finite_grad = all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree.leaves(grad))
-    return bool(ok) and bool(jnp.isfinite(loss)) and finite_grad
+def _count(batched) -> int:
+    return jax.tree.leaves(batched)[0].shape[0]
 
 
-def _why(loss, grad, ok) -> str:
-    if not bool(ok):
-        return "cannot assemble (some Kinematics.ok flag is False or the feasibility test fails)"
-    if not bool(jnp.isfinite(loss)):
-        return f"has a non-finite objective ({float(loss)})"
-    return "has a non-finite gradient"
+def _split_options(optimizer, options):
+    """Numeric options (traced) and the rest (part of the compiled structure, hashable)."""
+    options = dict(options or {})
+    if isinstance(optimizer, optax.GradientTransformation):
+        if options:
+            raise AssurjaxError("optimize: options go with an optax factory (e.g. optax.adam), not with a built GradientTransformation")
+        return {}, ()
+    if not callable(optimizer):
+        raise AssurjaxError("optimize: optimizer must be an optax GradientTransformation or a factory of one, "
+                            f"got {type(optimizer).__name__}")
+    numeric = {k: jnp.asarray(v, dtype=float) for k, v in options.items() if isinstance(v, float) or eqx.is_inexact_array(v)}
+    static = tuple(sorted((k, v) for k, v in options.items() if k not in numeric))
+    try:
+        built = optimizer(**dict(static), **numeric)
+    except TypeError as e:
+        raise AssurjaxError(f"optimize: the optimizer factory does not take these options ({e})") from None
+    if not isinstance(built, optax.GradientTransformation):
+        raise AssurjaxError(f"optimize: the optimizer factory must return an optax GradientTransformation, got {type(built).__name__}")
+    return numeric, static
 
 
-def _stalled(losses: list, rtol: float, patience: int) -> bool:
-    old = min(losses[: len(losses) - patience])
-    new = min(losses[len(losses) - patience :])
-    return old - new <= rtol * abs(old)
+def _stages(schedule):
+    """The schedule as a dict of 1-D arrays (one entry per stage); no schedule: one stage."""
+    if schedule is None:
+        return {"_": jnp.zeros(1)}
+    if not isinstance(schedule, dict) or not schedule:
+        raise AssurjaxError("optimize: schedule must be a non-empty dict {parameter name: one value per stage}")
+    stages = {k: jnp.atleast_1d(jnp.asarray(v, dtype=float)) for k, v in schedule.items()}
+    lengths = {k: v.shape[0] for k, v in stages.items()}
+    if len(set(lengths.values())) != 1 or any(v.ndim != 1 for v in stages.values()):
+        raise AssurjaxError(f"optimize: every schedule entry must be one value per stage, same count; got lengths {lengths}")
+    return stages
 
 
-class _Recorder:
-    def __init__(self):
-        self.loss, self.grad_norm, self.time, self.evals, self.backtracks, self.aux = [], [], [], [], [], []
-        self.grads = []
+def _starting_values(design: Design, starts, seed: int):
+    """Starting parameter values with a leading start axis."""
+    x0 = design.start()
+    if starts is None:
+        return jax.tree.map(lambda x: x[None], x0)
+    if isinstance(starts, (int, np.integer)):
+        if starts < 1:
+            raise AssurjaxError(f"optimize: starts must be at least 1, got {starts}")
+        for lo, hi in zip(jax.tree.leaves(design.lower), jax.tree.leaves(design.upper)):
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                raise AssurjaxError("optimize: random starts need finite lower and upper bounds on every design variable")
+        rng = np.random.default_rng(seed)
+        def draw(x, lo, hi, fixed):
+            lo, hi = np.asarray(lo), np.asarray(hi)
+            random = lo + (hi - lo) * rng.uniform(0.02, 0.98, (starts - 1,) + np.shape(x))
+            return jnp.where(fixed, x, jnp.asarray(np.concatenate([np.asarray(x)[None], random])))
 
-    def add(self, loss, grad, elapsed, n_eval, backtracks, aux):
-        self.loss.append(float(loss))
-        self.grad_norm.append(math.sqrt(sum(float(jnp.sum(g**2)) for g in jax.tree.leaves(grad))))
-        self.time.append(elapsed)
-        self.evals.append(n_eval)
-        self.backtracks.append(backtracks)
-        self.aux.append(aux)
-        self.grads.append(jax.device_get(grad))
+        return jax.tree.map(draw, x0, design.lower, design.upper, design.fixed)
+    try:
+        given = jax.tree.map(lambda x, s: jnp.asarray(s, dtype=x.dtype).reshape((-1,) + jnp.shape(x)), x0, starts)
+    except (ValueError, TypeError) as e:
+        raise AssurjaxError(f"optimize: starts must be parameter values shaped like the selection, with a leading start axis ({e})") from None
+    return given
 
-    def history(self) -> History:
-        aux = None
-        if any(a is not None for a in self.aux):
-            aux = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *self.aux)
-        return History(
-            loss=np.asarray(self.loss),
-            grad_norm=np.asarray(self.grad_norm),
-            time=np.asarray(self.time),
-            evaluations=np.asarray(self.evals),
-            backtracks=np.asarray(self.backtracks),
-            aux=aux,
-            grad=jax.tree.map(lambda *gs: np.stack([np.asarray(g) for g in gs]), *self.grads),
-        )
+
+def _result(design, initial, best_z, best_loss, status, evaluations, counts, history, elapsed, callback) -> SynthesisResult:
+    final_loss, names = best_loss[:, -1], tuple(STATUSES[k] for k in status[:, -1])
+    found = np.isfinite(final_loss)
+    if not found.any():
+        raise AssemblyError("optimize: the starting design cannot assemble (some Kinematics.ok flag is False, the feasibility test "
+                            "fails, or the objective or its gradient is not finite)" if len(names) == 1 else
+                            f"optimize: none of the {len(names)} starting designs can assemble")
+    best = int(np.argmin(np.where(found, final_loss, np.inf)))
+    z = jax.tree.map(lambda x: jnp.asarray(x[best, -1]), best_z)
+    share = elapsed * evaluations[best] / max(evaluations.sum(), 1)
+    hist = _history(jax.tree.map(lambda x: x[best], history), counts[best], share)
+    if callback is not None:
+        for i in range(len(hist.loss)):
+            callback(i, float(hist.loss[i]), design.build(jax.tree.map(lambda x: jnp.asarray(x[i]), hist.z)))
+    last_z = jax.tree.map(lambda x: jnp.asarray(x[:, -1]), best_z)
+    starts = StartResults(values=jax.device_get(jax.vmap(design.values)(last_z)), z=jax.device_get(last_z), loss=final_loss,
+                          status=names, evaluations=evaluations, initial=jax.device_get(initial))
+    return SynthesisResult(mechanism=design.build(z), values=design.values(z), z=z, loss=float(final_loss[best]),
+                           status=names[best], message=_message(names[best], hist, len(counts[best])), evaluations=int(evaluations.sum()),
+                           history=hist, starts=starts, time=elapsed)
+
+
+def _history(history, counts, elapsed: float) -> History:
+    """The valid entries of one start's per-stage buffers, concatenated; evaluations cumulative over stages."""
+    take = lambda buf: np.concatenate([np.asarray(buf)[s, : counts[s]] for s in range(len(counts))])  # noqa: E731
+    pick = lambda tree: jax.tree.map(take, tree)  # noqa: E731
+    per_stage_total = [history["evaluations"][s, counts[s] - 1] if counts[s] else 0 for s in range(len(counts))]
+    offsets = np.concatenate([[0], np.cumsum(per_stage_total)[:-1]])
+    evals = np.concatenate([np.asarray(history["evaluations"])[s, : counts[s]] + offsets[s] for s in range(len(counts))])
+    return History(loss=take(history["loss"]), grad_norm=take(history["grad_norm"]),
+                   time=elapsed * evals / max(evals[-1] if len(evals) else 1, 1), evaluations=evals,
+                   backtracks=take(history["backtracks"]), aux=pick(history["aux"]), grad=pick(history["grad"]),
+                   stage=np.concatenate([np.full(c, s) for s, c in enumerate(counts)]), z=pick(history["z"]))
+
+
+def _message(status: str, history: History, stages: int) -> str:
+    steps = len(history.loss) - stages
+    return {"steps": f"ran out of steps ({steps} steps over {stages} stage(s))",
+            "target": f"loss {history.loss[-1]:.6g} reached the target after {steps} steps",
+            "converged": f"converged after {steps} steps (gradient norm at or below gtol, or no relative improvement "
+                         f"above rtol over patience steps with no restart left)",
+            "infeasible": "a step led to a design that cannot assemble (or has a non-finite objective or gradient) "
+                          "even after every halving and restart"}[status]

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -12,35 +14,120 @@ from .._errors import AssemblyError, AssurjaxError
 from ._design import Design
 from ._dynamic import standstill_time
 from ._linkages import roberts_like
-from ._objectives import coupler_curve, straight_line_deviation
+from ._objectives import coupler_curve, line_pose, straight_line_deviation
 
 ROBERTS_Q0 = math.acos(1.0 / 3.0)  # the Roberts linkage's symmetric position (seed 001)
 
 
-def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_Q0, spread: float = 0.3, samples: int = 41):
+LENGTH_NAMES = ("AD", "AB", "DC", "BC", "BP", "CP")
+
+
+class StraightLineObjective(eqx.Module):
+    """The objective of :func:`straight_line_problem`: ``objective(values)`` or
+    ``objective(values, params)`` -> (smooth deviation in m, aux).
+
+    ``values`` = (six lengths, stroke centre[, line pose (y0 m, angle rad)]);
+    ``params["sharpness"]`` (optional) overrides the smooth maximum's sharpness
+    (a continuation schedule in :func:`optimize`). Aux: ``deviation`` (m, exact),
+    ``span`` (m, the x range the samples cover) and ``ok``. Its numbers are arrays,
+    so problems differing only in them share one compiled program.
+    """
+
+    stroke: jax.Array
+    q0: jax.Array
+    sharpness: jax.Array
+    line: Any
+    samples: int = eqx.field(static=True)
+    drive: str = eqx.field(static=True)
+    free_line: bool = eqx.field(static=True)
+
+    def __call__(self, values, params=None):
+        lengths, centre = values[0], values[1]
+        p = self.sharpness if params is None or "sharpness" not in params else params["sharpness"]
+        if self.free_line:
+            line = ((0.0, values[2][0]), values[2][1])
+        elif self.line is None:
+            line = None
+        else:
+            line = ((self.line[0], self.line[1]), self.line[2])
+        result = straight_line_deviation(roberts_like(lengths), "P", stroke=self.stroke, q0=self.q0, center=centre,
+                                         samples=self.samples, p=p, line=line, drive=self.drive)
+        return result.smooth, {"ok": result.ok, "deviation": result.deviation, "span": jnp.max(result.x) - jnp.min(result.x)}
+
+
+def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_Q0, spread: float = 0.3, lower=None, upper=None,
+                          fixed=(), samples: int = 41, line=None, frame: str = "fixed", drive: str = "x",
+                          centre_range: float | None = None, sharpness: float = 50.0):
     """Straight-line synthesis of a Roberts-type four-bar (seed 001).
 
-    Design variables: the six lengths (AD, AB, DC, BC, BP, CP) in m, each free
-    within ``(1 -/+ spread)`` times its start value, and the x position (m) of the
-    middle of the ``stroke`` (m) of coupler point P, within 0.1 m of its start.
-    The start centre is the middle of the stretch of x that P sweeps monotonically
-    on the branch through ``q0`` (so a perturbed linkage starts with a reachable stroke).
+    Design variables (``values`` = a tuple):
+    - the six lengths (AD, AB, DC, BC, BP, CP) in m (see :func:`roberts_like`),
+      each within ``(1 -/+ spread)`` times its start value (relative bounds) or
+      within absolute ``lower``/``upper`` (six values, m); ``fixed``: names of
+      lengths (or ``"centre"``) that stay at their start values (e.g. ``("AD",)``);
+    - the middle of the stroke: with ``drive="x"`` (the driving-dimension
+      formulation, recommended) global x of the coupler point P (m, within
+      ``centre_range``, default 0.1 m, of its start: the middle of the stretch of
+      x P sweeps monotonically on the branch through ``q0``), the stroke being
+      ``stroke`` m of x; with ``drive="angle"`` the crank angle (rad, within
+      ``centre_range``, default 0.5 rad, of ``q0``), the stroke being ``stroke``
+      rad of crank angle (then how much x is covered is up to the design: aux
+      ``span`` reports it, and an objective usually needs a coverage penalty);
+    - with a given ``line`` and ``frame="free"``: the line's pose relative to the
+      mechanism (y0 in m within 0.1 m, angle in rad within 0.2 rad), i.e. the
+      frame placed freely relative to the line; ``frame="fixed"`` keeps the line.
+
+    ``line``: ``None`` measures the deviation from the best (least-squares) line;
+    a number c from y = c; ``((x0, y0), angle)`` from that line (see
+    :func:`straight_line_deviation`). ``sharpness``: the smooth maximum's default
+    sharpness (a schedule's ``"sharpness"`` overrides it).
 
     Returns ``(design, objective)`` for :func:`optimize` (with ``has_aux=True``):
-    the objective is the smooth straight-line deviation (m); its aux holds the
-    exact ``deviation`` (m) and the ``ok`` flag.
+    the objective (a :class:`StraightLineObjective`) is the smooth straight-line
+    deviation (m); its aux holds the exact ``deviation`` (m), ``span`` and ``ok``.
+
+    **Example:**
+    >>> design, objective = syn.straight_line_problem(lengths, stroke=0.2, line=0.0, frame="free")
+    >>> result = syn.optimize(design, objective, optax.lbfgs, 300, has_aux=True, schedule={"sharpness": [50., 300., 2000.]})
     """
     lengths = jnp.asarray(lengths, dtype=float)
-    c0 = _reachable_centre(roberts_like(lengths), q0, stroke)
-    design = Design((lengths, jnp.asarray(c0)), lambda t: (t[0], t[1]),
-                    lower=(lengths * (1 - spread), c0 - 0.1), upper=(lengths * (1 + spread), c0 + 0.1))
-
-    def objective(t):
-        lengths, centre = t
-        line = straight_line_deviation(roberts_like(lengths), "P", stroke=stroke, q0=q0, center=centre, samples=samples)
-        return line.smooth, {"ok": line.ok, "deviation": line.deviation}
-
+    if lengths.shape != (6,):
+        raise AssurjaxError(f"straight_line_problem: lengths must be the six lengths {LENGTH_NAMES} (m), got shape {lengths.shape}")
+    if frame not in ("fixed", "free"):
+        raise AssurjaxError(f"straight_line_problem: frame must be 'fixed' or 'free', got {frame!r}")
+    if drive not in ("x", "angle"):
+        raise AssurjaxError(f"straight_line_problem: drive must be 'x' or 'angle', got {drive!r}")
+    unknown = [f for f in fixed if f not in LENGTH_NAMES + ("centre",)]
+    if unknown:
+        raise AssurjaxError(f"straight_line_problem: unknown fixed length(s) {unknown} (known: {LENGTH_NAMES})")
+    if drive == "x":
+        c0, width = _reachable_centre(roberts_like(lengths), q0, stroke), 0.1 if centre_range is None else centre_range
+    else:
+        c0, width = float(q0), 0.5 if centre_range is None else centre_range
+    lo = lengths * (1 - spread) if lower is None else jnp.broadcast_to(jnp.asarray(lower, dtype=float), (6,))
+    hi = lengths * (1 + spread) if upper is None else jnp.broadcast_to(jnp.asarray(upper, dtype=float), (6,))
+    base, lows, highs = [lengths, jnp.asarray(c0)], [lo, c0 - width], [hi, c0 + width]
+    given = None if line is None else _line_array(line)
+    free_line = frame == "free" and line is not None
+    if free_line:
+        base.append(jnp.stack([given[1] - given[0] * jnp.tan(given[2]), given[2]]))
+        lows.append(base[2] - jnp.array([0.1, 0.2]))
+        highs.append(base[2] + jnp.array([0.1, 0.2]))
+    mask = (jnp.array([n in fixed for n in LENGTH_NAMES]), "centre" in fixed) + (False,) * (len(base) - 2)
+    design = Design(tuple(base), _whole, lower=tuple(lows), upper=tuple(highs), fixed=mask)
+    objective = StraightLineObjective(stroke=jnp.asarray(stroke, dtype=float), q0=jnp.asarray(q0, dtype=float),
+                                      sharpness=jnp.asarray(sharpness, dtype=float), line=given, samples=samples,
+                                      drive=drive, free_line=free_line)
     return design, objective
+
+
+def _whole(values):
+    return values
+
+
+def _line_array(line):
+    """A given line as the array (x0, y0, angle)."""
+    return jnp.array([float(v) for v in line_pose(line)])
 
 
 def _reachable_centre(mechanism, q0: float, stroke: float, half_width: float = 1.5, n: int = 601) -> float:
