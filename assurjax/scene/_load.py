@@ -14,12 +14,12 @@ import numpy as np
 from .._errors import MechanismError, SceneError
 from .._mechanism import Mechanism
 from ..groups import GROUND, Link
+from ..groups._base import MODES
 from ..groups import _drivers, _prp, _rpr, _rrp, _rrr
 from ..groups import _class4, _newton, _triad
 from ._scene import Scene, Settings
 
 BUNDLED = "assurjax.scenes"
-MODES = {"left": 1, "right": -1, "forward": 1, "backward": -1, "+": 1, "-": -1, "+1": 1, "-1": -1, 1: 1, -1: -1}
 
 
 def bundled_scenes() -> list[str]:
