@@ -133,6 +133,8 @@ def _point(v, what: str) -> np.ndarray:
 
 
 def _link_spec(name, value) -> LinkSpec:
+    if isinstance(value, LinkSpec):
+        value = {k: v for k, v in value._asdict().items() if v is not None}
     if isinstance(value, Mapping):
         extra = sorted(set(value) - set(LINK_FIELDS))
         if extra:
