@@ -87,5 +87,7 @@ from ._sweep import (
     sweep as sweep,
 )
 from . import synthesis as synthesis
+from . import structure as structure
+from .structure import Sketch as Sketch, Slide as Slide
 
 __version__ = "0.1.0"

@@ -15,8 +15,10 @@ from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
+from .._errors import MechanismError
 from .._geometry import V2, heading, relative_rotation, rotate
 
 
@@ -37,12 +39,48 @@ class Frame(NamedTuple):
 class Link(eqx.Module):
     """A rigid link. ``points`` are named points in the link's own frame (m);
     a point name shared by two links is the joint between them. ``inertia`` is
-    the centroidal moment of inertia (kg m^2)."""
+    the centroidal moment of inertia (kg m^2).
+
+    Defaults as in a scene file: ``com`` the centroid of the points, ``mass`` and
+    ``inertia`` zero. Example: ``Link({"A": [0.0, 0.0], "B": [0.3, 0.0]}, mass=0.6)``.
+    """
 
     points: dict[str, Array]
     com: Array
     mass: Array
     inertia: Array
+
+    def __init__(self, points, com=None, mass=0.0, inertia=0.0):
+        # Python numbers become arrays: a float leaf would be static under filter_jit
+        self.points = {k: _as_array(v) for k, v in points.items()}
+        self.com = jnp.mean(jnp.stack(list(self.points.values())), axis=0) if com is None else _as_array(com)
+        self.mass = _as_array(mass)
+        self.inertia = _as_array(inertia)
+
+
+def _as_array(x):
+    return jnp.asarray(x, dtype=float) if isinstance(x, (int, float, list, tuple)) else x
+
+
+MODES = {"left": 1, "right": -1, "forward": 1, "backward": -1, "+": 1, "-": -1, "+1": 1, "-1": -1, 1: 1, -1: -1}
+"""Assembly modes by name: +1 is "left" (RRR) or "forward" (RRP, PRR, RPR), -1 "right" or "backward"."""
+
+
+def as_mode(value):
+    """An assembly mode as +1/-1 from a name in :data:`MODES` or an integer; other
+    values are returned unchanged for :func:`check_mode` to reject with the group's name."""
+    if isinstance(value, str):
+        return MODES.get(value.strip().lower(), value)
+    if not isinstance(value, bool) and isinstance(value, (int, np.integer)) and int(value) in (1, -1):
+        return int(value)
+    return value
+
+
+def check_mode(group) -> None:
+    if isinstance(group.mode, bool) or group.mode not in (1, -1):
+        raise MechanismError(
+            f"{group.describe()}: mode must be 'left'/'right' (or 'forward'/'backward', +1/-1), got {group.mode!r}"
+        )
 
 
 GROUND = "ground"

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._geometry import V2, safe_sqrt
-from ._base import AbstractGroup, Link, Placement, frame_from_rotation_xy
+from ._base import AbstractGroup, as_mode, check_mode, Link, Placement, frame_from_rotation_xy
 
 
 class RPR(AbstractGroup):
@@ -20,11 +20,14 @@ class RPR(AbstractGroup):
     name: str = eqx.field(static=True)
     links: tuple[str, ...] = eqx.field(static=True)
     joints: tuple[str, str] = eqx.field(static=True)
-    mode: int = eqx.field(static=True)
+    mode: int = eqx.field(static=True, converter=as_mode)  # +1/-1, or a name: 'left', 'forward'...
     direction: Array
     offset: Array
     kind = "RPR"
     n_prismatic = 1  # block on the guide link
+
+    def __check_init__(self):
+        check_mode(self)
 
     def external_points(self):
         return self.joints

@@ -6,7 +6,7 @@ end first; the geometry is the same."""
 import equinox as eqx
 from jaxtyping import Array
 
-from ._base import AbstractGroup, Link, Placement, distance, frame_from_rotation_xy, frame_through_xy
+from ._base import AbstractGroup, as_mode, check_mode, Link, Placement, distance, frame_from_rotation_xy, frame_through_xy
 from ._guides import guide_line, line_circle
 
 
@@ -22,11 +22,14 @@ class RRP(AbstractGroup):
     links: tuple[str, ...] = eqx.field(static=True)
     joints: tuple[str, str] = eqx.field(static=True)
     guide_point: str = eqx.field(static=True)
-    mode: int = eqx.field(static=True)
+    mode: int = eqx.field(static=True, converter=as_mode)  # +1/-1, or a name: 'left', 'forward'...
     direction: Array
     offset: Array
     kind = "RRP"
     n_prismatic = 1
+
+    def __check_init__(self):
+        check_mode(self)
 
     def external_points(self):
         return (self.joints[0], self.guide_point)

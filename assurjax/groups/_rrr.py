@@ -6,7 +6,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._geometry import V2, safe_sqrt
-from ._base import AbstractGroup, Link, Placement, distance, frame_through_xy
+from ._base import AbstractGroup, as_mode, check_mode, Link, Placement, distance, frame_through_xy
 
 
 def circle_circle(c1: V2, r1: Array, c2: V2, r2: Array, mode: int):
@@ -32,8 +32,11 @@ class RRR(AbstractGroup):
     name: str = eqx.field(static=True)
     links: tuple[str, ...] = eqx.field(static=True)
     joints: tuple[str, str, str] = eqx.field(static=True)  # (E1, E2, J)
-    mode: int = eqx.field(static=True)
+    mode: int = eqx.field(static=True, converter=as_mode)  # +1/-1, or a name: 'left', 'forward'...
     kind = "RRR"
+
+    def __check_init__(self):
+        check_mode(self)
 
     def external_points(self):
         return self.joints[:2]

@@ -15,12 +15,12 @@ from .._errors import AssurjaxError, MechanismError, SceneError
 from ..dynamics._settings import check_simulation_table
 from .._mechanism import Mechanism
 from ..groups import GROUND, Link
+from ..groups._base import MODES
 from ..groups import _drivers, _prp, _rpr, _rrp, _rrr
 from ..groups import _class4, _newton, _triad
 from ._scene import Scene, Settings
 
 BUNDLED = "assurjax.scenes"
-MODES = {"left": 1, "right": -1, "forward": 1, "backward": -1, "+": 1, "-": -1, "+1": 1, "-1": -1, 1: 1, -1: -1}
 
 
 def bundled_scenes() -> list[str]:
@@ -223,30 +223,23 @@ def _group(index: int, table, source: str):
 def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     """Build a Scene from the parsed TOML tables (see docs/scene-format.md)."""
     top = Fields(data, "the top level", source)
-    top.reject_unknown({"scene", "ground", "links", "formation", "state", "simulation", "outputs", "loads"})
+    top.reject_unknown({"scene", "ground", "links", "formation", "state", "simulation", "outputs", "loads", "sketch"})
     head = Fields(top.raw("scene", {}), "[scene]", source)
     name = head.string("name", Path(source).stem)
     description = head.string("description", "")
     gravity = head.vector("gravity", [0.0, 0.0])
     head.reject_unknown()
 
-    ground = _points(top, "ground") if top.has("ground") else {}
-    links_table = Fields(top.raw("links"), "[links]", source)
-    if GROUND in links_table.table:
-        links_table.fail(GROUND, "the name 'ground' is reserved; put fixed points in [ground]")
-    links = {name_: _link(name_, t, source) for name_, t in links_table.table.items()}
-    formation = top.raw("formation")
-    if not isinstance(formation, list) or not formation:
-        raise SceneError(f"{source}: [[formation]] must be a non-empty array of tables, the driver first")
-    groups = [_group(i, t, source) for i, t in enumerate(formation)]
-    try:
-        mechanism = Mechanism(ground, links, groups, name=name)
-    except MechanismError as e:
-        raise SceneError(f"{source}: {e}") from None
+    if top.has("sketch"):  # the sketch form (scene/_sketch.py): q0 defaults to the drawing's
+        from ._sketch import mechanism_from_sketch
+
+        mechanism, drawn_q0 = mechanism_from_sketch(top, name, source)
+    else:
+        mechanism, drawn_q0 = _explicit_mechanism(top, name, source), 0.0
 
     state = Fields(top.raw("state", {}), "[state]", source)
     state_values = dict(
-        q0=state.number("q0", 0.0), omega0=state.number("omega0", 0.0), t0=state.number("t0", 0.0), t1=state.number("t1", 1.0)
+        q0=state.number("q0", drawn_q0), omega0=state.number("omega0", 0.0), t0=state.number("t0", 0.0), t1=state.number("t1", 1.0)
     )
     state.reject_unknown()
     mechanism = _newton.resolve_guess_q(mechanism, state_values["q0"])  # iterative groups' guesses refer to q0
@@ -274,6 +267,23 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         description=description,
         source=source,
     )
+
+
+def _explicit_mechanism(top: Fields, name: str, source: str) -> Mechanism:
+    """The mechanism of the explicit form: [ground], [links], [[formation]]."""
+    ground = _points(top, "ground") if top.has("ground") else {}
+    links_table = Fields(top.raw("links"), "[links]", source)
+    if GROUND in links_table.table:
+        links_table.fail(GROUND, "the name 'ground' is reserved; put fixed points in [ground]")
+    links = {name_: _link(name_, t, source) for name_, t in links_table.table.items()}
+    formation = top.raw("formation")
+    if not isinstance(formation, list) or not formation:
+        raise SceneError(f"{source}: [[formation]] must be a non-empty array of tables, the driver first")
+    groups = [_group(i, t, source) for i, t in enumerate(formation)]
+    try:
+        return Mechanism(ground, links, groups, name=name)
+    except MechanismError as e:
+        raise SceneError(f"{source}: {e}") from None
 
 
 def _outputs(f: Fields, mechanism: Mechanism) -> dict:

@@ -1,0 +1,336 @@
+"""Mechanisms from a sketch: joints where they are drawn, the Assur decomposition and
+the assembly modes found by the package.
+
+References, independent of the code under test:
+- the bundled scenes themselves (hand-written formation sequences, modes, local
+  frames): rebuilt from their joints drawn at q0 they must move identically;
+- Jansen's leg from its 13 "holy numbers": a closed form written here (circle-circle
+  intersections in numpy, branches chosen by which intersection is higher/further left);
+- closed-form mass properties of a bar and a right triangle.
+"""
+
+from __future__ import annotations
+
+import tomllib
+
+import jax
+import numpy as np
+import pytest
+
+import assurjax
+from assurjax import MechanismError, SceneError
+from assurjax.structure import Sketch, Slide, build, decompose, explicit_toml, sketch_of
+
+# -- helpers --------------------------------------------------------------------------
+
+
+def sweep_points(mechanism, qs):
+    """Positions of every point at every q (numpy), and whether every group assembled."""
+    pose = jax.vmap(lambda q: assurjax.positions(mechanism, q))(np.asarray(qs, dtype=float))
+    return {p: np.asarray(x) for p, x in pose.points.items()}, np.asarray(pose.ok).all(axis=1)
+
+
+def canonical(group):
+    """(kind, links, branch) with the listing order factored out: an RRR listed (b, a)
+    has the opposite mode of the same dyad listed (a, b); PRR is RRP listed from its slider."""
+    kind, links, mode = group.kind, tuple(group.links), getattr(group, "mode", 0)
+    if kind == "PRR":
+        kind, links = "RRP", links[::-1]
+    if kind == "RRR" and links != tuple(sorted(links)):
+        links, mode = links[::-1], -mode
+    if kind in ("triad", "class4", "PRP"):
+        links = tuple(sorted(links))
+    return kind, links, mode
+
+
+def sweep_of(scene):
+    q0 = scene.state["q0"]
+    if scene.name == "tangent_drive":  # assembles on (0, pi) only
+        return np.linspace(0.1, np.pi - 0.1, 61)
+    return q0 + np.linspace(-np.pi, np.pi, 121)
+
+
+# -- every bundled scene, rebuilt from its drawing ----------------------------------------
+
+
+@pytest.mark.parametrize("name", assurjax.bundled_scenes())
+def test_bundled_scene_rebuilt_from_its_joints(name):
+    scene = assurjax.load_scene(name)
+    original = scene.mechanism
+    q0 = scene.state["q0"]
+    pose = assurjax.positions(original, q0)
+    # the drawing: every point where the scene's own mechanism puts it at q0
+    sk = sketch_of(original, q0)
+    for p, x in sk.joints.items():
+        assert np.array_equal(x, np.asarray(pose.points[p]))
+    rebuilt = build(sk).mechanism
+    assert sorted(map(canonical, rebuilt.groups)) == sorted(map(canonical, original.groups))
+    qs = sweep_of(scene)
+    expected, ok_a = sweep_points(original, qs)
+    got, ok_b = sweep_points(rebuilt, qs)
+    # same assembly range (the Roberts linkage turns through part of a revolution only)
+    assert np.array_equal(ok_a, ok_b) and ok_a.sum() >= len(qs) // 4
+    for p in original.point_names:
+        assert np.max(np.abs(got[p] - expected[p])[ok_a]) <= 1e-12, p
+
+
+@pytest.mark.parametrize("name", assurjax.bundled_scenes())
+def test_bundled_scene_round_trips_through_the_explicit_form(name):
+    scene = assurjax.load_scene(name)
+    again = assurjax.scene_from_dict(tomllib.loads(explicit_toml(scene)), source=f"{name}.toml")
+    leaves_a, tree_a = jax.tree.flatten(scene.mechanism)
+    leaves_b, tree_b = jax.tree.flatten(again.mechanism)
+    assert tree_a == tree_b
+    assert all(np.array_equal(a, b) for a, b in zip(leaves_a, leaves_b))
+    assert dict(again.state) == dict(scene.state) and again.name == scene.name
+
+
+# -- Jansen's leg ------------------------------------------------------------------------
+
+HOLY = dict(a=38.0, b=41.5, c=39.3, d=40.1, e=55.8, f=39.4, g=36.7, h=65.7, i=49.0, j=50.0, k=61.9, l=7.8, m=15.0)
+
+
+def circles(p, r, q, s):
+    """Both intersections of the circles (p, r) and (q, s)."""
+    d = q - p
+    dist = np.hypot(d[0], d[1])
+    along = (r**2 - s**2 + dist**2) / (2 * dist)
+    height = np.sqrt(r**2 - along**2)
+    foot = p + along * d / dist
+    normal = np.array([-d[1], d[0]]) / dist
+    return foot + height * normal, foot - height * normal
+
+
+def jansen_candidates(theta):
+    """Both candidates of every constructed joint of Jansen's leg (holy numbers, in their
+    units) at crank angle theta, with the chosen one: crank axle O at the origin, fixed
+    pivot Z at (-a, -l); the leg hangs below: B and D are the lower intersections, C and
+    E the ones further left, the foot F the lower one."""
+    n = HOLY
+    O, Z = np.zeros(2), np.array([-n["a"], -n["l"]])
+    M = n["m"] * np.array([np.cos(theta), np.sin(theta)])
+    lower = lambda pair: min(pair, key=lambda x: x[1])  # noqa: E731
+    left = lambda pair: min(pair, key=lambda x: x[0])  # noqa: E731
+    out = dict(O=(O, None), Z=(Z, None), M=(M, None))
+    for name, (p, r, q, s, rule) in dict(B=("M", "j", "Z", "b", lower), D=("M", "k", "Z", "c", lower), C=("B", "d", "Z", "e", left),
+                                         E=("C", "f", "D", "g", left), F=("E", "h", "D", "i", lower)).items():
+        pair = circles(out[p][0], n[r], out[q][0], n[s])
+        out[name] = (rule(pair), pair)
+    return out
+
+
+def jansen_closed_form(theta):
+    return {k: v for k, (v, _) in jansen_candidates(theta).items()}
+
+
+def jansen_sketch(theta0=0.4, names=None):
+    names = names or {}
+    rename = lambda j: names.get(j, j)  # noqa: E731
+    joints = {rename(k): v for k, v in jansen_closed_form(theta0).items()}
+    links = {"crank": ["O", "M"], "upper": ["M", "B"], "lower": ["M", "D"], "triangle": ["Z", "B", "C"],
+             "rocker": ["Z", "D"], "bar": ["C", "E"], "foot": ["D", "E", "F"]}
+    links = {k: [rename(j) for j in v] for k, v in links.items()}
+    return Sketch(joints, links, ground=[rename("O"), rename("Z")], driver="crank", name="jansen")
+
+
+def test_jansen_leg_foot_path_against_closed_form():
+    sk = jansen_sketch()
+    dec = decompose(sk)
+    assert [g.kind for g in dec.groups] == ["crank", "RRR", "RRR", "RRR"] and dec.dof == 1
+    mech = build(sk, check=True).mechanism
+    thetas = np.linspace(0.0, 2 * np.pi, 181)
+    got, ok = sweep_points(mech, thetas)
+    assert ok.all()
+    for p in "BCDEF":
+        expected = np.array([jansen_closed_form(t)[p] for t in thetas])
+        assert np.max(np.abs(got[p] - expected)) <= 1e-12, p
+    # the closed form's branch choice is unambiguous over the turn: the two candidates stay apart
+    for t in thetas:
+        for name, (_, pair) in jansen_candidates(t).items():
+            assert pair is None or np.hypot(*(pair[0] - pair[1])) > 10.0, name
+
+
+def test_jansen_leg_independent_of_link_order_and_joint_names():
+    names = {"B": "knee", "C": "hip", "E": "heel"}
+    sk = jansen_sketch(theta0=2.0, names=names)
+    shuffled = Sketch(sk.joints, dict(reversed(list(sk.links.items()))), ground=list(sk.ground)[::-1], driver="crank")
+    mech = build(shuffled).mechanism
+    thetas = np.linspace(0.0, 2 * np.pi, 37)
+    got, ok = sweep_points(mech, thetas)
+    expected = np.array([jansen_closed_form(t)["E"] for t in thetas])
+    assert ok.all() and np.max(np.abs(got["heel"] - expected)) <= 1e-12
+
+
+# -- the TOML sketch form, scenes, simulate/kinematics/reactions --------------------------
+
+FOUR_BAR = """
+    [scene]
+    name = "fourbar"
+    gravity = [0.0, -9.81]
+
+    [sketch]
+    driver = "crank"
+    ground = ["A", "D"]
+    joints = { A = [0.0, 0.0], B = [0.1, 0.2], C = [0.5, 0.3], D = [0.4, 0.0], P = [0.3, 0.45] }
+
+    [sketch.links]
+    crank = { joints = ["A", "B"], density = 2.0 }
+    coupler = { joints = ["B", "C", "P"], density = 10.0 }
+    rocker = { joints = ["D", "C"], mass = 0.3, inertia = 0.004 }
+
+    [state]
+    t1 = 0.5
+"""
+
+
+def four_bar_sketch():
+    return Sketch({"A": (0.0, 0.0), "B": (0.1, 0.2), "C": (0.5, 0.3), "D": (0.4, 0.0), "P": (0.3, 0.45)},
+                  {"crank": {"joints": ["A", "B"], "density": 2.0}, "coupler": {"joints": ["B", "C", "P"], "density": 10.0},
+                   "rocker": {"joints": ["D", "C"], "mass": 0.3, "inertia": 0.004}},
+                  ground=["A", "D"], driver="crank", name="fourbar")
+
+
+def test_toml_sketch_equals_python_sketch(write_scene):
+    scene = assurjax.load_scene(write_scene(FOUR_BAR))
+    python = four_bar_sketch().mechanism()
+    leaves_a, tree_a = jax.tree.flatten(scene.mechanism)
+    leaves_b, tree_b = jax.tree.flatten(python)
+    assert tree_a == tree_b and all(np.array_equal(a, b) for a, b in zip(leaves_a, leaves_b))
+    assert scene.state["q0"] == pytest.approx(np.arctan2(0.2, 0.1), abs=1e-15)  # the drawn crank angle
+    # the explicit form of the sketch scene reads back to the same mechanism
+    again = assurjax.scene_from_dict(tomllib.loads(explicit_toml(scene)))
+    assert jax.tree.structure(again.mechanism) == tree_a
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(again.mechanism), leaves_a))
+
+
+def test_mass_properties_from_densities():
+    mech = four_bar_sketch().mechanism()
+    crank, coupler = mech.links["crank"], mech.links["coupler"]
+    length = np.hypot(0.1, 0.2)
+    assert float(crank.mass) == pytest.approx(2.0 * length, rel=1e-14)
+    assert float(crank.inertia) == pytest.approx(2.0 * length**3 / 12, rel=1e-14)
+    # triangle B, C, P: area by the cross product, centroid the vertex mean, polar moment
+    # about the centroid (a^2 + b^2 + c^2) m / 36 (sides a, b, c)
+    B, C, P = np.array([0.1, 0.2]), np.array([0.5, 0.3]), np.array([0.3, 0.45])
+    (ux, uy), (vx, vy) = C - B, P - B
+    area = abs(ux * vy - uy * vx) / 2
+    sides2 = sum(np.sum((x - y) ** 2) for x, y in ((B, C), (C, P), (P, B)))
+    m = 10.0 * area
+    assert float(coupler.mass) == pytest.approx(m, rel=1e-13)
+    assert float(coupler.inertia) == pytest.approx(m * sides2 / 36, rel=1e-12)
+    pose = assurjax.positions(mech, np.arctan2(0.2, 0.1))
+    assert np.allclose(pose.coms["coupler"], (B + C + P) / 3, atol=1e-15)
+    assert float(mech.links["rocker"].mass) == 0.3
+
+
+def test_sketch_scene_simulates_and_gives_reactions(write_scene):
+    scene = assurjax.load_scene(write_scene(FOUR_BAR))
+    sol = assurjax.simulate(scene, stop=None)
+    assert sol.status == "done" or sol.t[-1] == pytest.approx(0.5)
+    drift = float(sol.total[-1] - sol.total[0])
+    assert abs(drift) < 1e-6 * float(np.ptp(sol.potential) + 1e-3)
+    kin = assurjax.kinematics(scene.mechanism, np.linspace(0.5, 1.5, 5))
+    assert np.all(np.isfinite(np.asarray(kin.points["P"])))
+    r = assurjax.reactions(scene, sol, joints=["A", "C"])
+    assert all(np.all(np.isfinite(np.asarray(v))) for v in jax.tree.leaves(r))
+
+
+# -- modes as names, Link defaults --------------------------------------------------------
+
+
+def test_modes_as_names_everywhere():
+    scene = assurjax.load_scene("watt_sixbar")
+    named = [g if g.kind != "RRR" else type(g)(g.name, g.links, g.joints, "left") for g in scene.mechanism.groups]
+    mech = assurjax.Mechanism(scene.mechanism.ground, scene.mechanism.links, named)
+    a = assurjax.positions(mech, 0.3).points["E"]
+    b = assurjax.positions(scene.mechanism, 0.3).points["E"]
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+    g = scene.mechanism.groups[1]
+    with pytest.raises(MechanismError, match="group 'dyad34' \\(RRR\\): mode must be"):
+        type(g)(g.name, g.links, g.joints, "up")
+    with pytest.raises(MechanismError, match="mode must be"):
+        type(g)(g.name, g.links, g.joints, 2)
+
+
+def test_link_defaults_match_the_scene_format(write_scene):
+    scene = assurjax.load_scene(write_scene("""
+        [ground]
+        O = [0.0, 0.0]
+        [links.crank]
+        points = { O = [0.0, 0.0], A = [0.3, 0.1] }
+        [[formation]]
+        group = "crank"
+        link = "crank"
+        pivot = "O"
+    """))
+    from_toml = scene.mechanism.links["crank"]
+    direct = assurjax.Link({"O": [0.0, 0.0], "A": [0.3, 0.1]})
+    assert jax.tree.structure(from_toml) == jax.tree.structure(direct)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(from_toml), jax.tree.leaves(direct)))
+
+
+# -- bad drawings ----------------------------------------------------------------------------
+
+FOUR = dict(joints={"A": (0, 0), "B": (0.1, 0.2), "C": (0.5, 0.3), "D": (0.4, 0)},
+            links={"crank": ["A", "B"], "coupler": ["B", "C"], "rocker": ["D", "C"]}, ground=["A", "D"], driver="crank")
+
+
+def four(**changes):
+    kw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in FOUR.items()}
+    for k, v in changes.items():
+        if isinstance(v, dict) and k in ("joints", "links"):
+            kw[k].update(v)
+        else:
+            kw[k] = v
+    return kw
+
+
+BAD = {
+    "over-constrained": (four(links={"brace": ["A", "C"]}), "over-constrained: Gruebler's count 3\\*4 - 2\\*\\(6 revolute.*= 0.*link 'brace' is over-constrained.*joint A, joint C"),
+    "under-constrained": (four(joints={"E": (0.7, 0.1)}, links={"rocker": ["C", "E"], "tail": ["E", "D"]}),
+                          "under-constrained: .*= 2.*links rocker, tail|links coupler, rocker, tail"),
+    "disconnected": (four(joints={"X": (2, 2), "Y": (3, 2)}, links={"float": ["X", "Y"]}), "disconnected: links float"),
+    "coincident joints": (four(joints={"C": (0.1, 0.2000000000001)}), "link 'coupler': joints 'B' and 'C' coincide"),
+    "external joints coincide": (four(joints={"D": (0.1, 0.2)}), "external joints 'B' and 'D' coincide"),
+    "slide without direction": (four(slides=[{"link": "rocker", "on": "ground"}]), "slide of 'rocker' on 'ground': no direction"),
+    "driver not grounded": (four(driver="coupler"), "driver 'coupler' is neither pinned to the ground nor sliding on it"),
+    "unknown joint": (four(links={"rocker": ["D", "Q"]}), "link 'rocker' uses joint\\(s\\) \\['Q'\\]"),
+    "unused joint": (four(joints={"Q": (1, 1)}), "joint\\(s\\) \\['Q'\\] belong to no link"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_drawings_are_rejected_by_name(case):
+    kwargs, message = BAD[case]
+    with pytest.raises(MechanismError, match=message):
+        Sketch(**kwargs).mechanism()
+
+
+def test_parallel_guides_do_not_close():
+    # a PRP dyad whose two guides are drawn parallel: its joint is not determined
+    sk = Sketch({"O": (0, 0), "K": (0.1, 0.0), "J": (0.2, 0.0)}, {"crank": ["O", "K"], "block": ["J"], "slide": ["J"]},
+                ground=["O"], slides=[Slide("block", "crank", (1, 0)), Slide("slide", "ground", (1, 0))], driver="crank")
+    with pytest.raises(MechanismError, match="PRP.*links block, slide.*parallel.*joint 'J'"):
+        sk.mechanism()
+
+
+def test_undecomposable_topology_is_rejected_with_its_links():
+    # an RPP dyad: a rod pinned at B slides in a block that slides on the ground (one DOF, no such kind)
+    sk = Sketch({"A": (0, 0), "B": (0.1, 0.1), "S": (0.4, 0.0)}, {"crank": ["A", "B"], "rod": ["B"], "block": ["S"]}, ground=["A"],
+                slides=[Slide("rod", "block", (1, 0.3)), Slide("block", "ground", (1, 0))], driver="crank")
+    with pytest.raises(MechanismError, match="links 'rod' and 'block' form an RPP dyad, which is not one of the package's kinds"):
+        sk.mechanism()
+    # a class-III triad hung on a slider instead of a binary link: outside the kinds
+    pts = {"O": (0, 0), "A": (0.1, 0), "P1": (0.3, 0.2), "P2": (0.6, 0.4), "P3": (0.6, 0.0), "E2": (0.4, 1.0), "P": (0.9, 0.0)}
+    links = {"crank": ["O", "A"], "L1": ["A", "P1"], "T": ["P1", "P2", "P3"], "L2": ["E2", "P2"], "block": ["P3"]}
+    sk = Sketch(pts | {}, links | {}, ground=["O", "E2", "P"], slides=[Slide("block", "ground", (0.2, 1.0))], driver="crank")
+    with pytest.raises(MechanismError, match="links L1, T, L2, block cannot be decomposed"):
+        sk.mechanism()
+
+
+def test_toml_sketch_errors_name_the_field(write_scene):
+    bad = FOUR_BAR.replace('crank = { joints = ["A", "B"], density = 2.0 }', 'crank = { joints = ["A", "B"], colour = 2.0 }')
+    with pytest.raises(SceneError, match="scene.toml: \\[sketch\\]: link 'crank': unknown field\\(s\\) \\['colour'\\]"):
+        assurjax.load_scene(write_scene(bad))
+    with pytest.raises(SceneError, match="either a \\[sketch\\] or the explicit"):
+        assurjax.load_scene(write_scene(FOUR_BAR + "\n[ground]\nA = [0.0, 0.0]\n"))
