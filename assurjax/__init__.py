@@ -27,7 +27,7 @@ from ._kinematics import (
     pose_at as pose_at,
 )
 from ._mechanism import Mechanism as Mechanism, Pose as Pose, positions as positions
-from ._examples import n_four_bar as n_four_bar
+from ._examples import n_four_bar as n_four_bar, strandbeest as strandbeest
 from ._tracking import branch_angles as branch_angles, positions_tracked as positions_tracked
 from ._reduction import Reduction as Reduction, reduce as reduce
 from ._kinetostatics import (

@@ -1,21 +1,17 @@
-"""The Mechanism: a formation sequence of groups (static) and its parameters (arrays),
-and the position analysis q -> Pose, group by group in formation order."""
+"""The Mechanism: a formation sequence of groups (static) and its parameters (arrays).
+The position analysis q -> Pose is in ``assurjax._positions`` (re-exported here)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
-from ._geometry import rotate
-from ._jit import jit
-from .groups._base import GROUND, AbstractGroup, Frame, Link, Placement
-from .groups._branch import solve_near
+from .groups._base import GROUND, AbstractGroup, Link
 
 
 class Pose(eqx.Module):
@@ -94,59 +90,6 @@ class Mechanism(eqx.Module):
                 if owner[p] != GROUND:
                     todo.append(group_of[owner[p]])
         return tuple(sorted(needed))
-
-
-def positions(
-    mechanism: Mechanism, q, *, points: Iterable[str] | None = None, near: Mapping | None = None, materialize: bool = True
-) -> Pose:
-    """Position analysis at the driving coordinate ``q`` (rad for a crank, m for a slider).
-
-    Groups are solved one by one in formation order. With ``points`` given, only
-    the groups those points depend on are solved, and only they are returned.
-    ``near`` (link name -> angle, rad, e.g. a previous ``Pose.angles``) gives the
-    iterative groups (triad, class IV) their starting angles instead of
-    continuation from their reference; no gradient flows through it. It also
-    makes every closed-form group take the root nearest to those angles instead
-    of its fixed mode (branch continuity through singular configurations, see
-    ``assurjax.groups._branch``).
-
-    ``materialize`` (default True) makes XLA keep each group's frames in memory once
-    under ``jit``; without it every output's fused loop re-derives all the groups it
-    depends on, which is fastest for one or two outputs (e.g. a coupler point) and
-    very slow for many outputs of a deep mechanism (see benchmarks/bench_kinematics.py).
-    The values are the same either way.
-    """
-    # q as an array: the jit below would take a Python float as static and compile per value
-    return _positions(mechanism, jnp.asarray(q, dtype=float), None if points is None else tuple(points), near, materialize)
-
-
-# A nested jit: a simulation needs the position analysis in several places (events,
-# outputs, the initial state); traced once and reused, it costs less tracing and compiling.
-@jit
-def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose:
-    links = mechanism.all_links()
-    owner = dict(mechanism.owner)
-    frames = {GROUND: Frame(jnp.zeros(2), jnp.array([1.0, 0.0]))}
-    placed = Placement(links, owner, frames, mechanism=mechanism, near=near)
-    if points is None:
-        wanted_groups = range(len(mechanism.groups))
-        wanted_points = mechanism.point_names
-    else:
-        wanted_points = tuple(points)
-        wanted_groups = mechanism.groups_needed(wanted_points)
-    oks = [jnp.array(True)] * len(mechanism.groups)
-    for i in wanted_groups:
-        new_frames, oks[i] = solve_near(mechanism.groups[i], links, placed, q)  # fixed mode unless near is given
-        if materialize:  # keep each group's frames in memory once (see the docstring)
-            new_frames, oks[i] = jax.lax.optimization_barrier((new_frames, oks[i]))
-        frames.update(new_frames)
-    moving = [name for name in frames if name != GROUND]
-    return Pose(
-        points={p: placed.point(p) for p in wanted_points},
-        coms={k: frames[k].origin + rotate(links[k].com, frames[k].rot) for k in moving},
-        angles={k: frames[k].angle for k in moving},
-        ok=jnp.stack(oks),
-    )
 
 
 def _check_structure(ground, links, groups) -> dict[str, str]:
@@ -228,3 +171,7 @@ def _check_values(mech: Mechanism) -> None:
             v = _concrete(getattr(g, field, None)) if hasattr(g, field) else None
             if v is not None and np.any(np.hypot(v[..., 0], v[..., 1]) <= 0):
                 raise MechanismError(f"{g.describe()}: guide {field} must be a non-zero vector")
+
+
+# the position analysis needs Mechanism and Pose: imported last (kept importable from here)
+from ._positions import _positions as _positions, positions as positions  # noqa: E402

@@ -89,15 +89,20 @@ GROUND = "ground"
 class Placement:
     """Links placed so far during the position analysis (a trace-time helper,
     not a pytree): ``owner`` maps each point name to the link it is read from.
-    ``mechanism`` (the whole mechanism) and ``near`` (link angles to start from)
-    serve the iterative groups, which re-evaluate earlier groups for continuation."""
+    ``near`` (link angles to start from, rad) is the branch predictor; ``from_guess``
+    and ``loose`` serve the iterative groups: start Newton from the group's own guess
+    (at its reference coordinate), stop at continuation tolerance. ``mechanism`` is
+    accepted for compatibility and not used (the groups never call back into it)."""
 
-    def __init__(self, links: dict[str, Link], owner: dict[str, str], frames: dict[str, Frame], *, mechanism=None, near=None):
+    def __init__(self, links: dict[str, Link], owner: dict[str, str], frames: dict[str, Frame], *, mechanism=None, near=None,
+                 from_guess: bool = False, loose: bool = False):
         self.links = links
         self.owner = owner
         self.frames = frames
         self.mechanism = mechanism
         self.near = near
+        self.from_guess = from_guess
+        self.loose = loose
 
     def point(self, name: str) -> Array:
         link = self.owner[name]

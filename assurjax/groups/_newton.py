@@ -10,11 +10,13 @@ group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
    implied by the user's ``guess`` (approximate global positions of the internal
    joints). The guess selects the assembly branch.
 2. **Continuation**: from the reference to the queried q in ``substeps`` equal
-   sub-steps of q; each sub-step predicts with the tangent dz/dq = -F_z^-1 F_q and
-   corrects with a few Newton iterations. The earlier groups are re-evaluated at
-   every intermediate q, so the path is the mechanism's own motion and the branch
-   is the one reached continuously from the reference. For a crank the step
-   q - guess_q is wrapped to (-pi, pi].
+   sub-steps of q; each sub-step corrects with a loose Newton solve and predicts the
+   next with the tangent dz/dq = -F_z^-1 F_q. The earlier groups move with the
+   mechanism at every intermediate q, so the path is the mechanism's own motion and
+   the branch is the one reached continuously from the reference. For a crank the
+   step q - guess_q is wrapped to (-pi, pi]. The position analysis does this for all
+   iterative groups at once (``assurjax._positions``); a group itself only solves
+   from a starting point: its guess (``Placement.from_guess``) or a predictor.
    With ``positions(..., near=angles)`` (e.g. the previous sample of a sweep, see
    :func:`assurjax.positions_tracked`) the given link angles are the predictor instead and
    stages 1-2 are skipped: the cheapest way to stay on a branch along a path.
@@ -48,7 +50,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import MechanismError
-from .._geometry import heading, wrap_angle
+from .._geometry import heading
 from ._base import AbstractGroup, Link, Placement
 
 
@@ -80,37 +82,6 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
     ok = (sol.result == optx.RESULTS.successful) & finite & (closure < f_tol)
     return z, ok
-
-
-def _tangent(residual: Callable, z: Array, args_at: Callable, q: Array) -> Array:
-    """dz/dq = -F_z^-1 dF/dq along the motion for two unknowns (zero where F_z is singular)."""
-    f_q = jax.jvp(lambda qq: residual(z, args_at(qq)), (q,), (jnp.ones_like(q),))[1]
-    (a, b), (c, d) = jax.jacfwd(residual)(z, args_at(q))
-    det = a * d - b * c
-    ok = jnp.abs(det) > 1e-300
-    det = jnp.where(ok, det, 1.0)
-    # 2x2 inverse written out: a batched LAPACK call costs more than the whole residual
-    t = -jnp.stack([d * f_q[0] - b * f_q[1], a * f_q[1] - c * f_q[0]]) / det
-    return jnp.where(ok & jnp.all(jnp.isfinite(t)), t, jnp.zeros_like(t))
-
-
-def continuation(residual: Callable, z_start: Array, args_at: Callable, q_start: Array, q_end: Array, *, substeps: int, max_steps: int):
-    """Follow the root of ``residual(z, args_at(q))`` from q_start (where ``z_start``
-    is an approximate root: it is corrected first) towards q_end in ``substeps``
-    equal steps. Returns the tangent prediction at q_end (not yet corrected there)
-    and whether every correction converged."""
-    dq = (q_end - q_start) / substeps
-
-    def step(k, carry):
-        # step 0 corrects the starting guess in place; later steps predict along the tangent first
-        z, _, ok = carry
-        q_k = q_start + k * dq
-        z_new, ok_new = newton_solve(residual, z, args_at(q_k), max_steps=max_steps, loose=True)
-        t = _tangent(residual, z_new, args_at, q_k)
-        return z_new + t * dq, z_new, ok & ok_new
-
-    predicted, _, ok = jax.lax.fori_loop(0, substeps, step, (z_start, z_start, jnp.array(True)))
-    return predicted, ok
 
 
 def _stop(tree):
@@ -161,43 +132,25 @@ class IterativeGroup(AbstractGroup):
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         geo = self.geometry(links)
         ext = tuple(placed.point(p) for p in self.external_points())
-        z0, ok0 = self.predictor(links, placed, q)
-        z, ok = newton_solve(type(self).residual, jax.lax.stop_gradient(z0), (ext, geo), max_steps=self.max_steps)
-        return self.frames(z, ext, geo), ok & ok0
+        z0 = self.predictor(placed, ext, geo)
+        z, ok = newton_solve(type(self).residual, jax.lax.stop_gradient(z0), (ext, geo), max_steps=self.max_steps,
+                             loose=getattr(placed, "loose", False))
+        return self.frames(z, ext, geo), ok
 
-    def predictor(self, links: dict[str, Link], placed: Placement, q: Array) -> tuple[Array, Array]:
-        """Starting angles for the final solve at q (no gradient flows through them)."""
+    def predictor(self, placed: Placement, ext, geo) -> Array:
+        """Starting angles for the solve (no gradient flows through them): the
+        predictor ``placed.near`` when it has the unknown links, else (stage 1) the
+        angles implied by ``guess`` at the current external joints."""
         near = placed.near
         unknown = self.unknown_links()
         if near is not None and all(k in near for k in unknown):
-            return _stop(jnp.stack([jnp.asarray(near[k], dtype=float) for k in unknown])), jnp.array(True)
-        return self.continued(links, placed, q)
-
-    def continued(self, links, placed, q):
-        """Stages 1-2 of the module docstring: reference solve, then continuation to q."""
-        mechanism = placed.mechanism
-        if mechanism is None:
-            raise MechanismError(f"{self.describe()} is iterative: solve it through assurjax.positions (it needs the whole mechanism for continuation)")
-        if self.guess_q is None:
-            raise MechanismError(f"{self.describe()}: guess_q is not set (the coordinate at which 'guess' places the internal joints)")
-        from .._mechanism import positions  # the groups package is imported by _mechanism
-
-        mech, geo = _stop(mechanism), _stop(self.geometry(links))
-        points = self.external_points()
-        residual = type(self).residual
-
-        def args_at(qq):
-            pose = positions(mech, qq, points=points)
-            return tuple(pose.points[p] for p in points), geo
-
-        q = jax.lax.stop_gradient(jnp.asarray(q, dtype=float))
-        q_ref = jnp.asarray(self.guess_q, dtype=q.dtype)
-        ext_ref, _ = args_at(q_ref)
-        z_guess = self.angles_from_guess(_stop(self.guess), ext_ref, geo)
-        delta = q - q_ref
-        if mechanism.driver.kind == "crank":
-            delta = wrap_angle(delta)
-        return continuation(residual, z_guess, args_at, q_ref, q_ref + delta, substeps=self.substeps, max_steps=self.max_steps)
+            return _stop(jnp.stack([jnp.asarray(near[k], dtype=float) for k in unknown]))
+        if getattr(placed, "from_guess", False):
+            return self.angles_from_guess(_stop(self.guess), _stop(ext), _stop(geo))
+        raise MechanismError(
+            f"{self.describe()} is iterative: it needs starting angles (a branch predictor 'near' with the angles of "
+            f"{list(unknown)}); solve it through assurjax.positions, which continues from its guess"
+        )
 
     def check_guess(self) -> None:
         missing = [p for p in self.internal_points() if p not in self.guess]
