@@ -167,10 +167,10 @@ def _check_values(mech: Mechanism) -> None:
                 d = _concrete(links[link].points[a] - links[link].points[b])
                 if d is not None and np.any(np.hypot(d[..., 0], d[..., 1]) <= 0):
                     raise MechanismError(f"{g.describe()}: link '{link}' has zero length between '{a}' and '{b}'")
-        for field in ("direction", "directions"):
-            v = _concrete(getattr(g, field, None)) if hasattr(g, field) else None
+        for _, direction, _ in g.guides():
+            v = _concrete(direction)
             if v is not None and np.any(np.hypot(v[..., 0], v[..., 1]) <= 0):
-                raise MechanismError(f"{g.describe()}: guide {field} must be a non-zero vector")
+                raise MechanismError(f"{g.describe()}: guide direction must be a non-zero vector")
 
 
 # the position analysis needs Mechanism and Pose: imported last (kept importable from here)

@@ -19,7 +19,6 @@ Conventions (see docs/kinetostatics.md):
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import NamedTuple
 
 from .._errors import MechanismError
@@ -38,16 +37,6 @@ class Pair(NamedTuple):
     by: str
     point: str
     group: int
-
-
-# kind -> (group, owner) -> [(slider link, guide link, sliding point)]
-PRISMATIC: dict[str, Callable[[AbstractGroup, dict], list[tuple[str, str, str]]]] = {
-    "slider": lambda g, o: [(g.links[0], GROUND, g.point)],
-    "RRP": lambda g, o: [(g.links[1], o[g.guide_point], g.joints[1])],
-    "PRR": lambda g, o: [(g.links[0], o[g.guide_point], g.joints[0])],
-    "RPR": lambda g, o: [(g.links[0], g.links[1], g.joints[0])],
-    "PRP": lambda g, o: [(g.links[k], o[g.guide_points[k]], g.joint) for k in (0, 1)],
-}
 
 
 def _carriers(mechanism: Mechanism) -> dict[str, int]:
@@ -71,11 +60,12 @@ def group_pairs(mechanism: Mechanism) -> tuple[tuple[Pair, ...], ...]:
                     name = p if carriers[p] == 2 else f"{p}[{link}]"
                     pairs.append(Pair(name, "R", link, owner[p], p, i))
         if group.n_prismatic:
-            if group.kind not in PRISMATIC:
+            prismatic = group.prismatic_pairs(owner)
+            if len(prismatic) != group.n_prismatic:
                 raise MechanismError(
                     f"{group.describe()}: kinetostatics does not know where its {group.n_prismatic} prismatic pair(s) are"
                 )
-            for slider, guide, point in PRISMATIC[group.kind](group, owner):
+            for slider, guide, point in prismatic:
                 pairs.append(Pair(f"{slider}/{guide}", "P", slider, guide, point, i))
         unknowns = sum(2 for _ in pairs) + (1 if group.is_driver else 0)
         if unknowns != 3 * len(group.links):

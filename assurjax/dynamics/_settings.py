@@ -167,6 +167,17 @@ def settings_from(scene=None, **overrides) -> Settings:
     return settings
 
 
+BUDGET_SPAN = 4.0  # s of motion per DEFAULT_MAX_STEPS (bundled mechanisms take ~400 steps/s at the default tolerances)
+
+
+def step_budget(t0, t1) -> int:
+    """The default max_steps for a time span: DEFAULT_MAX_STEPS up to BUDGET_SPAN seconds,
+    doubled per doubling of the span (a power of two, so nearby horizons share a program)."""
+    span = abs(float(t1) - float(t0))
+    doublings = max(0, math.ceil(math.log2(max(span, 1e-300) / BUDGET_SPAN)))
+    return DEFAULT_MAX_STEPS * 2 ** min(doublings, 12)
+
+
 def fixed_step_from(scene=None, dt=None):
     """The fixed step (s): ``dt`` if given, else the scene's ``[simulation] dt``, else None."""
     if dt is not None:

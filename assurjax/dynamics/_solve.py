@@ -25,7 +25,8 @@ from .._tracking import branch_angles
 from ._events import assembles, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
 from ._results import LOCKUP, NO_EVENT, RESULTS
-from ._settings import BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for
+from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
+                        step_budget)
 from ._solution import Solution, batch_summary, outputs, trim
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
@@ -293,7 +294,8 @@ def simulate(
     runs to t1), ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the
     baseline ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
     over seconds of motion; pass 1e-10 or tighter for reference-quality runs), ``dt`` (a
-    fixed step, s), ``max_steps``, ``samples`` from ``[simulation]``; ``points``,
+    fixed step, s), ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per
+    doubling of the span), ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
     loaded mechanisms); ``coms`` (links whose centres of mass to save), ``velocities``,
@@ -357,6 +359,8 @@ def simulate(
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
+    if max_steps is None and "max_steps" not in simulation_table(scene_or_none):
+        settings = settings._replace(max_steps=step_budget(t0, t1))  # longer runs get a larger budget
     step = None if step is None else np.asarray(step, dtype=float)
     settings, table = _resolve_reduction(settings, table, model, batch)
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
@@ -371,6 +375,11 @@ def simulate(
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
     return sols
+
+
+def simulation_table(scene) -> dict:
+    """The scene's [simulation] table (empty for a Model or Mechanism)."""
+    return {} if scene is None else scene.simulation
 
 
 def _checked_saveat(saveat, t0, t1) -> np.ndarray:

@@ -181,5 +181,15 @@ class AbstractGroup(eqx.Module):
     def solve(self, links: dict[str, Link], placed: Placement, q: Array) -> tuple[dict[str, Frame], Array]:
         """Frames of this group's links and an ``ok`` flag (False: cannot assemble)."""
 
+    def prismatic_pairs(self, owner: dict) -> tuple[tuple[str, str, str], ...]:
+        """(slider link, link carrying the guide, sliding point) of each prismatic pair;
+        ``owner`` maps point names to the links carrying them."""
+        return ()
+
+    def guides(self) -> tuple[tuple[str | None, Array, Array], ...]:
+        """(point the guide line passes through, or None for a guide along the other link
+        of the pair; direction in its link's frame; offset to the left, m) of each guide."""
+        return ()
+
     def describe(self) -> str:
         return f"group '{self.name}' ({self.kind})"

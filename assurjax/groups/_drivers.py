@@ -5,7 +5,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._geometry import V2
-from ._base import AbstractGroup, Link, Placement, frame_from_rotation_xy
+from ._base import GROUND, AbstractGroup, Link, Placement, frame_from_rotation_xy
 
 
 class Crank(AbstractGroup):
@@ -53,6 +53,12 @@ class Slider(AbstractGroup):
 
     def external_points(self):
         return (self.guide_point,)
+
+    def prismatic_pairs(self, owner):
+        return ((self.links[0], GROUND, self.point),)
+
+    def guides(self):
+        return ((self.guide_point, self.direction, jnp.zeros(())),)
 
     def required_points(self):
         return {self.links[0]: (self.point,)}

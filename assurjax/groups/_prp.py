@@ -28,6 +28,12 @@ class PRP(AbstractGroup):
     def external_points(self):
         return self.guide_points
 
+    def prismatic_pairs(self, owner):
+        return tuple((self.links[k], owner[self.guide_points[k]], self.joint) for k in (0, 1))
+
+    def guides(self):
+        return tuple(zip(self.guide_points, self.directions, self.offsets))
+
     def required_points(self):
         return {self.links[0]: (self.joint,), self.links[1]: (self.joint,)}
 

@@ -32,6 +32,12 @@ class RPR(AbstractGroup):
     def external_points(self):
         return self.joints
 
+    def prismatic_pairs(self, owner):
+        return ((self.links[0], self.links[1], self.joints[0]),)
+
+    def guides(self):
+        return ((None, self.direction, self.offset),)
+
     def required_points(self):
         e1, e2 = self.joints
         return {self.links[0]: (e1,), self.links[1]: (e2,)}

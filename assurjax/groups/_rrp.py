@@ -34,6 +34,12 @@ class RRP(AbstractGroup):
     def external_points(self):
         return (self.joints[0], self.guide_point)
 
+    def prismatic_pairs(self, owner):
+        return ((self.links[1], owner[self.guide_point], self.joints[1]),)
+
+    def guides(self):
+        return ((self.guide_point, self.direction, self.offset),)
+
     def required_points(self):
         e, j = self.joints
         return {self.links[0]: (e, j), self.links[1]: (j,)}
@@ -58,6 +64,9 @@ class PRR(RRP):
 
     def external_points(self):
         return (self.joints[1], self.guide_point)
+
+    def prismatic_pairs(self, owner):
+        return ((self.links[0], owner[self.guide_point], self.joints[0]),)
 
     def required_points(self):
         j, e = self.joints
