@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
@@ -32,7 +34,10 @@ class Model(eqx.Module):
         if not isinstance(mechanism, Mechanism):
             raise AssurjaxError(f"Model: expected an assurjax.Mechanism, got {type(mechanism).__name__}")
         self.mechanism = mechanism
-        self.gravity = jnp.zeros(2) if gravity is None else jnp.asarray(gravity, dtype=float)
+        if gravity is None:
+            gravity = np.zeros(2)
+        # an array already (a scene's, or traced) is kept as it is: no device round trip per call
+        self.gravity = gravity if isinstance(gravity, jax.Array) else jnp.asarray(gravity, dtype=float)
         self.loads = tuple(loads)
         check_loads(mechanism, self.loads)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -87,7 +88,8 @@ def frictional(model: Model, t, y: State, direction):
     """The reduction, its kinematics, dw/dt and the friction power (W, <= 0) of a model
     with friction in its joints: the reduced equation with the friction's generalized
     force sum_k u_k dphi_k/dq, u from ``solve_friction`` (signs from ``direction``:
-    sign(w), or at rest the direction tested for break-away)."""
+    sign(w), or at rest the direction tested for break-away; an array of directions
+    gives one dw/dt and power per direction)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     coeffs = coefficients(mechanism, y.q, order=2, near=y.branch)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
@@ -102,14 +104,24 @@ def frictional(model: Model, t, y: State, direction):
         forces, couples, _, _ = from_kinematics(model, moving, t, extra=friction_wrenches(mechanism, moving, frictions, u))
         return forces, couples
 
-    u, _ = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
-    return red, kin, alpha_of(u), jnp.dot(rates, u) * y.omega
+    def solve(direction):
+        u, _ = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
+        return alpha_of(u), jnp.dot(rates, u) * y.omega
+
+    # several directions (the break-away test): one vmapped solve on the same coefficients
+    alpha, power = solve(direction) if jnp.ndim(direction) == 0 else jax.vmap(solve)(direction)
+    return red, kin, alpha, power
 
 
 def directional_accelerations(model: Model, t, y: State):
     """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction."""
-    at_rest = y._replace(omega=jnp.zeros_like(y.omega))
-    return tuple(frictional(model, t, at_rest, jnp.asarray(s, dtype=float))[2] for s in (1.0, -1.0))
+    a = _accelerations_towards(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
+    return a[0], a[1]
+
+
+def _accelerations_towards(model: Model, t, y: State, directions):
+    """dw/dt with the Coulomb signs of each direction (one vmapped friction solve)."""
+    return frictional(model, t, y, directions)[2]
 
 
 def rest_direction(a_plus, a_minus):
@@ -140,8 +152,7 @@ def acceleration_at(model: Model, t, y: State):
     else the acceleration of the direction it breaks away in."""
     if not frictions_of(model.loads):
         return _reduce(model, t, y)[0].acceleration(y.omega)
-    moving = frictional(model, t, y, jnp.sign(y.omega))[2]
-    a_plus, a_minus = directional_accelerations(model, t, y)
+    moving, a_plus, a_minus = _accelerations_towards(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest)
 

@@ -30,6 +30,8 @@ def result_code(result) -> np.ndarray:
 
 _SUCCESS = int(RESULTS.successful._value)
 _EVENT = int(RESULTS.event_occurred._value)
+FINISHED = (_SUCCESS, _EVENT)  # host-side codes of runs that ended as asked
+START_NOT_ASSEMBLED = int(RESULTS.start_not_assembled._value)
 _MAX_STEPS = int(RESULTS.max_steps_reached._value)
 
 

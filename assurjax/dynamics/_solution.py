@@ -18,7 +18,7 @@ from .._reduction import reduce_with_pose
 from .._friction import frictions_of
 from ._field import State, acceleration_at
 from .._errors import AssemblyError
-from ._results import RESULTS, LOCKUP, STANDSTILL, USER, finished, result_code, status_text
+from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, status_text
 from ._settings import Settings
 
 
@@ -90,7 +90,7 @@ class Solution(eqx.Module):
     @property
     def successful(self) -> bool:
         """True when the solver reached t1 or a stop event (no solver failure)."""
-        return bool(np.all(np.asarray(finished(self.result))))
+        return bool(np.all(np.isin(result_code(self.result), FINISHED)))
 
 
 def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
@@ -163,7 +163,7 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
     event, failed = int(sol.event), int(sol.failed_group_index)
     group = mechanism.groups[failed].name if failed >= 0 else None
-    if bool(np.asarray(sol.result == RESULTS.start_not_assembled)):
+    if int(result_code(sol.result)) == START_NOT_ASSEMBLED:
         raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(sol.q[0]):.6g}: "
                             "choose a starting driving coordinate where the mechanism closes (or, for a triad or class-IV "
                             "group, a better 'guess' of its inner joints)", group=group)
@@ -174,12 +174,13 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
 
 def batch_summary(sols: Solution) -> Solution:
     """A batched Solution (host arrays) with a status counting the outcomes."""
-    events, results = np.asarray(sols.event), np.where(np.asarray(finished(sols.result)), 0, result_code(sols.result))
+    codes = result_code(sols.result)
+    events, results = np.asarray(sols.event), np.where(np.isin(codes, FINISHED), 0, codes)
     parts = [f"{np.sum(events == code)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
              if np.any(events == code)]
     parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
     parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
-    unassembled = np.asarray(sols.result == RESULTS.start_not_assembled)
+    unassembled = result_code(sols.result) == START_NOT_ASSEMBLED
     parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
     failures = (events < 0) & (results != 0) & ~unassembled
     parts += [f"{np.sum(failures)} solver failures"] if np.any(failures) else []
