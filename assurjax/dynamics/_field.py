@@ -115,13 +115,8 @@ def frictional(model: Model, t, y: State, direction):
 
 def directional_accelerations(model: Model, t, y: State):
     """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction."""
-    a = _accelerations_towards(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
+    a = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))[2]
     return a[0], a[1]
-
-
-def _accelerations_towards(model: Model, t, y: State, directions):
-    """dw/dt with the Coulomb signs of each direction (one vmapped friction solve)."""
-    return frictional(model, t, y, directions)[2]
 
 
 def rest_direction(a_plus, a_minus):
@@ -152,22 +147,18 @@ def acceleration_at(model: Model, t, y: State):
     else the acceleration of the direction it breaks away in."""
     if not frictions_of(model.loads):
         return _reduce(model, t, y)[0].acceleration(y.omega)
-    moving, a_plus, a_minus = _accelerations_towards(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))
+    moving, a_plus, a_minus = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))[2]
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest)
 
 
 def vector_field_or_nan(t, y: State, args: FieldArgs) -> State:
     """:func:`vector_field` with dw/dt NaN where a group cannot assemble (fixed steps
-    read the NaN as the end of the valid samples)."""
+    read the NaN as the end of the valid samples; friction needs the adaptive solver)."""
     if args.table is not None:
         return vector_field(t, y, args)
-    if frictions_of(args.model.loads):
-        red, _, alpha, _ = frictional(args.model, t, y, jnp.sign(y.omega))
-    else:
-        red, _ = _reduce(args.model, t, y)
-        alpha = red.acceleration(y.omega)
-    return State(y.omega, jnp.where(jnp.all(red.ok), alpha, jnp.nan))
+    red, _ = _reduce(args.model, t, y)
+    return State(y.omega, jnp.where(jnp.all(red.ok), red.acceleration(y.omega), jnp.nan))
 
 
 def _reduce(model: Model, t, y: State):
