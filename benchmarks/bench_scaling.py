@@ -11,7 +11,8 @@ Strandbeest row (``--strandbeest``): the bundled 8-leg scene (25 groups), the sa
 measurements with its own simulate() defaults (fixed branch), no lean call.
 Sizes whose predicted compile time exceeds ``--compile-budget`` s are skipped.
 
-    python benchmarks/bench_scaling.py [--sizes 1 2 5 10 20 30 40] [--strandbeest] [--out scaling.json]
+    python benchmarks/bench_scaling.py [--sizes 1 2 5 10 20 30 40] [--strandbeest] [--stacked-state]
+                                       [--no-user-calls] [--out scaling.json]
 
 Writes benchmarks/results/<out> (default scaling.json) and the matching .png, prints a table.
 The machine may be shared: compare rows of one run (or runs made side by side).
@@ -33,7 +34,7 @@ import numpy as np
 import assurjax
 from assurjax.dynamics._field import State, field_args, vector_field
 from assurjax._jit import COMPILER_OPTIONS
-from assurjax._tracking import branch_angles
+from assurjax._tracking import branch_angles, tracked_links
 from bench_work_precision import SOLVERS, best_time
 
 import diffrax
@@ -51,14 +52,22 @@ def predicted_compile(rows, n):
     return c2 * (n / n2) ** p
 
 
-def lean_function(scene):
-    """The lean simulation of bench_work_precision.lean_runner (tracked branch, Tsit5), unjitted."""
+def lean_function(scene, *, stacked_state: bool = False):
+    """The lean simulation of bench_work_precision.lean_runner (tracked branch, Tsit5), unjitted.
+    ``stacked_state``: the tracked link angles travel in the ODE state as one array
+    instead of a dict of scalars (diffrax then handles 3 state leaves, not 2 + links)."""
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
+    names = tracked_links(mech)
+
+    def rhs_stacked(t, y, args):
+        out = vector_field(t, y._replace(branch={k: y.branch[i] for i, k in enumerate(names)}), args)
+        return out._replace(branch=jnp.stack([out.branch[k] for k in names]))
 
     def run(q0, w0, ts, rtol, atol):
-        y0 = State(q0, w0, branch=branch_angles(mech, assurjax.positions(mech, q0)))
+        angles = branch_angles(mech, assurjax.positions(mech, q0))
+        y0 = State(q0, w0, branch=jnp.stack([angles[k] for k in names]) if stacked_state else angles)
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(vector_field), SOLVERS["tsit5"](), 0.0, ts[-1], None, y0,
+            diffrax.ODETerm(rhs_stacked if stacked_state else vector_field), SOLVERS["tsit5"](), 0.0, ts[-1], None, y0,
             args=field_args(assurjax.Model(mech, gravity, loads)),
             saveat=diffrax.SaveAt(ts=ts), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
             max_steps=200_000, throw=False,
@@ -106,6 +115,8 @@ class CompileEvents:
 
 
 EVENTS = None
+STACKED_STATE = False  # --stacked-state
+USER_CALLS = True  # --no-user-calls
 
 
 def user_calls(scene, repeats, q, **options) -> dict:
@@ -130,6 +141,7 @@ def measure(n: int, repeats: int) -> dict:
     t0 = time.perf_counter()
     lowered = jax.jit(lean_function(scene)).lower(*args)
     trace_s = time.perf_counter() - t0
+    ops = lowered.as_text().count("= stablehlo.")  # program size: does not depend on the machine's load
     run = lowered.compile(compiler_options=COMPILER_OPTIONS)
     compile_s = time.perf_counter() - t0 - trace_s
     q, steps, result = jax.block_until_ready(run(*args))
@@ -141,9 +153,14 @@ def measure(n: int, repeats: int) -> dict:
     args = field_args(assurjax.Model(mech, scene.gravity))
     rhs = assurjax.jit(jax.vmap(lambda q: vector_field(0.0, State(q, -jnp.ones_like(q), branch=z), args).omega))
     rhs_s = best_time(lambda: rhs(qs), repeats) / qs.size
-    row = dict(N=n, groups=n + 1, trace_s=trace_s, compile_s=trace_s + compile_s, xla_compile_s=compile_s, run_s=run_s,
+    row = dict(N=n, groups=n + 1, hlo_ops=ops, trace_s=trace_s, compile_s=trace_s + compile_s, xla_compile_s=compile_s, run_s=run_s,
                steps=int(steps), result=int(result), error=float(abs(float(q[0]) - exact)), rhs_us=1e6 * rhs_s)
-    row.update(user_calls(scene, repeats, 1.2, branch="tracked", t1=1.0))
+    if STACKED_STATE:
+        t, c, r = trace_compile_run(lean_function(scene, stacked_state=True), args, repeats)
+        row.update(stacked_state_trace_s=t, stacked_state_xla_compile_s=c, stacked_state_run_s=r)
+        print(f"     angles stacked in the state: trace {t:.1f} s, compile {c:.1f} s, run {1e3 * r:.3f} ms", flush=True)
+    if USER_CALLS:
+        row.update(user_calls(scene, repeats, 1.2, branch="tracked", t1=1.0))
     return row
 
 
@@ -193,7 +210,11 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--strandbeest", action="store_true")
     parser.add_argument("--out", default="scaling.json")
+    parser.add_argument("--stacked-state", action="store_true", help="also the lean call with the tracked angles as one array")
+    parser.add_argument("--no-user-calls", action="store_true", help="skip simulate() and kinematics per size")
     args = parser.parse_args()
+    global STACKED_STATE, USER_CALLS
+    STACKED_STATE, USER_CALLS = args.stacked_state, not args.no_user_calls
     rows = []
     head = f"{'N':>4s} {'trace':>6s} {'compile':>8s} {'run (ms)':>9s} {'error':>8s} {'rhs (us)':>8s} | simulate: {'trace':>6s} {'compile':>8s} {'run ms':>7s} | kinematics: {'trace':>6s} {'compile':>8s}"
     print(head)
@@ -205,10 +226,13 @@ def main():
             continue
         r = measure(n, args.repeats)
         rows.append(r)
-        print(f"{n:4d} {r['trace_s']:6.1f} {r['xla_compile_s']:8.1f} {1e3 * r['run_s']:9.3f} {r['error']:8.1e} {r['rhs_us']:8.2f} | "
-              f"{r['simulate_trace_s']:15.1f} {r['simulate_compile_s']:8.1f} {1e3 * r['simulate_run_s']:7.2f} | "
-              f"{r['kinematics_trace_s']:18.1f} {r['kinematics_compile_s']:8.1f}", flush=True)
+        line = f"{n:4d} {r['trace_s']:6.1f} {r['xla_compile_s']:8.1f} {1e3 * r['run_s']:9.3f} {r['error']:8.1e} {r['rhs_us']:8.2f} |"
+        if USER_CALLS:
+            line += (f" {r['simulate_trace_s']:15.1f} {r['simulate_compile_s']:8.1f} {1e3 * r['simulate_run_s']:7.2f} | "
+                     f"{r['kinematics_trace_s']:18.1f} {r['kinematics_compile_s']:8.1f}")
+        print(line, flush=True)
     extra = []
+    print("program size (StableHLO operations of the lean call):", {r["N"]: r.get("hlo_ops") for r in rows})
     if args.strandbeest:
         r = measure_strandbeest(args.repeats)
         extra.append(r)

@@ -134,3 +134,15 @@ def test_strandbeest_feet_closed_form():
     # the walking gait: each foot spends a long stretch of the cycle on a near-flat ground line
     y = np.asarray(kin.points["GL0"])[:, 1]
     assert np.mean(y < y.min() + 0.01) > 0.3
+
+
+def test_points_subset_solves_the_needed_part_of_a_chain():
+    """points= keeps only the windows a point depends on (a shorter chain), same values;
+    the groups not solved report ok."""
+    mech = assurjax.n_four_bar(8).mechanism
+    part = assurjax.positions(mech, 1.1, points=["B5"])
+    whole = assurjax.positions(mech, 1.1)
+    solved = {"rocker0"} | {f"coupler{i}" for i in range(5)} | {f"rocker{i}" for i in range(1, 6)}  # windows 0..4
+    assert list(part.points) == ["B5"] and set(part.angles) == solved
+    np.testing.assert_allclose(np.asarray(part.points["B5"]), np.asarray(whole.points["B5"]), rtol=0, atol=1e-15)
+    assert bool(np.all(np.asarray(part.ok)))
