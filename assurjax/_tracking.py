@@ -32,6 +32,19 @@ def branch_angles(mechanism: Mechanism, pose: Pose) -> dict:
     return {k: pose.angles[k] for k in tracked_links(mechanism)}
 
 
+def stacked_branch(mechanism: Mechanism, angles: dict):
+    """The tracked angles as one array (last axis: ``tracked_links`` order): one state leaf
+    for the solver instead of one per link (a smaller program for long chains)."""
+    return jnp.stack([angles[k] for k in tracked_links(mechanism)], axis=-1)
+
+
+def branch_mapping(mechanism: Mechanism, z) -> dict | None:
+    """The stacked tracked angles back as link -> angle (None stays None)."""
+    if z is None:
+        return None
+    return {k: z[..., i] for i, k in enumerate(tracked_links(mechanism))}
+
+
 def branch_state(y):
     """The link angles carried in an ODE state tuple (q, w[, work][, angles]) or None."""
     return y[-1] if isinstance(y, tuple) and isinstance(y[-1], dict) else None

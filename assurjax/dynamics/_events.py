@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._mechanism import positions
-from ._field import FieldArgs, State
+from ._field import FieldArgs, State, near
 from ._results import LOCKUP, NO_EVENT, STANDSTILL, USER
 from ._settings import Settings
 
@@ -35,7 +35,7 @@ def margins(settings: Settings, t, y: State, args: FieldArgs, lockup=None) -> li
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
     if settings.check_assembly:
         if lockup is None:
-            ok = positions(args.model.mechanism, y.q, near=y.branch).ok
+            ok = positions(args.model.mechanism, y.q, near=near(args.model, y)).ok
             lockup = jnp.where(jnp.all(ok), 1.0, -_TINY)
         out.append(lockup)
     for k, cond in enumerate(settings.events):

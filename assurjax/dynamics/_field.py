@@ -29,20 +29,20 @@ from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
 from .._model import Model
 from .._reduction import reduce_coefficients, reduce_with_kinematics, reduced_acceleration
-from .._tracking import branch_rates
+from .._tracking import branch_mapping, branch_rates, stacked_branch
 from ._table import ReducedTable
 
 
 class State(NamedTuple):
     """The integrated state: ``q`` (rad or m), ``omega`` (rad/s or m/s), and optional
     quadratures ``work`` (J, loads outside V), ``dissipated`` (J) and the tracked
-    ``branch`` angles (link -> rad). Absent parts are None."""
+    ``branch`` angles (rad, stacked in ``tracked_links`` order). Absent parts are None."""
 
     q: Array
     omega: Array
     work: Array | None = None
     dissipated: Array | None = None
-    branch: dict | None = None
+    branch: Array | None = None
 
 
 class FieldArgs(eqx.Module):
@@ -80,7 +80,7 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
         omega=alpha,
         work=None if y.work is None else red.work_force * y.omega + friction_power,
         dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
-        branch=None if y.branch is None else branch_rates(red, y.branch, y.omega),
+        branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
     )
 
 
@@ -91,7 +91,7 @@ def frictional(model: Model, t, y: State, direction):
     sign(w), or at rest the direction tested for break-away; an array of directions
     gives one dw/dt and power per direction)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    coeffs = coefficients(mechanism, y.q, order=2, near=y.branch)
+    coeffs = coefficients(mechanism, y.q, order=2, near=near(model, y))
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
     rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
@@ -161,6 +161,11 @@ def vector_field_or_nan(t, y: State, args: FieldArgs) -> State:
     return State(y.omega, jnp.where(jnp.all(red.ok), red.acceleration(y.omega), jnp.nan))
 
 
+def near(model: Model, y: State) -> dict | None:
+    """The tracked angles of a state as link -> angle (the groups' predictor), or None."""
+    return branch_mapping(model.mechanism, y.branch)
+
+
 def _reduce(model: Model, t, y: State):
-    return reduce_with_kinematics(model.mechanism, model.gravity, model.loads, y.q, y.omega, t, near=y.branch,
+    return reduce_with_kinematics(model.mechanism, model.gravity, model.loads, y.q, y.omega, t, near=near(model, y),
                                   work=y.work is not None)

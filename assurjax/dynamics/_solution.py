@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._loads import potential_energy
+from .._tracking import branch_mapping
 from .._mechanism import Mechanism, positions
 from .._model import Model
 from .._reduction import reduce_with_pose
@@ -104,12 +105,14 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
     if not (settings.domega or settings.energies or settings.points or settings.angles or settings.coms):
         return out
 
-    def sample(t, q, w, z):
+    def sample(t, q, w, stacked):
+        z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
             red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z)
             if settings.domega:
-                values["domega"] = acceleration_at(model, t, State(q, w, branch=z)) if frictions_of(loads) else red.acceleration(w)
+                values["domega"] = acceleration_at(model, t, State(q, w, branch=stacked)) if frictions_of(loads) \
+                    else red.acceleration(w)
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)

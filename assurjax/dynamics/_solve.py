@@ -21,7 +21,7 @@ from .._friction import frictions_of
 from .._jit import checks_without_callbacks, jit
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
-from .._tracking import branch_angles
+from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import assembles, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
 from ._results import LOCKUP, NO_EVENT, RESULTS
@@ -137,7 +137,8 @@ def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State
         work=zero if settings.energies and exact else None,
         dissipated=zero if settings.energies and exact and any(load.dissipative for load in model.loads) else None,
         # the branch travels with the state, starting on the fixed modes
-        branch=branch_angles(model.mechanism, positions(model.mechanism, q0)) if settings.branch == "tracked" else None,
+        branch=stacked_branch(model.mechanism, branch_angles(model.mechanism, positions(model.mechanism, q0)))
+        if settings.branch == "tracked" else None,
     )
 
 
@@ -223,11 +224,11 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings) -> Solu
     # saved times); the rest repeat the final state, so every output stays finite.
     valid = jnp.arange(ts.shape[0]) <= last
     reached = jnp.arange(ts.shape[0]) < last
-    along = lambda z: jnp.where(reached, z[:-1], z[last])  # noqa: E731
+    along = lambda z: jnp.where(reached.reshape((-1,) + (1,) * (z.ndim - 1)), z[:-1], z[last])  # noqa: E731
     q, w = along(ys.q), along(ys.omega)
     t = jnp.where(reached, ts, t_final)
-    near = None if ys.branch is None else jax.tree.map(along, ys.branch)  # saved link angles (tracked branch)
-    near_final = None if ys.branch is None else jax.tree.map(lambda z: z[last], ys.branch)
+    near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
+    near_final = None if ys.branch is None else branch_mapping(model.mechanism, ys.branch[last])
     mechanism = model.mechanism
     ok_final = assembles(mechanism, q_final, w_final, near_final) if settings.check_assembly else None
     event = which_event(sol, settings, args, last, ok_final)

@@ -25,7 +25,7 @@ import optimistix as optx
 from .._errors import AssurjaxError
 from .._model import Model
 from ._events import assembles, stop_event
-from ._field import FieldArgs, State, directional_accelerations, rest_direction, start_direction, vector_field
+from ._field import FieldArgs, State, near, directional_accelerations, rest_direction, start_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, finished
 from ._settings import Settings, adjoint_for, controller_for, solver_for
 from ._solution import Solution, outputs
@@ -75,7 +75,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
         filled = filled | inside
         fired = jnp.asarray(False) if sol.event_mask is None else jnp.asarray(sol.event_mask)
-        ok_end = assembles(model.mechanism, y_end.q, y_end.omega, y_end.branch)
+        ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
         locked = ~stuck & fired & ~jnp.all(ok_end)
         # at the end of a segment: at rest, which way (if any) does it go on?
         a_plus, a_minus = directional_accelerations(model, end, y_end._replace(omega=jnp.zeros_like(y_end.omega)))
