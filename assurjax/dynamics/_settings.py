@@ -151,8 +151,15 @@ def setting_problem(key: str, value, schema: Mapping = SIMULATION_KEYS) -> str |
     problem = f"expected {what}, got {value!r}"
     if key in WORK_LIMITS and _positive_int(value) and value > WORK_LIMITS[key][0]:
         limit, unit = WORK_LIMITS[key]
-        problem += f" (it would need at least {value * unit / 1e9:.3g} GB for the states alone, against {limit * unit / 1e6:.3g} MB at the limit)"
+        problem += f" (it would need at least {_size(value * unit)} for the saved values alone; the limit needs {_size(limit * unit)})"
     return problem
+
+
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.3g} {unit}"
+    return f"{n_bytes / 1e3:.3g} kB"
 
 
 def check_simulation_table(table: Mapping, where: str = "[simulation]", schema: Mapping = SIMULATION_KEYS) -> dict:
