@@ -256,3 +256,15 @@ def test_run_corpus(tmp_path):
         if status == 0:
             csv = np.genfromtxt(out / "solution.csv", delimiter=",", skip_header=1)
             assert np.all(np.isfinite(csv)), f"{label}: non-finite values in solution.csv"
+
+
+def test_run_says_in_words_when_the_step_budget_is_used_up(tmp_path):
+    data = tomllib.loads((resources.files("assurjax.scenes") / RUN_BASE).read_text())
+    data["state"].update(t1=0.05, omega0=3.0)
+    data["simulation"] = {"max_steps": 3}  # far fewer than 0.05 s at rtol 1e-8 takes
+    path = tmp_path / "budget.toml"
+    path.write_text(to_toml(data))
+    status, out, err = _cli(["run", str(path), "--out", str(tmp_path / "out"), "--no-animation"])
+    assert status == 0, err
+    first = out.splitlines()[0]
+    assert "step budget" in first and "max_steps = 3" in first, out
