@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
-from ._values import check_value
+from ._values import check_value, concrete as _concrete
 from .groups._base import GROUND, AbstractGroup, Link
 
 
@@ -145,13 +145,6 @@ def gruebler(ground, links, groups) -> tuple[int, int, int]:
             carriers[p] = carriers.get(p, 0) + 1
     pairs = sum(c - 1 for c in carriers.values()) + sum(g.n_prismatic for g in groups)
     return 3 * len(links) - 2 * pairs, len(links), pairs
-
-
-def _concrete(x) -> np.ndarray | None:
-    try:
-        return np.asarray(x)
-    except Exception:  # a tracer: values are checked where they are concrete
-        return None
 
 
 def _check_values(mech: Mechanism) -> None:

@@ -13,7 +13,7 @@ import diffrax
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._values import value_problem
+from .._values import concrete, value_problem
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -184,19 +184,10 @@ def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     for key, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
         if (problem := value_problem(value)) is not None:
             return key, problem
-    span = value_problem(np.asarray(t1, dtype=float) - np.asarray(t0, dtype=float), positive=True) if _all_concrete(t0, t1) else None
-    if span is not None:
+    start, end = concrete(t0), concrete(t1)
+    if start is not None and end is not None and not np.all(end > start):
         return "t1", f"must be later than t0 = {t0}, got {t1}"
     return None
-
-
-def _all_concrete(*values) -> bool:
-    try:
-        for v in values:
-            np.asarray(v, dtype=float)
-        return True
-    except Exception:  # tracers
-        return False
 
 
 def _pick(given, table: Mapping, key: str, default):
