@@ -24,7 +24,7 @@ def value_problem(x, *, positive: bool = False, nonnegative: bool = False, nonze
     v = concrete(x)
     if v is None:
         return None
-    shown = x if np.ndim(x) == 0 else np.asarray(v).tolist()
+    shown = x if np.ndim(x) == 0 else v.tolist() if v.size <= 8 else f"an array of shape {v.shape}"
     if not np.all(np.isfinite(v)):
         return f"must be finite, got {shown}"
     if np.any(np.abs(v) > MAGNITUDE_LIMIT):
