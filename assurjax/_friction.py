@@ -31,6 +31,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import MechanismError
+from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
@@ -94,6 +95,8 @@ class JointFriction(AbstractFriction):
         self.pair = joint
         self.coefficient, self.radius = jnp.asarray(coefficient, dtype=float), jnp.asarray(radius, dtype=float)
         self.viscous = jnp.asarray(viscous, dtype=float)
+        for key, value in (("coefficient", coefficient), ("radius", radius), ("viscous", viscous)):
+            check_value(MechanismError, f"JointFriction: {key}", value, nonnegative=True)
         self.velocity_dependent = True
 
     def rate_coefficient(self, mechanism, x, dx):
@@ -132,6 +135,9 @@ class SlideFriction(AbstractFriction):
         self.pair = pair
         self.coefficient, self.length = jnp.asarray(coefficient, dtype=float), jnp.asarray(length, dtype=float)
         self.viscous = jnp.asarray(viscous, dtype=float)
+        for key, value in (("coefficient", coefficient), ("viscous", viscous)):
+            check_value(MechanismError, f"SlideFriction: {key}", value, nonnegative=True)
+        check_value(MechanismError, "SlideFriction: length", length, positive=True)
         self.velocity_dependent = True
 
     def _direction(self, kin, p):

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from ._errors import MechanismError
+from ._values import check_value
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import Mechanism, Pose
 from .groups._base import GROUND
@@ -48,6 +49,7 @@ class Polynomial(eqx.Module):
             raise MechanismError(f"Polynomial: variable must be one of {VARIABLES}, got {variable!r}")
         self.coefficients = jnp.asarray(coefficients, dtype=float)
         self.variable = variable
+        check_value(MechanismError, "Polynomial: coefficients", self.coefficients)
 
     def __call__(self, q, omega, t):
         x = {"q": q, "omega": omega, "t": t}[self.variable]
@@ -67,6 +69,10 @@ class Table(eqx.Module):
         if variable not in VARIABLES:
             raise MechanismError(f"Table: variable must be one of {VARIABLES}, got {variable!r}")
         self.x, self.values = jnp.asarray(x, dtype=float), jnp.asarray(values, dtype=float)
+        check_value(MechanismError, "Table: x", self.x)
+        check_value(MechanismError, "Table: values", self.values)
+        if period is not None:
+            check_value(MechanismError, "Table: period", period, positive=True)
         if self.x.ndim != 1 or self.x.shape != self.values.shape or self.x.shape[0] < 2:
             raise MechanismError(f"Table: x and values must be two 1-D arrays of the same length >= 2, got shapes {self.x.shape} and {self.values.shape}")
         self.variable, self.period = variable, period
@@ -85,7 +91,7 @@ class Vector(eqx.Module):
     y: Any
 
     def __init__(self, x, y):
-        self.x, self.y = _as_value(x), _as_value(y)
+        self.x, self.y = _as_value(x, "Vector: x"), _as_value(y, "Vector: y")
 
     def __call__(self, q, omega, t):
         return jnp.stack([evaluate(self.x, q, omega, t), evaluate(self.y, q, omega, t)])
@@ -121,8 +127,12 @@ def _has_time_form(value) -> bool:
     return False
 
 
-def _as_value(v):
-    return v if callable(v) else jnp.asarray(v, dtype=float)
+def _as_value(v, where: str):
+    """A load value: a function or form as it is, a number (or array) checked finite."""
+    if callable(v):
+        return v
+    check_value(MechanismError, where, v)
+    return jnp.asarray(v, dtype=float)
 
 
 # ---------------------------------------------------------------------------- base class
@@ -219,7 +229,7 @@ class PointForce(AbstractLoad):
 
     def __init__(self, point: str, force, *, link: str | None = None, velocity_dependent: bool | None = None):
         self.point, self.link = point, link
-        self.force = _as_value(force)
+        self.force = _as_value(force, "PointForce: force")
         self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
 
     def _values(self):
@@ -245,7 +255,7 @@ class Couple(AbstractLoad):
 
     def __init__(self, link: str, moment, *, velocity_dependent: bool | None = None):
         self.link = link
-        self.moment = _as_value(moment)
+        self.moment = _as_value(moment, "Couple: moment")
         self.velocity_dependent = _velocity_dependent(moment, flag=velocity_dependent)
 
     def _values(self):
@@ -308,6 +318,8 @@ class Spring(_TwoPoint):
     def __init__(self, a: str, b: str, stiffness, free_length=0.0, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = (a, b), tuple(links)
         self.stiffness, self.free_length = jnp.asarray(stiffness, dtype=float), jnp.asarray(free_length, dtype=float)
+        check_value(MechanismError, "Spring: stiffness", stiffness, nonnegative=True)
+        check_value(MechanismError, "Spring: free_length", free_length, nonnegative=True)
         self.velocity_dependent = False
 
     def _length(self, mechanism, config):
@@ -333,6 +345,7 @@ class Damper(_TwoPoint):
     def __init__(self, a: str, b: str, coefficient, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = (a, b), tuple(links)
         self.coefficient = jnp.asarray(coefficient, dtype=float)
+        check_value(MechanismError, "Damper: coefficient", coefficient, nonnegative=True)
         self.velocity_dependent = True
 
     def wrenches(self, mechanism, kin, t):
@@ -357,6 +370,7 @@ class RotaryDamper(AbstractLoad):
     def __init__(self, joint: str, coefficient):
         self.joint = joint
         self.coefficient = jnp.asarray(coefficient, dtype=float)
+        check_value(MechanismError, "RotaryDamper: coefficient", coefficient, nonnegative=True)
         self.velocity_dependent = True
 
     def check(self, mechanism):
@@ -390,7 +404,7 @@ class Drive(AbstractLoad):
     velocity_dependent: bool = eqx.field(static=True, default=False)
 
     def __init__(self, value, *, velocity_dependent: bool | None = None):
-        self.value = _as_value(value)
+        self.value = _as_value(value, "Drive: value")
         self.velocity_dependent = _velocity_dependent(value, flag=velocity_dependent)
 
     def _values(self):
@@ -412,6 +426,8 @@ class MotorLine(AbstractLoad):
 
     def __init__(self, stall, no_load_speed):
         self.stall, self.no_load_speed = jnp.asarray(stall, dtype=float), jnp.asarray(no_load_speed, dtype=float)
+        check_value(MechanismError, "MotorLine: stall", stall)
+        check_value(MechanismError, "MotorLine: no_load_speed", no_load_speed, positive=True)
         self.velocity_dependent = True
 
     def effort(self, mechanism, q, omega, t):

@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
+from ._values import check_value, concrete as _concrete
 from .groups._base import GROUND, AbstractGroup, Link
 
 
@@ -146,20 +147,17 @@ def gruebler(ground, links, groups) -> tuple[int, int, int]:
     return 3 * len(links) - 2 * pairs, len(links), pairs
 
 
-def _concrete(x) -> np.ndarray | None:
-    try:
-        return np.asarray(x)
-    except Exception:  # a tracer: values are checked where they are concrete
-        return None
-
-
 def _check_values(mech: Mechanism) -> None:
+    """Finite values of sane magnitude (the scene loader's words), non-negative masses and
+    inertias, non-zero lengths and guide directions; tracers are checked where they are concrete."""
+    for p, xy in mech.ground.items():
+        check_value(MechanismError, f"ground point '{p}'", xy)
     for name, link in mech.links.items():
-        mass, inertia = _concrete(link.mass), _concrete(link.inertia)
-        if mass is not None and np.any(mass < 0):
-            raise MechanismError(f"link '{name}': mass must be non-negative, got {mass}")
-        if inertia is not None and np.any(inertia < 0):
-            raise MechanismError(f"link '{name}': inertia must be non-negative, got {inertia}")
+        for p, xy in link.points.items():
+            check_value(MechanismError, f"link '{name}': point '{p}'", xy)
+        check_value(MechanismError, f"link '{name}': com", link.com)
+        check_value(MechanismError, f"link '{name}': mass", link.mass, nonnegative=True)
+        check_value(MechanismError, f"link '{name}': inertia", link.inertia, nonnegative=True)
     links = mech.all_links()
     for g in mech.groups:
         for link, needed in g.required_points().items():
@@ -167,10 +165,9 @@ def _check_values(mech: Mechanism) -> None:
                 d = _concrete(links[link].points[a] - links[link].points[b])
                 if d is not None and np.any(np.hypot(d[..., 0], d[..., 1]) <= 0):
                     raise MechanismError(f"{g.describe()}: link '{link}' has zero length between '{a}' and '{b}'")
-        for _, direction, _ in g.guides():
-            v = _concrete(direction)
-            if v is not None and np.any(np.hypot(v[..., 0], v[..., 1]) <= 0):
-                raise MechanismError(f"{g.describe()}: guide direction must be a non-zero vector")
+        for _, direction, offset in g.guides():
+            check_value(MechanismError, f"{g.describe()}: guide direction", direction, nonzero_vector=True)
+            check_value(MechanismError, f"{g.describe()}: guide offset", offset)
 
 
 # the position analysis needs Mechanism and Pose: imported last (kept importable from here)

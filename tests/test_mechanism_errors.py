@@ -264,3 +264,119 @@ def test_python_mechanism_errors_name_the_culprit():
     lonely = Link(points={"S": jnp.zeros(2)}, com=jnp.zeros(2), mass=jnp.asarray(1.0), inertia=jnp.asarray(0.0))
     with raises(MechanismError, "'lonely'", "no group"):
         Mechanism(mech.ground, {**mech.links, "lonely": lonely}, mech.groups)
+
+
+# -- hostile values: the scene loader and the Python API reject them in the same words ----------
+
+import assurjax as load_forms  # noqa: E402  (the load classes)
+from assurjax.dynamics._settings import settings_from  # noqa: E402
+
+
+def _tail(message: str, field: str) -> str:
+    """The words after the field's name: what both the scene and the API say is wrong."""
+    return message.rsplit(field, 1)[1].lstrip("': ")
+
+
+@pytest.mark.parametrize(
+    "field, value, words",
+    [("mass", float("inf"), "must be finite, got inf"), ("inertia", float("nan"), "must be finite, got nan"),
+     ("mass", 1e300, "must be at most 1e+12 in magnitude"), ("inertia", -1.0, "must be non-negative, got -1.0")],
+)
+def test_link_values_scene_and_python_agree(field, value, words):
+    with raises(SceneError, "bad.toml", "[links.coupler]", f"'{field}'", words) as scene_error:
+        scene(lambda d: d["links"]["coupler"].update({field: value}))
+    mech = scene().mechanism
+    links = {**mech.links, "coupler": eqx.tree_at(lambda lk: getattr(lk, field), mech.links["coupler"], jnp.asarray(value))}
+    with raises(MechanismError, "link 'coupler'", field, words) as api_error:
+        Mechanism(mech.ground, links, mech.groups)
+    assert _tail(str(scene_error.value), field) == _tail(str(api_error.value), field)
+
+
+@pytest.mark.parametrize(
+    "edit, fragments",
+    [
+        (lambda d: d["links"]["coupler"].update(com=[1e300, 0.0]), ["[links.coupler]", "'com'", "magnitude"]),
+        (lambda d: d["ground"].update(O2=[-float("inf"), 0.0]), ["[ground]", "'O2'", "finite"]),
+        (lambda d: d.update(scene={"gravity": [0.0, -float("inf")]}), ["[scene]", "'gravity'", "finite"]),
+        (lambda d: d.update(state={"omega0": 1e300}), ["[state]", "'omega0'", "magnitude"]),
+        (lambda d: d.update(state={"t0": float("nan")}), ["[state]", "'t0'", "finite"]),
+        (lambda d: d.update(state={"t0": 2.0, "t1": 1.0}), ["[state]", "'t1'", "later than t0"]),
+        (lambda d: d["formation"][1].update(group=["RRR"]), ["#2", "'group'", "unknown group kind"]),
+        (lambda d: d["formation"][1].update(mode=["left"]), ["'dyad'", "'mode'"]),
+        (lambda d: d.update(loads=[{"type": ["spring"]}]), ["[[loads]] #1", "'type'"]),
+        (lambda d: d.update(loads=[{"type": "couple", "link": "crank", "moment": float("nan")}]), ["'moment'", "finite"]),
+        (lambda d: d.update(loads=[{"type": "motor", "stall": float("nan"), "no_load_speed": 1.0}]), ["'stall'", "finite"]),
+        (lambda d: d.update(loads=[{"type": "spring", "points": ["A", "O4"], "stiffness": float("inf")}]), ["'stiffness'", "finite"]),
+        (lambda d: d.update(loads=[{"type": "couple", "link": "crank",
+                                    "moment": {"x": [0.0, 1.0], "values": [0.0, 1.0], "period": float("nan")}}]), ["'moment'", "period", "finite"]),
+        (lambda d: d.update(simulation={"samples": 2_000_000}), ["[simulation]", "'samples'", "from 2 to 100000", "48 MB", "the limit needs 2.4 MB"]),
+        (lambda d: d.update(simulation={"table_nodes": "big"}), ["[simulation]", "'table_nodes'", "'big'"]),
+        (lambda d: d.update(simulation={"steps": [10]}), ["[simulation]", "'steps'"]),
+        (lambda d: d["outputs"].update(velocities="yes"), ["[outputs]", "'velocities'", "true or false"]),
+        (lambda d: d["outputs"].update(energys=True), ["[outputs]", "unknown field 'energys'"]),
+    ],
+)
+def test_hostile_scene_values_name_the_field(edit, fragments):
+    with raises(SceneError, "bad.toml", *fragments):
+        scene(edit)
+
+
+def test_iterative_group_substeps_are_bounded():
+    data = assurjax.load_scene("triad_mechanism")  # the bundled scene must load first
+    assert data.mechanism.groups[1].substeps >= 1
+    import tomllib
+    from importlib import resources
+
+    raw = tomllib.loads((resources.files("assurjax.scenes") / "triad_mechanism.toml").read_text())
+    triad = next(g for g in raw["formation"] if g["group"] == "triad")
+    triad["substeps"] = 10_000_000
+    with raises(SceneError, "'substeps'", "at most 1000"):
+        assurjax.scene_from_dict(raw, source="bad.toml")
+    triad["substeps"] = 8
+    triad["guess"][next(iter(triad["guess"]))] = [float("inf"), 0.0]
+    with raises(SceneError, "'guess'", "finite"):
+        assurjax.scene_from_dict(raw, source="bad.toml")
+
+
+@pytest.mark.parametrize(
+    "build, fragments",
+    [
+        (lambda: load_forms.Spring("A", "B", float("inf")), ["Spring", "stiffness", "must be finite, got inf"]),
+        (lambda: load_forms.Spring("A", "B", 1.0, free_length=-1.0), ["free_length", "must be non-negative"]),
+        (lambda: load_forms.Damper("A", "B", float("inf")), ["Damper", "coefficient", "finite"]),
+        (lambda: load_forms.Couple("crank", float("nan")), ["Couple", "moment", "finite"]),
+        (lambda: load_forms.MotorLine(float("nan"), 1.0), ["MotorLine", "stall", "finite"]),
+        (lambda: load_forms.MotorLine(1.0, 0.0), ["no_load_speed", "must be positive"]),
+        (lambda: load_forms.Table([0.0, 1.0], [0.0, 1.0], period=float("nan")), ["Table", "period", "finite"]),
+        (lambda: load_forms.Polynomial([1.0, float("inf")]), ["Polynomial", "coefficients", "finite"]),
+        (lambda: load_forms.PointForce("B", [float("nan"), 0.0]), ["PointForce", "force", "finite"]),
+        (lambda: assurjax.JointFriction("A", -0.1, 0.01), ["JointFriction", "coefficient", "non-negative"]),
+        (lambda: assurjax.SlideFriction("B", 0.1, 0.0), ["SlideFriction", "length", "must be positive"]),
+    ],
+)
+def test_python_loads_reject_bad_values(build, fragments):
+    with raises(MechanismError, *fragments):
+        build()
+
+
+def test_simulation_keywords_and_scene_share_the_messages():
+    with raises(SceneError, "[simulation], field 'samples'") as scene_error:
+        scene(lambda d: d.update(simulation={"samples": 2_000_000}))
+    with raises(assurjax.AssurjaxError, "setting 'samples'") as api_error:
+        settings_from(None, samples=2_000_000)
+    assert _tail(str(scene_error.value), "samples") == _tail(str(api_error.value), "samples")
+    for bad in ({"rtol": float("nan")}, {"max_steps": "many"}, {"table_nodes": 10**9}, {"steps": 10**8}, {"dt": float("inf")}):
+        with raises(assurjax.AssurjaxError, f"'{next(iter(bad))}'"):
+            settings_from(None, **bad)
+
+
+def test_traced_values_are_not_checked_so_jit_and_grad_work():
+    mech = scene().mechanism
+
+    def coupler_mass_times_stiffness(mass, stiffness):
+        link = eqx.tree_at(lambda lk: lk.mass, mech.links["coupler"], mass)
+        rebuilt = Mechanism(mech.ground, {**mech.links, "coupler": link}, mech.groups)
+        return rebuilt.links["coupler"].mass * load_forms.Spring("A", "O4", stiffness).stiffness
+
+    value, grads = jax.jit(jax.value_and_grad(coupler_mass_times_stiffness, argnums=(0, 1)))(2.0, 3.0)
+    assert float(value) == 6.0 and [float(g) for g in grads] == [3.0, 2.0]

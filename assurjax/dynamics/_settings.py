@@ -10,8 +10,10 @@ from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import diffrax
+import numpy as np
 
 from .._errors import AssurjaxError
+from .._values import concrete, value_problem
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -95,33 +97,97 @@ def _positive_int(v) -> bool:
     return isinstance(v, numbers.Integral) and not isinstance(v, bool) and v > 0
 
 
-SIMULATION_KEYS: dict[str, tuple[Callable, str]] = {
-    "solver": (lambda v: isinstance(v, str) and (v in SOLVERS or v in BASELINES), f"one of {sorted(SOLVERS) + list(BASELINES)}"),
-    "rtol": (_positive_number, "a positive finite number"),
-    "atol": (_positive_number, "a positive finite number"),
-    "dt": (_positive_number, "a positive finite step (s)"),
-    "max_steps": (_positive_int, "a positive integer"),
-    "samples": (lambda v: _positive_int(v) and v >= 2, "an integer >= 2"),
-    "stop": (lambda v: isinstance(v, str) and v in STOPS, f"one of {list(STOPS)}"),
-    "branch": (lambda v: isinstance(v, str) and v in BRANCHES, f"one of {list(BRANCHES)}"),
-    "reduction": (lambda v: isinstance(v, str) and v in REDUCTIONS, f"one of {list(REDUCTIONS)}"),
-    "table_nodes": (lambda v: _positive_int(v) and v >= 8, "an integer >= 8"),
-    "steps": (_positive_int, "a positive integer"),
+# Bounds on the work a setting asks for: key -> (largest value, bytes per unit at least: the
+# float64 t, q, omega of one saved state or one table node's values). Beyond them a run exhausts
+# memory (steps = 1e8 asked 33 GB) or takes hours (samples = 2e6) instead of failing at once.
+WORK_LIMITS: dict[str, tuple[int, int]] = {
+    "samples": (100_000, 24),
+    "steps": (1_000_000, 24),
+    "table_nodes": (1_000_000, 32),
+    "max_steps": (DEFAULT_MAX_STEPS * 2**12, 24),  # the largest default budget (step_budget)
 }
 
 
-def check_simulation_table(table: Mapping, where: str = "[simulation]") -> dict:
-    """The ``[simulation]`` table checked key by key; raises :class:`AssurjaxError`
-    naming an unknown key (a typo such as ``rtoll``) or a value of the wrong type."""
+def _bounded(key: str, check: Callable) -> Callable:
+    return lambda v: check(v) and v <= WORK_LIMITS[key][0]
+
+
+SIMULATION_KEYS: dict[str, tuple[Callable, str]] = {
+    "solver": (lambda v: isinstance(v, str) and (v in SOLVERS or v in BASELINES), f"one of {sorted(SOLVERS) + list(BASELINES)}"),
+    "rtol": (lambda v: _positive_number(v) and v < 1, "a positive finite number below 1"),
+    "atol": (lambda v: _positive_number(v) and v < 1, "a positive finite number below 1"),
+    "dt": (lambda v: _positive_number(v) and v <= 1e3, "a positive finite step (s), at most 1000"),
+    "max_steps": (_bounded("max_steps", _positive_int), f"a positive integer, at most {WORK_LIMITS['max_steps'][0]}"),
+    "samples": (_bounded("samples", lambda v: _positive_int(v) and v >= 2), f"an integer from 2 to {WORK_LIMITS['samples'][0]}"),
+    "stop": (lambda v: isinstance(v, str) and v in STOPS, f"one of {list(STOPS)}"),
+    "branch": (lambda v: isinstance(v, str) and v in BRANCHES, f"one of {list(BRANCHES)}"),
+    "reduction": (lambda v: isinstance(v, str) and v in REDUCTIONS, f"one of {list(REDUCTIONS)}"),
+    "table_nodes": (_bounded("table_nodes", lambda v: _positive_int(v) and v >= 8), f"an integer from 8 to {WORK_LIMITS['table_nodes'][0]}"),
+    "steps": (_bounded("steps", _positive_int), f"a positive integer, at most {WORK_LIMITS['steps'][0]}"),
+}
+
+
+def _names(v) -> bool:
+    return isinstance(v, (list, tuple)) and all(isinstance(x, str) for x in v)
+
+
+# [outputs] keys and what they must be (the names are checked against the mechanism by the loader).
+OUTPUT_KEYS: dict[str, tuple[Callable, str]] = {
+    "points": (_names, "a list of point names"),
+    "angles": (_names, "a list of link names"),
+    "coms": (_names, "a list of link names"),
+    "reactions": (_names, "a list of joint names"),
+    "energies": (lambda v: isinstance(v, bool), "true or false"),
+    "velocities": (lambda v: isinstance(v, bool), "true or false"),
+    "accelerations": (lambda v: isinstance(v, bool), "true or false"),
+}
+
+
+def setting_problem(key: str, value, schema: Mapping = SIMULATION_KEYS) -> str | None:
+    """What is wrong with one setting (the same words for a scene field and a keyword), or None."""
+    check, what = schema[key]
+    if check(value):
+        return None
+    problem = f"expected {what}, got {value!r}"
+    if key in WORK_LIMITS and _positive_int(value) and value > WORK_LIMITS[key][0]:
+        limit, unit = WORK_LIMITS[key]
+        problem += f" (it would need at least {_size(value * unit)} for the saved values alone; the limit needs {_size(limit * unit)})"
+    return problem
+
+
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.3g} {unit}"
+    return f"{n_bytes / 1e3:.3g} kB"
+
+
+def check_simulation_table(table: Mapping, where: str = "[simulation]", schema: Mapping = SIMULATION_KEYS) -> dict:
+    """The ``[simulation]`` (or, with ``schema=OUTPUT_KEYS``, ``[outputs]``) table checked key
+    by key; raises :class:`AssurjaxError` naming an unknown key (a typo such as ``rtoll``),
+    a value of the wrong type, out of range or asking for too much work."""
     out = {}
     for key, value in table.items():
-        if key not in SIMULATION_KEYS:
-            raise AssurjaxError(f"{where}: unknown field '{key}' (known: {sorted(SIMULATION_KEYS)})")
-        check, what = SIMULATION_KEYS[key]
-        if not check(value):
-            raise AssurjaxError(f"{where}, field '{key}': expected {what}, got {value!r}")
+        if key not in schema:
+            raise AssurjaxError(f"{where}: unknown field '{key}' (known: {sorted(schema)})")
+        problem = setting_problem(key, value, schema)
+        if problem is not None:
+            raise AssurjaxError(f"{where}, field '{key}': {problem}")
         out[key] = value
     return out
+
+
+def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
+    """(field, what is wrong) with a starting state and time span, or None: finite values of
+    sane magnitude, t1 later than t0. Arrays (a batch of starts) are checked elementwise;
+    tracers are not checked. Shared by the scene loader's [state] and ``simulate``'s keywords."""
+    for key, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
+        if (problem := value_problem(value)) is not None:
+            return key, problem
+    start, end = concrete(t0), concrete(t1)
+    if start is not None and end is not None and not np.all(end > start):
+        return "t1", f"must be later than t0 = {t0}, got {t1}"
+    return None
 
 
 def _pick(given, table: Mapping, key: str, default):
@@ -156,7 +222,10 @@ def settings_from(scene=None, **overrides) -> Settings:
         velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
         coms=tuple(outs.get("coms", ())),
     )
-    if overrides.pop("dt", None) is not None:  # the step itself is traced: fixed_step_from
+    dt = overrides.pop("dt", None)
+    if dt is not None:  # the step itself is traced (fixed_step_from): checked when it is concrete
+        if (problem := value_problem(dt, positive=True)) is not None:
+            raise AssurjaxError(f"setting 'dt': {problem}")
         overrides["fixed_step"] = True
     values = {**from_scene, **{k: v for k, v in overrides.items() if v is not None}}
     for key in ("points", "angles", "events", "coms"):
@@ -190,16 +259,15 @@ def check(settings: Settings) -> None:
     if settings.solver not in SOLVERS and settings.solver not in BASELINES:
         raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
     for key in ("rtol", "atol", "max_steps", "samples", "branch", "table_nodes"):
-        value = getattr(settings, key)
-        ok, what = SIMULATION_KEYS[key]
-        if not ok(value):
-            raise AssurjaxError(f"{key}: expected {what}, got {value!r}")
+        problem = setting_problem(key, getattr(settings, key))
+        if problem is not None:
+            raise AssurjaxError(f"setting '{key}': {problem}")
     if settings.reduction not in ("exact", "table", "auto"):
         raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
     if settings.adjoint not in ADJOINTS:
         raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
-    if settings.steps is not None and not _positive_int(settings.steps):
-        raise AssurjaxError(f"steps must be a positive number of steps, got {settings.steps}")
+    if settings.steps is not None and (problem := setting_problem("steps", settings.steps)) is not None:
+        raise AssurjaxError(f"setting 'steps': {problem}")
     for cond in settings.events:
         if not callable(cond):
             raise AssurjaxError(f"events must be functions cond(t, q, omega), got {type(cond).__name__}")

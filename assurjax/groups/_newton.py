@@ -50,6 +50,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import MechanismError
+from .._values import check_value, value_problem
 from .._geometry import heading
 from ._base import AbstractGroup, Link, Placement
 
@@ -160,8 +161,17 @@ class IterativeGroup(AbstractGroup):
                 f"{self.describe()}: 'guess' must give the approximate global position of each internal joint "
                 f"{list(self.internal_points())}; missing {missing}, unknown {extra}"
             )
-        if self.substeps < 1 or self.max_steps < 1:
-            raise MechanismError(f"{self.describe()}: substeps and max_steps must be at least 1")
+        for key in ("substeps", "max_steps"):
+            value = getattr(self, key)
+            if not 1 <= value <= ITERATION_LIMIT:
+                raise MechanismError(f"{self.describe()}: {key} must be from 1 to {ITERATION_LIMIT}, got {value}")
+        for p, v in self.guess.items():
+            check_value(MechanismError, f"{self.describe()}: guess of point '{p}'", v)
+
+
+# Continuation substeps and Newton iterations per evaluation: every one is a solve inside
+# every right-hand-side evaluation, so 1e7 of them hangs a run instead of helping it.
+ITERATION_LIMIT = 1000
 
 
 def angle_of(local_vector: Array, global_vector: Array) -> Array:
@@ -187,6 +197,8 @@ def parse_guess(fields, internal: Iterable[str]) -> dict[str, Array]:
         v = raw[p]
         if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             fields.fail("guess", f"point '{p}': expected [x, y], got {v!r}")
+        if (problem := value_problem(v)) is not None:
+            fields.fail("guess", f"point '{p}': {problem}")
         out[p] = jnp.asarray(np.asarray(v, dtype=float))
     return out
 
@@ -195,10 +207,7 @@ def parse_options(fields) -> dict:
     """Optional fields shared by iterative groups: guess_q, substeps, max_steps."""
     opts: dict[str, Any] = {"guess_q": fields.number("guess_q") if fields.has("guess_q") else None}
     for key, default in (("substeps", 8), ("max_steps", 32)):
-        v = fields.raw(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            fields.fail(key, f"expected a positive integer, got {v!r}")
-        opts[key] = v
+        opts[key] = fields.integer(key, default, at_most=ITERATION_LIMIT)
     return opts
 
 

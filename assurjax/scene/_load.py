@@ -12,7 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError, MechanismError, SceneError
-from ..dynamics._settings import check_simulation_table
+from .._values import value_problem
+from ..dynamics._settings import OUTPUT_KEYS, check_simulation_table, state_problem
 from .._mechanism import Mechanism
 from ..groups import GROUND, Link
 from ..groups._base import MODES
@@ -48,10 +49,19 @@ def load_scene(path_or_name: str | Path) -> Scene:
     """
     path = scene_path(path_or_name)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(read_utf8(path))
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: not valid TOML: {e}") from None
     return scene_from_dict(data, source=str(path))
+
+
+def read_utf8(path: Path) -> str:
+    """The text of a scene file, which TOML requires to be UTF-8."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not UTF-8 text: byte {raw[e.start]:#04x} at offset {e.start} ({e.reason}); save the file as UTF-8") from None
 
 
 class Fields:
@@ -93,18 +103,31 @@ class Fields:
         v = self.raw(key, default)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"expected a number, got {v!r}")
-        if positive and not v > 0:
-            self.fail(key, f"must be positive, got {v}")
-        if nonnegative and not v >= 0:
-            self.fail(key, f"must be non-negative, got {v}")
+        self.check(key, v, positive=positive, nonnegative=nonnegative)
         return float(v)
 
-    def vector(self, key: str, default: Any = ..., *, size: int = 2) -> np.ndarray:
+    def integer(self, key: str, default: Any = ..., *, at_most: int) -> int:
+        """A positive integer up to ``at_most`` (a bound on the work it asks for)."""
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            self.fail(key, f"expected a positive integer, got {v!r}")
+        if v > at_most:
+            self.fail(key, f"must be at most {at_most}, got {v}")
+        return v
+
+    def vector(self, key: str, default: Any = ..., *, size: int = 2, nonzero: bool = False) -> np.ndarray:
         v = self.raw(key, default)
         ok = isinstance(v, list) and len(v) == size and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
         if not ok:
             self.fail(key, f"expected a list of {size} numbers, got {v!r}")
+        self.check(key, v, nonzero_vector=nonzero)
         return np.asarray(v, dtype=float)
+
+    def check(self, key: str, value, **ranges) -> None:
+        """Finite, of sane magnitude and in range (the checks the Python API makes too)."""
+        problem = value_problem(value, **ranges)
+        if problem is not None:
+            self.fail(key, problem)
 
     def boolean(self, key: str, default: Any = ...) -> bool:
         v = self.raw(key, default)
@@ -114,7 +137,7 @@ class Fields:
 
     def mode(self, key: str = "mode", default: Any = ...) -> int:
         v = self.raw(key, default)
-        if v not in MODES or isinstance(v, bool):
+        if not isinstance(v, str) or v not in MODES:
             self.fail(key, f"expected 'left'/'right' (or 'forward'/'backward', '+'/'-'), got {v!r}")
         return MODES[v]
 
@@ -149,7 +172,7 @@ def _link(name: str, table, source: str) -> Link:
 def _guide(f: Fields, prefix: str = "") -> dict:
     return dict(
         guide_point=f.string(prefix + "guide_point"),
-        direction=jnp.asarray(f.vector(prefix + "direction", [1.0, 0.0])),
+        direction=jnp.asarray(f.vector(prefix + "direction", [1.0, 0.0], nonzero=True)),
         offset=jnp.asarray(f.number(prefix + "offset", 0.0)),
     )
 
@@ -159,7 +182,7 @@ def _crank(f, name):
 
 
 def _slider(f, name):
-    return _drivers.Slider(name, (f.string("link"),), f.string("point"), f.string("guide_point"), jnp.asarray(f.vector("direction", [1.0, 0.0])))
+    return _drivers.Slider(name, (f.string("link"),), f.string("point"), f.string("guide_point"), jnp.asarray(f.vector("direction", [1.0, 0.0], nonzero=True)))
 
 
 def _rrr_group(f, name):
@@ -175,18 +198,24 @@ def _rrp_group(cls):
 
 
 def _rpr_group(f, name):
-    return _rpr.RPR(name, f.names("links", 2), f.names("joints", 2), f.mode(), jnp.asarray(f.vector("direction", [1.0, 0.0])), jnp.asarray(f.number("offset", 0.0)))
+    return _rpr.RPR(name, f.names("links", 2), f.names("joints", 2), f.mode(), jnp.asarray(f.vector("direction", [1.0, 0.0], nonzero=True)), jnp.asarray(f.number("offset", 0.0)))
 
 
 def _prp_group(f, name):
     directions = f.raw("directions", [[1.0, 0.0], [0.0, 1.0]])
-    arr = np.asarray(directions, dtype=float) if isinstance(directions, list) else None
-    if arr is None or arr.shape != (2, 2):
+    if not (isinstance(directions, list) and len(directions) == 2 and all(_numbers(d, 2) for d in directions)):
         f.fail("directions", f"expected two 2-vectors, got {directions!r}")
+    f.check("directions", directions, nonzero_vector=True)
+    arr = np.asarray(directions, dtype=float)
     offsets = f.raw("offsets", [0.0, 0.0])
-    if not (isinstance(offsets, list) and len(offsets) == 2):
+    if not _numbers(offsets, 2):
         f.fail("offsets", f"expected two numbers, got {offsets!r}")
+    f.check("offsets", offsets)
     return _prp.PRP(name, f.names("links", 2), f.string("joint"), f.names("guide_points", 2), jnp.asarray(arr), jnp.asarray(offsets, dtype=float))
+
+
+def _numbers(v, size: int) -> bool:
+    return isinstance(v, list) and len(v) == size and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
 
 
 # kind -> parser(fields, group name) -> group. Other modules register their kinds here.
@@ -209,7 +238,7 @@ LOAD_PARSER: list[Callable] = []
 def _group(index: int, table, source: str):
     kind = table.get("group") if isinstance(table, dict) else None
     where = f"[[formation]] #{index + 1}"
-    if kind not in GROUP_PARSERS:
+    if not isinstance(kind, str) or kind not in GROUP_PARSERS:
         raise SceneError(f"{source}: {where}, field 'group': unknown group kind {kind!r} (known: {', '.join(GROUP_PARSERS)})")
     name = table.get("name", f"{kind}{index + 1}" if index else "driver")
     f = Fields(table, f"{where} ({kind} '{name}')", source)
@@ -242,6 +271,8 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         q0=state.number("q0", drawn_q0), omega0=state.number("omega0", 0.0), t0=state.number("t0", 0.0), t1=state.number("t1", 1.0)
     )
     state.reject_unknown()
+    if (problem := state_problem(**state_values)) is not None:
+        state.fail(*problem)
     mechanism = _newton.resolve_guess_q(mechanism, state_values["q0"])  # iterative groups' guesses refer to q0
     simulation = Fields(top.raw("simulation", {}), "[simulation]", source)
     try:
@@ -249,6 +280,10 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     except AssurjaxError as e:
         raise SceneError(f"{source}: {e}") from None
     outputs = Fields(top.raw("outputs", {}), "[outputs]", source)
+    try:
+        check_simulation_table(outputs.table, "[outputs]", OUTPUT_KEYS)
+    except AssurjaxError as e:
+        raise SceneError(f"{source}: {e}") from None
     out_values = _outputs(outputs, mechanism)
 
     loads = ()
@@ -304,8 +339,12 @@ def _outputs(f: Fields, mechanism: Mechanism) -> dict:
         for j in reactions:
             if j not in known_joints:
                 f.fail("reactions", f"unknown joint '{j}' (joints: {list(known_joints)})")
+    coms = f.names("coms") if f.has("coms") else ()
+    for link in coms:
+        if link not in mechanism.links:
+            f.fail("coms", f"unknown link '{link}' (known: {sorted(mechanism.links)})")
     values = dict(points=points, angles=angles, reactions=reactions, energies=f.boolean("energies", True))
-    extra = {k: v for k, v in f.table.items() if k not in values}
+    extra = {k: v for k, v in f.table.items() if k not in values}  # velocities, accelerations, coms: type-checked above
     return {**values, **extra}
 
 

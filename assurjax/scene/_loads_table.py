@@ -10,6 +10,7 @@ from __future__ import annotations
 from .. import _friction, _loads
 from .._errors import MechanismError, SceneError
 from .._mechanism import Mechanism
+from .._values import value_problem
 from ._load import Fields
 
 FORM_KEYS = {"polynomial", "x", "values", "variable", "period"}
@@ -21,6 +22,7 @@ def _value(f: Fields, key: str, default=...):
     if isinstance(v, bool):
         f.fail(key, f"expected a number or a table, got {v!r}")
     if isinstance(v, (int, float)):
+        f.check(key, v)
         return float(v)
     if not isinstance(v, dict):
         f.fail(key, f"expected a number, {{ polynomial = [...] }} or {{ x = [...], values = [...] }}, got {v!r}")
@@ -28,21 +30,32 @@ def _value(f: Fields, key: str, default=...):
     if extra:
         f.fail(key, f"unknown entries {extra} (allowed: {sorted(FORM_KEYS)})")
     variable = v.get("variable", "q")
-    if variable not in _loads.VARIABLES:
+    if not isinstance(variable, str) or variable not in _loads.VARIABLES:
         f.fail(key, f"variable must be one of {list(_loads.VARIABLES)}, got {variable!r}")
     if "polynomial" in v:
         coefficients = v["polynomial"]
         if not _numbers(coefficients) or not coefficients:
             f.fail(key, f"polynomial must be a non-empty list of numbers (c0, c1, ...), got {coefficients!r}")
+        _check_entry(f, key, "polynomial", coefficients)
         return _loads.Polynomial(coefficients, variable)
     x, values, period = v.get("x"), v.get("values"), v.get("period")
     if not (_numbers(x) and _numbers(values) and len(x) == len(values) >= 2):
         f.fail(key, f"a table needs lists 'x' and 'values' of the same length >= 2, got x = {x!r}, values = {values!r}")
+    _check_entry(f, key, "x", x)
+    _check_entry(f, key, "values", values)
     if any(b <= a for a, b in zip(x, x[1:])):
         f.fail(key, "table 'x' must be strictly increasing")
-    if period is not None and (isinstance(period, bool) or not isinstance(period, (int, float)) or period <= 0):
+    if period is not None and (isinstance(period, bool) or not isinstance(period, (int, float))):
         f.fail(key, f"period must be a positive number, got {period!r}")
+    if period is not None:
+        _check_entry(f, key, "period", period, positive=True)
     return _loads.Table(x, values, variable, None if period is None else float(period))
+
+
+def _check_entry(f: Fields, key: str, entry: str, value, **ranges) -> None:
+    problem = value_problem(value, **ranges)
+    if problem is not None:
+        f.fail(key, f"{entry} {problem}")
 
 
 def _numbers(v) -> bool:
@@ -106,7 +119,7 @@ def _drive(f, mechanism):
 
 
 def _motor(f, mechanism):
-    return _loads.MotorLine(f.number("stall"), f.number("no_load_speed", positive=True))
+    return _loads.MotorLine(f.number("stall"), f.number("no_load_speed", positive=True))  # a negative stall torque drives backwards
 
 
 def _joint_friction(f, mechanism):
@@ -140,7 +153,7 @@ def parse_loads(raw, mechanism: Mechanism, source: str) -> tuple:
     for i, table in enumerate(raw):
         kind = table.get("type") if isinstance(table, dict) else None
         where = f"[[loads]] #{i + 1}"
-        if kind not in PARSERS:
+        if not isinstance(kind, str) or kind not in PARSERS:
             raise SceneError(f"{source}: {where}, field 'type': unknown load type {kind!r} (known: {', '.join(PARSERS)})")
         f = Fields(table, f"{where} ({kind})", source)
         f.raw("type")
