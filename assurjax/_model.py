@@ -11,6 +11,7 @@ from jaxtyping import Array
 from ._errors import AssurjaxError
 from ._loads import check_loads
 from ._mechanism import Mechanism
+from ._values import check_value
 
 
 class Model(eqx.Module):
@@ -38,6 +39,9 @@ class Model(eqx.Module):
             gravity = np.zeros(2)
         # an array already (a scene's, or traced) is kept as it is: no device round trip per call
         self.gravity = gravity if isinstance(gravity, jax.Array) else jnp.asarray(gravity, dtype=float)
+        if self.gravity.shape != (2,):
+            raise AssurjaxError(f"Model: gravity must be a 2-vector (m/s^2), got shape {self.gravity.shape}")
+        check_value(AssurjaxError, "Model: gravity", gravity)
         self.loads = tuple(loads)
         check_loads(mechanism, self.loads)
 

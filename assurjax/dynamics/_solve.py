@@ -26,7 +26,7 @@ from ._events import assembles, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
-                        step_budget)
+                        state_problem, step_budget)
 from ._solution import Solution, batch_summary, outputs, trim
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
@@ -345,6 +345,8 @@ def simulate(
     _check_outputs(model.mechanism, settings)
     q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)
                           for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
+    if (problem := state_problem(q0, omega0, t0, t1)) is not None:
+        raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
     step = fixed_step_from(scene_or_none, dt)
     if settings.solver in BASELINES:
         from ._baseline import simulate_seed_euler
