@@ -88,6 +88,8 @@ def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] |
     canvas = FigureCanvasAgg(fig)  # pixels without a display, whatever the backend
     n = anim.frame_count
     moving = anim.show_frame(0)
+    canvas.draw()  # lay the figure out once with everything visible (the title included)...
+    fig.set_layout_engine("none")  # ...and keep that layout for every frame
     for artist in moving:
         artist.set_animated(True)  # left out of the background
     canvas.draw()
