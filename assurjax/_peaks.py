@@ -2,7 +2,9 @@
 solver's dense output rather than read off the saved samples.
 
 A grid of samples misses narrow peaks (a quick-return ram reverses in a few
-milliseconds). Each peak is bracketed by the largest sample and its two neighbours;
+milliseconds). The search refines around the largest sample only: a peak narrower than
+the sample spacing elsewhere can still be missed, so keep the grid fine enough to see
+every peak (the command line uses 2001 samples). Each peak is bracketed by the largest sample and its two neighbours;
 the motion is then evaluated again at a few times inside the bracket
 (``simulate(..., saveat=...)`` interpolates the solver's dense output), and the bracket
 shrinks around the new largest value; every round uses the same number of times, so the

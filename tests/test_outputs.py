@@ -89,7 +89,7 @@ def test_cli_reactions_samples_and_peaks(shaper, shaper_peaks, tmp_path, capsys)
     _, _, dense = shaper_peaks
     path = tmp_path / "shaper.toml"
     path.write_text(Path(shaper.source).read_text())
-    samples = COARSE - 20  # its own program shapes (see shaper_peaks)
+    samples = 2 * COARSE - 1  # its own program shapes (see shaper_peaks)
     assert main(["reactions", str(path), "--samples", str(samples), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     text = capsys.readouterr().out
     assert f"{samples} samples" in text
