@@ -86,8 +86,22 @@ from ._sweep import (
     stack_mechanisms as stack_mechanisms,
     sweep as sweep,
 )
-from . import synthesis as synthesis
 from . import structure as structure
 from .structure import Sketch as Sketch, Slide as Slide
 
 __version__ = "0.1.0"
+
+_LAZY_SUBMODULES = ("synthesis", "viz")  # optax and matplotlib load on first use, not with the package
+
+
+def __getattr__(name: str):
+    """``assurjax.synthesis`` and ``assurjax.viz`` are imported on first access."""
+    if name in _LAZY_SUBMODULES:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_LAZY_SUBMODULES))

@@ -1,5 +1,5 @@
-"""Coulomb friction in the joints, driven by the joint reactions (Ruiz et al. 2010's
-extension of the modular method, named in Fernandez-Bustos et al.'s seed paper).
+"""Coulomb friction in the joints, driven by the joint reactions: the extension of the
+modular method that Durango et al. 2014 name (a successive-approximation force analysis).
 
 - :class:`JointFriction` on a revolute: a friction circle of radius r and a
   coefficient mu give the couple -mu r |F| sign(w_rel) on the later link (the one the

@@ -1,4 +1,4 @@
-"""Velocities and accelerations as derivatives of the position map (seed 000, step i).
+"""Velocities and accelerations as derivatives of the position map (Durango et al. 2014, step i).
 
 ``jax.jvp`` of q -> Pose with a unit driving velocity gives the kinematic
 coefficients dx/dq; a second jvp gives d2x/dq2. Then v = dx/dq w and
@@ -83,7 +83,7 @@ def taylor(fn: Callable, q, order: int):
     """``fn(q) -> (x, aux)`` and its derivatives along the driving coordinate:
     (x, dx/dq, d2x/dq2, aux), None above ``order`` (0, 1 or 2).
 
-    The package's only jvp of the position analysis (seed 000 step i: with a unit
+    The package's only jvp of the position analysis (Durango et al. 2014 step i: with a unit
     driving velocity the velocities are the kinematic coefficients): kinematics,
     the reduction and the kinetostatics all take their coefficients from here.
     (With several drivers this becomes a jacfwd over q; nothing else changes.)"""
@@ -285,7 +285,7 @@ def inverse_kinematics(
     atol: float = 1e-12,
     max_steps: int = 64,
 ) -> tuple[Array, Pose]:
-    """Turn a driven quantity into the driving one (seed 001's driving dimension).
+    """Turn a driven quantity into the driving one (Fanghella et al.'s (2019) driving dimension).
 
     Finds q near ``q0`` (on the mechanism's assembly modes) with
     ``quantity(pose) == value`` by Newton's method (optimistix). ``quantity`` is a

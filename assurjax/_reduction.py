@@ -1,7 +1,7 @@
-"""Modular reduction of inertia and loads to the driving link (seed 000, section 3).
+"""Modular reduction of inertia and loads to the driving link (Durango et al. 2014, section 3).
 
 With a unit driving velocity the velocities of the mechanism are its kinematic
-coefficients (``jax.jvp`` of the position map, seed 000 step i). Each group then
+coefficients (``jax.jvp`` of the position map, Durango et al. 2014 step i). Each group then
 contributes, for its own links j,
 
 - to the reduced moment of inertia (kinetic-energy equivalence, eqs. 5-6):
@@ -16,7 +16,7 @@ comes from a second jvp. For a crank, J_red is in kg m^2 and tau_red in N m; for
 slider driver the reduced link translates: J_red is a reduced mass (kg) and tau_red
 a reduced force (N) along the guide.
 
-The equation of motion of the reduced link (seed 000 eq. 1, differentiated in time) is
+The equation of motion of the reduced link (Durango et al. 2014 eq. 1, differentiated in time) is
 J_red(q) dw/dt + 0.5 dJ_red/dq w^2 = tau + tau_red(q, w, t)
 (:func:`reduced_acceleration`, the one place it is written).
 """
@@ -37,7 +37,7 @@ from ._mechanism import Mechanism, Pose, positions
 
 def reduced_acceleration(inertia, dinertia, force, omega):
     """dw/dt of the reduced link: the reduced equation of motion, written once
-    (seed 000 eq. 1 in time form): J_red dw/dt + 0.5 dJ_red/dq w^2 = force, where
+    (Durango et al. 2014 eq. 1 in time form): J_red dw/dt + 0.5 dJ_red/dq w^2 = force, where
     ``force`` = tau + tau_red is every generalized force on the driving coordinate."""
     return (force - 0.5 * dinertia * omega**2) / inertia
 
@@ -99,7 +99,7 @@ def kinematics_from_coefficients(coeffs: Coefficients, omega, *, velocities: boo
 
 
 def _reduced_force(dx, wrenches) -> Array:
-    """sum_j F_j . dG_j/dq + M_j dtheta_j/dq (seed 000 eqs. 3-4)."""
+    """sum_j F_j . dG_j/dq + M_j dtheta_j/dq (Durango et al. 2014 eqs. 3-4)."""
     return sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
 
 
@@ -191,7 +191,7 @@ def _reduce_batch(mechanism, gravity, loads, q, omega, t):
 
 
 def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None) -> Reduction:
-    """Reduce a mechanism's inertia and loads to its driving link (seed 000 eqs. 3-6).
+    """Reduce a mechanism's inertia and loads to its driving link (Durango et al. 2014 eqs. 3-6).
 
     **Arguments:**
     - ``scene_or_mechanism``: a :class:`assurjax.Scene` (its loads and gravity are

@@ -1,10 +1,14 @@
 """The ``assurjax`` command: run scenes, check them, sweep their kinematics, compute reactions.
 
-    assurjax run [SCENE] [--out DIR]      simulate (default scene: watt_sixbar): CSV, plots, GIF, summary
-    assurjax validate SCENE               check a scene file (exit status 2 when it is bad)
-    assurjax scenes                       list the bundled scenes
-    assurjax kinematics SCENE [--out DIR] sweep the driving coordinate: coupler curves, angular velocities
-    assurjax reactions SCENE [--out DIR]  joint reactions and driving effort along the motion (or at rest)
+    assurjax run [SCENE] [--out DIR] [--samples N]   simulate (default scene: watt_sixbar): CSV, plots, GIF, summary
+    assurjax validate SCENE                          check a scene file (exit status 2 when it is bad)
+    assurjax scenes                                  list the bundled scenes
+    assurjax kinematics SCENE [--samples N]          sweep the driving coordinate: coupler curves, angular velocities
+    assurjax reactions SCENE [--samples N]           joint reactions and driving effort along the motion (or at rest)
+
+``--samples`` is the number of equally spaced output times (run, reactions) or
+configurations (kinematics). Peak reactions and driving efforts are located on the
+solver's dense output, not read off those samples.
 
 Exit status: 0 success, 2 bad input (scene, file, arguments), 1 anything else.
 Errors print one line; ``--debug`` shows the traceback.
@@ -23,6 +27,9 @@ from pathlib import Path
 
 DEFAULT_SCENE = "watt_sixbar"
 USER_ERROR, INTERNAL_ERROR = 2, 1
+RUN_SAMPLES = 2001  # output times of run/reactions unless the scene's [simulation] samples says otherwise
+SWEEP_SAMPLES = 721  # configurations of a kinematic sweep: half-degree steps over a crank turn
+PATH_SAMPLES = 1441  # configurations behind a traced path: smooth curves, no polyline corners
 
 
 class UserError(Exception):
@@ -200,15 +207,32 @@ def cmd_kinematics(args) -> int:
 # ---------------------------------------------------------------------------- run
 
 
-def _simulate(scene):
+def _samples(args, scene) -> int:
+    """Output times: --samples, else the scene's [simulation] samples, else RUN_SAMPLES."""
+    n = args.samples if args.samples is not None else int(scene.simulation.get("samples", RUN_SAMPLES))
+    if n < 2:
+        raise UserError(f"--samples must be at least 2, got {n}")
+    return n
+
+
+def _output_times(scene, samples: int):
+    """``samples`` equally spaced times (s) from the scene's t0 to t1, as ``saveat``: the
+    peak search's simulations (``saveat`` too) then share one compiled program shape."""
+    import numpy as np
+
+    return np.linspace(float(scene.state.get("t0", 0.0)), float(scene.state.get("t1", 1.0)), samples)
+
+
+def _simulate(scene, samples: int):
     """Simulate twice: the first call includes compilation, the second is the run time."""
     import assurjax
 
+    ts = _output_times(scene, samples)
     t0 = time.perf_counter()
-    sol = assurjax.simulate(scene)
+    sol = assurjax.simulate(scene, saveat=ts)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sol = assurjax.simulate(scene)
+    sol = assurjax.simulate(scene, saveat=ts)
     return sol, first, time.perf_counter() - t0
 
 
@@ -221,6 +245,24 @@ def _reactions_along(scene, sol, joints):
     r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
     forces = {k: np.asarray(v) for k, v in r.forces.items()}
     return forces, np.asarray(r.driving), np.asarray(r.ok).all(axis=-1), time.perf_counter() - t0
+
+
+def _peaks(scene, sol, joints, forces: dict, driving) -> dict:
+    """Peak |F| per joint and peak |driving effort|, located on the dense output around
+    the largest of the ``forces`` and ``driving`` already computed at the samples."""
+    import numpy as np
+
+    from ._peaks import peak_reactions
+
+    grid = {k: np.hypot(f[:, 0], f[:, 1]) for k, f in forces.items()} | {"driving": np.abs(driving)}
+    return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid)
+
+
+def _print_peaks(peaks: dict, units: dict):
+    forces = [p for name, p in peaks.items() if name != "driving"]
+    print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
+    drive = peaks["driving"]
+    print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
 
 
 def _solution_columns(scene, sol, forces, driving) -> dict:
@@ -248,7 +290,7 @@ def _history_figure(scene, sol, forces, units):
 
     from . import viz
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), layout="constrained")
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
     viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
     if getattr(sol, "kinetic", None) is not None:
@@ -265,25 +307,66 @@ def _history_figure(scene, sol, forces, units):
     return fig
 
 
-def _reduced_figure(scene, sol, units):
+def _one_period(scene):
+    """Driving coordinates over one period: one crank turn around q0, or the slider's
+    stroke (the interval around q0 where the mechanism assembles)."""
+    import numpy as np
+
+    import assurjax
+
+    lo, hi = _sweep_range(scene, None, None)
+    q = np.linspace(lo, hi, PATH_SAMPLES)
+    if _driver_kind(scene.mechanism) == "slider":
+        ok = np.flatnonzero(np.asarray(assurjax.kinematics(scene.mechanism, q, order=0, check=False).ok).reshape(len(q), -1).all(axis=-1))
+        if ok.size:
+            q = np.linspace(q[ok[0]], q[ok[-1]], PATH_SAMPLES)
+    return q
+
+
+def _reduced_figure(scene):
     import numpy as np
 
     import assurjax
 
     from . import viz
 
-    lo, hi = float(np.min(sol.q)), float(np.max(sol.q))
-    pad = 0.05 * (hi - lo) if hi > lo else 0.1
-    q = np.linspace(lo - pad, hi + pad, 200)
+    q = _one_period(scene)
     red = assurjax.reduce(scene, q)
     ok = np.asarray(red.ok).all(axis=-1)
     j = np.where(ok, np.asarray(red.inertia), np.nan)
     tau = np.where(ok, np.asarray(red.torque), np.nan)
-    axes = viz.plot_reduced(q, j, tau, driver_kind=_driver_kind(scene.mechanism))
+    kind = _driver_kind(scene.mechanism)
+    axes = viz.plot_reduced(q, j, tau, driver_kind=kind)
+    period = "the slider's stroke" if kind == "slider" else "one crank turn"
+    axes[0].figure.suptitle(f"{scene.name}: inertia and load reduced to the driver over {period}")
     return axes[0].figure
 
 
-def _animation(scene, sol, path: Path, frames: int, quiet: bool) -> Path:
+def _path_frames(scene, sol, quiet: bool):
+    """Kinematics on a fine grid over the driving coordinates the motion visits (one
+    period at most: paths repeat), for smooth traced paths."""
+    import numpy as np
+
+    from . import viz
+
+    lo, hi = float(np.min(sol.q)), float(np.max(sol.q))
+    if _driver_kind(scene.mechanism) != "slider" and hi - lo >= 2 * np.pi:
+        lo, hi = lo, lo + 2 * np.pi
+    q = np.linspace(lo, hi, PATH_SAMPLES) if hi > lo else np.asarray(sol.q, dtype=float)
+    return viz.frames_from_kinematics(sweep_kinematics(scene.mechanism, q, quiet=quiet))
+
+
+def _paths_figure(scene, frames, points):
+    from . import viz
+
+    ax = viz.plot_coupler_curves(frames, points)
+    ax.set_title(f"{scene.name}: paths of the output points during the motion")
+    return ax.figure
+
+
+def _animation(scene, sol, out: Path, frames: int, trace_q, quiet: bool) -> list[Path]:
+    """animation.gif, and animation.mp4 when ffmpeg is on the PATH, from one rendering."""
+    import matplotlib.pyplot as plt
     import numpy as np
 
     from . import viz
@@ -291,10 +374,14 @@ def _animation(scene, sol, path: Path, frames: int, quiet: bool) -> Path:
     t = np.linspace(float(sol.t[0]), float(sol.t[-1]), frames)
     q, w = np.interp(t, sol.t, sol.q), np.interp(t, sol.t, sol.omega)
     points = list(scene.outputs["points"])
-    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=np.asarray(sol.q), velocities=points[:3])
+    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=trace_q, velocities=points[:3])
     with _progress(frames, "animation", quiet) as bar:
-        viz.save_gif(anim, path, fps=20, progress=lambda i, n: bar.update(1))
-    return path
+        images = viz.render_frames(anim, progress=lambda i, n: bar.update(1))
+    plt.close(anim._fig)
+    files = [viz.save_gif(images, out / "animation.gif", fps=20)]
+    if viz.ffmpeg_available():
+        files.append(viz.save_mp4(images, out / "animation.mp4", fps=20))
+    return files
 
 
 CONSERVATIVE_OR_COUNTED = ("Spring", "Damper", "RotaryDamper")  # in the potential, or in the dissipated work
@@ -315,6 +402,14 @@ def _energy_drift(scene, sol):
     return drift, drift / scale
 
 
+def _standstill_line(scene, sol) -> str:
+    if scene.simulation.get("stop") != "standstill":
+        return "  standstill detection: off (set [simulation] stop = \"standstill\" to stop there)"
+    if sol.t_stop is not None and "standstill" in sol.status:
+        return f"  standstill time: {sol.t_stop:.6f} s"
+    return f"  standstill: none before t1 = {float(sol.t[-1]):.6g} s"
+
+
 def cmd_run(args) -> int:
     import numpy as np
 
@@ -323,50 +418,52 @@ def cmd_run(args) -> int:
     load_time = time.perf_counter() - t0
     if args.frames < 2:
         raise UserError(f"--frames must be at least 2, got {args.frames}")
+    samples = _samples(args, scene)
     out = _out_dir(args.out, scene)
     units = _units(_driver_kind(scene.mechanism))
     steps = 4 + (not args.no_animation)
     with _progress(steps, f"run {scene.name}", args.quiet) as bar:
-        sol, first, second = _simulate(scene)
+        sol, first, second = _simulate(scene, samples)
         bar.update(1)
         joints = scene.outputs["reactions"]
-        forces, driving, rx_time = {}, None, None
+        forces, driving, rx_time, peaks = {}, None, None, None
         if joints:
             forces, driving, _, rx_time = _reactions_along(scene, sol, joints)
+            peaks = _peaks(scene, sol, joints, forces, driving)
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving))]
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
         bar.update(1)
-        files.append(_savefig(_reduced_figure(scene, sol, units), out / "reduced.png"))
-        if getattr(sol, "points", None):  # the simulation already traced them
-            from . import viz
-
-            frames = viz.Frames(q=np.asarray(sol.q), points={k: np.asarray(v) for k, v in sol.points.items()}, angles={},
-                                velocities=None, angular_velocities=None, ok=np.ones(len(sol.q), dtype=bool))
-            ax = viz.plot_coupler_curves(frames)
-            ax.set_title(f"{scene.name}: paths of the output points during the motion")
-            files.append(_savefig(ax.figure, out / "coupler_curves.png"))
+        files.append(_savefig(_reduced_figure(scene), out / "reduced.png"))
+        points = list(scene.outputs["points"])
+        path_frames = _path_frames(scene, sol, True) if points else None
+        if points:
+            files.append(_savefig(_paths_figure(scene, path_frames, points), out / "coupler_curves.png"))
         bar.update(1)
         if not args.no_animation:
-            files.append(_animation(scene, sol, out / "animation.gif", args.frames, args.quiet))
+            files += _animation(scene, sol, out, args.frames, None if path_frames is None else path_frames.q, args.quiet)
             bar.update(1)
     summary = dict(
         scene=scene.name, status=sol.status, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
         t_final=float(sol.t[-1]), q_final=float(sol.q[-1]), timings_s=dict(load=load_time, simulate_first_call=first, simulate_compiled=second, reactions=rx_time),
         units=dict(t="s", **units, energies="J", positions="m", angles="rad", forces="N"),
     )
+    if peaks:
+        summary["peaks"] = {name: dict(value=p.value, t=p.t) for name, p in peaks.items()}
     drift = _energy_drift(scene, sol)
     if drift is not None:
         summary["energy_drift_J"], summary["energy_drift_relative"] = drift
     files.append(out / "summary.json")
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"{scene.name}: {sol.status}")
-    print(f"  standstill time: {sol.t_stop:.6f} s" if sol.t_stop is not None and "standstill" in sol.status else "  standstill: none before t1")
+    print(_standstill_line(scene, sol))
     if drift is not None:
         print(f"  energy drift: max |E(t) - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest kinetic energy)")
     else:
         print("  energy drift: not checked (energies not requested, or the loads do work)")
-    print(f"  {len(sol.t)} samples, {summary['steps']} solver steps")
+    print(f"  {len(sol.t)} output samples, {summary['steps']} solver steps")
+    if peaks:
+        _print_peaks(peaks, units)
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)
@@ -393,21 +490,22 @@ def cmd_reactions(args) -> int:
         print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}")
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
         return 0
-    sol = assurjax.simulate(scene)  # once: this command reports no simulation timings
+    samples = _samples(args, scene)
+    sol = assurjax.simulate(scene, saveat=_output_times(scene, samples))  # once: this command reports no simulation timings
     forces, driving, ok, elapsed = _reactions_along(scene, sol, joints)
+    peaks = _peaks(scene, sol, joints, forces, driving)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": ok}
                         | {k: v for k, v in _solution_columns(scene, sol, forces, driving).items() if k.startswith(("F", "driving"))})]
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
     viz.plot_reactions(sol.t, forces, ax=axes[0])
     viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
     files.append(_savefig(fig, out / "reactions.png"))
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units)
-    peak = {k: float(np.max(np.hypot(v[:, 0], v[:, 1]))) for k, v in forces.items()}
-    print("  peak |F|: " + ", ".join(f"{k} {v:.4g} N" for k, v in peak.items()))
+    _print_peaks(peaks, units)
     _print_files(files)
     return 0
 
@@ -438,31 +536,38 @@ def build_parser() -> argparse.ArgumentParser:
     parser.set_defaults(debug=False, quiet=False, no_cache=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
+    # ---- run
     p = sub.add_parser("run", parents=[common], help="simulate a scene: CSV, plots, animation, summary")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"scene file or bundled name (default: {DEFAULT_SCENE})")
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
+    p.add_argument("--samples", type=int, help=f"equally spaced output times (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
     p.add_argument("--frames", type=int, default=60, help="frames of the animation (default: 60)")
-    p.add_argument("--no-animation", action="store_true", help="skip the GIF")
+    p.add_argument("--no-animation", action="store_true", help="skip the animation (GIF, and MP4 when ffmpeg is installed)")
     p.set_defaults(func=cmd_run)
 
+    # ---- validate
     p = sub.add_parser("validate", parents=[common], help="check a scene (exit status 2 if it is bad)")
     p.add_argument("scene")
     p.set_defaults(func=cmd_validate)
 
+    # ---- scenes
     p = sub.add_parser("scenes", parents=[common], help="list the bundled scenes")
     p.set_defaults(func=cmd_scenes)
 
+    # ---- kinematics
     p = sub.add_parser("kinematics", parents=[common], help="sweep the driving coordinate: coupler curves, angular velocities")
     p.add_argument("scene")
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
-    p.add_argument("--samples", type=int, default=361, help="configurations in the sweep (default: 361)")
+    p.add_argument("--samples", type=int, default=SWEEP_SAMPLES, help=f"configurations in the sweep (default: {SWEEP_SAMPLES})")
     p.add_argument("--start", type=float, help="first driving coordinate (rad or m; default q0 - pi for a crank)")
     p.add_argument("--stop", type=float, help="last driving coordinate (rad or m; default q0 + pi for a crank)")
     p.set_defaults(func=cmd_kinematics)
 
+    # ---- reactions
     p = sub.add_parser("reactions", parents=[common], help="joint reactions and driving effort along the simulated motion")
     p.add_argument("scene")
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
+    p.add_argument("--samples", type=int, help=f"equally spaced output times (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
     p.add_argument("--static", action="store_true", help="the mechanism held at rest at q0 instead (printed only)")
     p.set_defaults(func=cmd_reactions)
     return parser
@@ -481,11 +586,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if not (args.no_cache or os.environ.get("ASSURJAX_NO_CACHE")):
             _enable_cache()
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()  # a reader that left early (| head) shows up here, not at exit
+        return status
+    except BrokenPipeError:  # the reader closed the pipe (| head): nothing left to say
+        _silence_stdout()
+        return 0
     except Exception as e:  # one line for the user, the traceback with --debug
         if args.debug:
             raise
         return _report(e)
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again
+    on the closed pipe (the recipe of Python's signal module documentation)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 def _enable_cache() -> None:

@@ -126,8 +126,73 @@ def test_animation_gif_and_html(tmp_path, watt):
     path = viz.save_gif(anim, tmp_path / "watt.gif", fps=10)
     with Image.open(path) as im:
         assert im.n_frames == 4
+        assert im.info["duration"] == 100  # ms per frame at 10 fps
     html = viz.animation_html(viz.animate(watt, Q_WATT[:3]))
     assert "<script" in html and "img" in html
+    assert html.count("iVBOR") == 3 + 1  # three PNG frames, plus the first one shown before any script runs
+
+
+def test_gif_of_36_frames_has_every_frame_at_the_figure_size(tmp_path, watt):
+    """Each frame is the figure rendered at that configuration: the crank tip A (a bar
+    O2-A) moves from frame to frame, and the frame size is the figure's size in pixels."""
+    q = np.linspace(0.0, 2 * np.pi, 36, endpoint=False)
+    anim = viz.animate(watt, q, trace=["E"], trace_q=np.linspace(0, 2 * np.pi, 361), velocities=["E"])
+    fig = anim._fig
+    size = tuple(int(round(v)) for v in fig.get_size_inches() * fig.dpi)
+    frames = viz.render_frames(anim)
+    assert len(frames) == 36 and frames[0].shape == (size[1], size[0], 3)
+    assert all(not np.array_equal(frames[i], frames[i + 1]) for i in range(35))
+    # the moving crank is redrawn, the background is not duplicated: frame 0 rendered again is identical
+    np.testing.assert_array_equal(viz.render_frames(anim)[0], frames[0])
+    path = viz.save_gif(anim, tmp_path / "watt36.gif")
+    with Image.open(path) as im:
+        assert im.n_frames == 36 and im.size == size
+
+
+def test_mp4_goes_to_ffmpeg_as_raw_frames(tmp_path, watt, monkeypatch):
+    """A stand-in ffmpeg on the PATH records what it is given: 5 frames of w x h RGB."""
+    fake = tmp_path / "bin" / "ffmpeg"
+    fake.parent.mkdir()
+    fake.write_text("#!/bin/sh\nfor last; do :; done\ncat > \"$last\"\necho \"$@\" > \"$last.args\"\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{fake.parent}{os.pathsep}{os.environ['PATH']}")
+    assert viz.ffmpeg_available()
+    anim = viz.animate(watt, Q_WATT[:5])
+    w, h = (int(round(v)) for v in anim._fig.get_size_inches() * anim._fig.dpi)
+    out = viz.save_mp4(anim, tmp_path / "watt.mp4", fps=12)
+    assert out.stat().st_size == 5 * w * h * 3
+    args = (tmp_path / "watt.mp4.args").read_text()
+    assert f"-s {w}x{h}" in args and "-r 12" in args and "libx264" in args
+
+
+def test_player_widget_steps_through_the_frames(watt):
+    pytest.importorskip("ipywidgets")
+    box = viz.player(viz.animate(watt, Q_WATT[:3]))
+    view, (play, slider) = box.children[0], box.children[1].children
+    assert slider.max == 2 and play.max == 2
+    first = view.value
+    slider.value = 2
+    assert bytes(view.value) != bytes(first) and bytes(view.value).startswith(b"\x89PNG")
+
+
+def test_traced_points_have_their_own_colour_and_legend_entry(watt):
+    drawing = viz.draw_mechanism(watt, 0.3, trace=["A", "B", "E"], trace_q=np.linspace(0, 2 * np.pi, 91))
+    paths = [line for line in drawing.ax.lines if line.get_label().startswith("path of")]
+    assert [p.get_label() for p in paths] == ["path of A", "path of B", "path of E"]
+    assert len({p.get_color() for p in paths}) == 3
+    legend = [t.get_text() for t in drawing.ax.get_legend().get_texts()]
+    assert {"path of A", "path of B", "path of E"} <= set(legend)
+    assert drawing.ax.get_title().endswith("q = 0.3 rad")
+    anim = viz.animate(watt, [0.25, 0.5], t=[0.0, 0.1])
+    assert anim._fig.axes[0].get_title().endswith("t = 0.000 s, q = 0.250 rad")
+
+
+def test_legend_of_many_curves_sits_outside_the_data(watt_frames):
+    ax = viz.plot_angular_velocities(watt_frames)
+    fig = ax.figure
+    fig.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    assert legend.x0 >= ax.get_window_extent().x1  # right of the axes: it covers no curve
 
 
 def test_draw_mechanism_slider_and_units(tmp_path):

@@ -1,5 +1,5 @@
 """Kinetostatics: joint reactions and the driving effort, group by group in reverse
-formation order (seed 000 section 3.3; class-IV group with special Assur points, seed 003)."""
+formation order (Durango et al. 2014 section 3.3; class-IV group with special Assur points, Calle et al. 2014)."""
 
 from ._api import (
     Reactions as Reactions,

@@ -239,7 +239,7 @@ def _wanted_groups(mechanism: Mechanism, joints) -> tuple[int, ...] | None:
 
 
 def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method: str = "modular", check: bool = True) -> Reactions:
-    """Joint reactions and driving effort (kinetostatics, seed 000 section 3.3 and seed 003).
+    """Joint reactions and driving effort (kinetostatics, Durango et al. 2014 section 3.3 and Calle et al. 2014).
 
     **Arguments:**
     - ``scene``: a :class:`assurjax.Scene` or :class:`assurjax.Model` (mechanism,

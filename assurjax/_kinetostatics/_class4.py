@@ -1,16 +1,16 @@
-"""Class-IV group with the special Assur points of its two closure links (seed 003).
+"""Class-IV group with the special Assur points of its two closure links (Calle et al. 2014).
 
 The group: two ternary *dragging* links T1, T2, each with one external joint
 X1, X2 (to earlier links) and two internal joints, and two binary *closure* links
 C, D, each pinned to T1 and to T2. The reaction on a closure link at its joint P
 with Tk is split into a *normal* component along P -> Xk and a *tangential* one
 perpendicular to it (left normal). The special point S of a closure link is the
-intersection of its two normal lines (line X1 P1 and line X2 P2): in seed 003,
+intersection of its two normal lines (line X1 P1 and line X2 P2): in Calle et al. 2014,
 S3 = BC x GD for link 3 and S5 = BE x GF for link 5.
 
 1. Moments of each closure link about its special point and of each dragging link
    about its external joint contain only the four tangential components
-   (seed 003 eqs. 2, 4, 6, 8): a 4 x 4 linear system.
+   (Calle et al. 2014 eqs. 2, 4, 6, 8): a 4 x 4 linear system.
 2. The force sum of each closure link gives its two normal components
    (eqs. 9, 10): two 2 x 2 systems.
 3. The force sum of each dragging link gives its external reaction (eqs. 11, 12).
@@ -121,7 +121,7 @@ def _about_special_point(geom, known, c, drags, at, e_n, e_t, order):
 
 def _normal_components(geom, known, c, p1, p2, n1, n2, t1, t2, tan1, tan2):
     """Normal components (N) at the closure link's two joints: from its force sum
-    (seed 003 eqs. 9, 10) when the normals are far from parallel; otherwise from its
+    (Calle et al. 2014 eqs. 9, 10) when the normals are far from parallel; otherwise from its
     moments about each joint in turn (each eliminates that joint's force)."""
     rest = -(known[c][0] + tan1 * t1 + tan2 * t2)
     den = cross(n1, n2)

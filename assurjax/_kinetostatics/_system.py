@@ -1,7 +1,7 @@
 """The equilibrium equations of one group (or of the whole mechanism) as a small
 linear system, and the bookkeeping of the loads passed from group to group.
 
-Every moving link gives three d'Alembert equilibrium equations (seed 000, seed 003
+Every moving link gives three d'Alembert equilibrium equations (Durango et al. 2014, Calle et al. 2014
 eqs. 9-12): sum of forces = 0 (x, y) and sum of moments about its centre of mass = 0,
 with the applied loads, the inertia force -m a_G and couple -J alpha, and the
 reactions of its pairs. Moments are counterclockwise positive.
@@ -129,7 +129,7 @@ def unpack(geom: Geometry, pairs, x: Array) -> dict[str, Reaction]:
 
 def solve_dense(links, pairs, geom: Geometry, known: dict, driver=None):
     """The general solve: all of the links' 3 n equilibrium equations at once (the
-    12 x 12 system of seed 003 for a class-IV group). Returns (reactions, driving
+    12 x 12 system of Calle et al. 2014 for a class-IV group). Returns (reactions, driving
     effort or None, ok)."""
     index = {link: k for k, link in enumerate(links)}
     size = 3 * len(links)

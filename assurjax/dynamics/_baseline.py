@@ -1,4 +1,4 @@
-"""The seed's own integration scheme (Euler in q, seed 000 eq. 2): a labelled baseline for benchmarks."""
+"""Durango et al.'s (2014) own integration scheme (Euler in q, Durango et al. 2014 eq. 2): a labelled baseline for benchmarks."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from .._reduction import reduce_single
 
 
 class SeedEulerSolution(NamedTuple):
-    """The seed's Euler-in-q baseline: samples every ``dq`` of travel. ``t`` (s), ``q``,
+    """Durango et al.'s (2014) Euler-in-q baseline: samples every ``dq`` of travel. ``t`` (s), ``q``,
     ``omega`` (rad/s), ``t_stop`` (s, None if no standstill within ``t1`` or the
     step budget). ``valid`` marks the steps taken."""
 
@@ -59,7 +59,7 @@ def _seed_euler_core(mechanism, gravity, loads, q0, omega0, t0, t1, dq, n_steps:
 
 
 def simulate_seed_euler(mechanism, gravity, loads, q0, omega0, *, t0=0.0, t1=1.0, dq=1e-3, standstill=True, max_steps=None) -> SeedEulerSolution:
-    """The seed's scheme (Euler in q with a fixed step ``dq`` rad, seed 000 eq. 2) — a
+    """Durango et al.'s scheme (Euler in q with a fixed step ``dq`` rad, Durango et al. 2014 eq. 2) — a
     labelled baseline for benchmarks, first order in ``dq``. Integrates until ``t1``,
     the first standstill (``standstill=True``) or ``max_steps`` steps of ``dq``
     (default: 20 000)."""

@@ -9,7 +9,7 @@ tracked branch:
     dW/dt = (tau + tau_red outside V) w,    dD/dt = dissipated power,
     dtheta/dt = dtheta/dq w.
 
-Every evaluation redoes the reduction at (q, w, t) (seed 000's step v: velocity-dependent
+Every evaluation redoes the reduction at (q, w, t) (Durango et al.'s (2014) step v: velocity-dependent
 loads are updated at every stage); when no load depends on velocity the velocity part
 is never built. With a :class:`ReducedTable` the field interpolates it instead.
 """

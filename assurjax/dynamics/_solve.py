@@ -1,8 +1,8 @@
-"""Forward dynamics of the reduced link (seed 000, steps ii-v), integrated with diffrax.
+"""Forward dynamics of the reduced link (Durango et al. 2014, steps ii-v), integrated with diffrax.
 
 :func:`simulate` (checks on the host, then one compiled program) and
 :func:`simulate_core` (pure, jittable) integrate :func:`~._field.vector_field`, with
-the stop events of ``_events`` and the outputs of ``_solution``. The seed's own scheme
+the stop events of ``_events`` and the outputs of ``_solution``. Durango et al.'s own scheme
 (Euler in q) is the baseline in ``_baseline``.
 """
 
@@ -283,7 +283,7 @@ def simulate(
     steps: int | None = None,
     throw: bool = False,
 ) -> Solution:
-    """Simulate a mechanism's motion from its initial state (seed 000's forward dynamics).
+    """Simulate a mechanism's motion from its initial state (Durango et al.'s (2014) forward dynamics).
 
     ``scene``: a :class:`assurjax.Scene` (its initial state, ``[simulation]`` settings
     and ``[outputs]`` apply), a :class:`assurjax.Model` or a bare

@@ -20,7 +20,7 @@ one gather of two table rows and a few multiply-adds per right-hand side
 instead of a second-order jvp of the whole position analysis.
 
 Error: |f - p| <= h^4 / 384 max |f''''| (cubic Hermite interpolation).
-Measured on the Watt six-bar of seed 000 (4096 random off-grid angles, max error
+Measured on the Watt six-bar of Durango et al. 2014 (4096 random off-grid angles, max error
 relative to max |f|) for J_red, dJ_red/dq, tau + tau_red: 7e-9 / 3e-8 / 4e-9 with
 n = 1024, 4e-10 / 2e-9 / 2e-10 with n = 2048, 3e-11 / 1e-10 / 1.5e-11 with
 n = 4096: the h^4 rate (16x per halving of h). The default n = 4096 (a 200 kB
@@ -97,7 +97,7 @@ class ReducedTable(eqx.Module):
         return self.data[k]
 
     def acceleration(self, q, w):
-        """dw/dt (rad/s^2) of the reduced link from the interpolant (seed 000 eq. 1 in time form)."""
+        """dw/dt (rad/s^2) of the reduced link from the interpolant (Durango et al. 2014 eq. 1 in time form)."""
         return reduced_acceleration(*self(q), w)
 
 

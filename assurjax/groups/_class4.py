@@ -1,7 +1,7 @@
-"""Class IV Assur group (seed 003, Calle et al.): two ternary links, each with one
+"""Class IV Assur group (Calle et al. 2014): two ternary links, each with one
 external joint and two internal joints, joined by two binary closure links.
 
-Seed numbering: ternary link 2 carries B (external), C and E; ternary link 4
+The paper's numbering: ternary link 2 carries B (external), C and E; ternary link 4
 carries G (external), D and F; closure link 3 joins C and D, closure link 5
 joins E and F. 4 links, 6 revolutes (C, D, E, F internal; B, G external)."""
 
@@ -19,7 +19,7 @@ from ._newton import IterativeGroup, parse_guess, parse_options, angle_of
 class ClassIV(IterativeGroup):
     """Class IV group, solved by Newton on the two ternary links' angles (see ``_newton``).
 
-    ``links`` = (link2, link3, link4, link5) in the seed's order: ternary, closure,
+    ``links`` = (link2, link3, link4, link5) in the paper's order: ternary, closure,
     ternary, closure. ``joints`` = (B, G, C, D, E, F): B is the external joint of
     link2, G that of link4; link3 joins C (on link2) to D (on link4), link5 joins
     E (on link2) to F (on link4). ``guess``: approximate global positions (m) of
@@ -36,7 +36,7 @@ class ClassIV(IterativeGroup):
     inner assembly modes (one angle plus a circle intersection would need a mode
     and be undefined where the circles miss); the residual is smooth everywhere
     and its Jacobian is singular exactly at the group's singular configurations
-    (there the seed's special points S3, S5 of the closure links coincide with
+    (there the paper's special points S3, S5 of the closure links coincide with
     the lines they are built from).
 
     **Example** (scene): ``group = "class4"``, ``links = ["link2", "link3", "link4", "link5"]``,
@@ -104,7 +104,7 @@ class ClassIV(IterativeGroup):
         }
 
     def special_points(self, points: dict[str, Array]) -> dict[str, Array]:
-        """The special Assur points of seed 003 from global joint positions (m), e.g. a
+        """The special Assur points of Calle et al. 2014 from global joint positions (m), e.g. a
         ``Pose.points``: S3 (of closure link 3) = intersection of lines BC and GD,
         S5 (of closure link 5) = intersection of lines BE and GF. The normal components
         of the internal joint forces point at them. Far away (or inf) when the lines

@@ -33,12 +33,22 @@ def _freeze(v):
 class Scene(eqx.Module):
     """A mechanism with its loads, initial state, solver settings and wanted outputs.
 
-    ``loads`` is a tuple of load objects (see ``assurjax.loads``); ``gravity`` a
-    2-vector (m/s^2). ``state`` holds ``q0``, ``omega0`` (rad and rad/s for a crank,
+    Read one from a TOML file with :func:`assurjax.load_scene` (see the scene format
+    in docs/scene-format.md) or build it from a dict with :func:`assurjax.scene_from_dict`.
+
+    ``loads`` is a tuple of load objects (:class:`assurjax.PointForce`,
+    :class:`assurjax.Couple`, :class:`assurjax.Spring`, :class:`assurjax.Damper`,
+    :class:`assurjax.RotaryDamper`, :class:`assurjax.Drive`, :class:`assurjax.MotorLine`;
+    all subclasses of :class:`assurjax.AbstractLoad`); ``gravity`` a 2-vector (m/s^2). ``state`` holds ``q0``, ``omega0`` (rad and rad/s for a crank,
     m and m/s for a slider), ``t0`` and ``t1`` (s). ``simulation`` holds solver
     settings (``solver``, ``rtol``, ``atol``, ``stop``, ``max_steps``...).
     ``outputs`` says what to compute: ``points`` (trajectories), ``angles``
     (links), ``reactions`` (joint names), ``energies`` (bool).
+
+    **Example:**
+    >>> scene = assurjax.load_scene("watt_sixbar")
+    >>> scene.with_settings(state={"q0": 1.0}).state["q0"]
+    1.0
     """
 
     mechanism: Mechanism

@@ -4,7 +4,7 @@
 compiled program, with continuation stages, restarts and multi-start; it compiles once per
 problem structure (new start values, bounds, options and schedule values reuse the program).
 
-**Example** (straight-line synthesis, seed 001, by the driving dimension x_P):
+**Example** (straight-line synthesis, Fanghella et al. 2019, by the driving dimension x_P):
 
 >>> import jax.numpy as jnp, optax, assurjax
 >>> from assurjax import synthesis as syn

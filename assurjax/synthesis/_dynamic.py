@@ -78,7 +78,7 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     its direction of motion), and an ok flag (False: no standstill before ``t1``).
 
     The derivative follows the implicit function theorem on omega(t*, p) = 0
-    (seed 000's standstill, differentiated):
+    (Durango et al.'s (2014) standstill, differentiated):
 
         dt*/dp = -(d omega / dp at fixed t) / (d omega / dt at t*),
 

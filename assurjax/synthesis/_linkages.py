@@ -57,7 +57,7 @@ def triangle_point(base: float, left: float, right: float, *, below: bool = True
 
 
 def roberts_lengths(l2: float = 0.18, l4: float = 0.12):
-    """Lengths (m) of the Roberts linkage of seed 001 in the order
+    """Lengths (m) of the Roberts linkage of Fanghella et al. 2019 in the order
     (AD, AB, DC, BC, BP, CP): AB = DC = BP = CP = ``l2``, BC = ``l4``, AD = 2 ``l4``."""
     return jnp.array([2 * l4, l2, l2, l4, l2, l2])
 

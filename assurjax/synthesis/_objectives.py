@@ -1,5 +1,5 @@
 """Building blocks of synthesis objectives: coupler curves, transmission angles, assembly
-margins, straight-line deviation (seed 001), precision points, driving torque.
+margins, straight-line deviation (Fanghella et al. 2019), precision points, driving torque.
 
 All are pure JAX functions of a Mechanism (jit/vmap/grad-able); the ones that can
 meet a configuration that does not assemble return ``ok`` flags next to their value.
@@ -97,7 +97,7 @@ def straight_line_deviation(
     line=None,
     drive: str = "x",
 ) -> StraightLine:
-    """How straight the path of ``point`` is over a stroke (seed 001: < 1 mm over 260 mm).
+    """How straight the path of ``point`` is over a stroke (Fanghella et al. 2019: < 1 mm over 260 mm).
 
     **Stroke.** ``drive="x"`` (the driving-dimension formulation, recommended for
     straight-line synthesis): the stroke is global ``x`` of the point from
@@ -258,7 +258,7 @@ def precision_point_error(mechanism: Mechanism, point: str, q, targets, *, betwe
 
 def driving_torque(mechanism: Mechanism, q, omega, *, gravity=(0.0, 0.0), loads: Sequence = ()) -> tuple[Array, Array]:
     """Driving torque (N m; N for a slider) holding the crank at constant speed ``omega``
-    (rad/s) at each ``q``: inverse dynamics via the reduction (seed 000 eq. 1 with
+    (rad/s) at each ``q``: inverse dynamics via the reduction (Durango et al. 2014 eq. 1 with
     dw/dt = 0), tau = 0.5 dJ_red/dq omega^2 - tau_red(q, omega). Returns (tau, ok)
     with one ok flag per q."""
     from .._reduction import reduce_single

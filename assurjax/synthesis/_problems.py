@@ -16,7 +16,7 @@ from ._dynamic import standstill_time
 from ._linkages import roberts_like
 from ._objectives import coupler_curve, line_pose, straight_line_deviation
 
-ROBERTS_Q0 = math.acos(1.0 / 3.0)  # the Roberts linkage's symmetric position (seed 001)
+ROBERTS_Q0 = math.acos(1.0 / 3.0)  # the Roberts linkage's symmetric position (Fanghella et al. 2019)
 
 
 LENGTH_NAMES = ("AD", "AB", "DC", "BC", "BP", "CP")
@@ -58,7 +58,7 @@ class StraightLineObjective(eqx.Module):
 def straight_line_problem(lengths, *, stroke: float = 0.26, q0: float = ROBERTS_Q0, spread: float = 0.3, lower=None, upper=None,
                           fixed=(), samples: int = 41, line=None, frame: str = "fixed", drive: str = "x",
                           centre_range: float | None = None, sharpness: float = 50.0):
-    """Straight-line synthesis of a Roberts-type four-bar (seed 001).
+    """Straight-line synthesis of a Roberts-type four-bar (Fanghella et al. 2019).
 
     Design variables (``values`` = a tuple):
     - the six lengths (AD, AB, DC, BC, BP, CP) in m (see :func:`roberts_like`),
@@ -173,7 +173,7 @@ def add_point_mass(mechanism, link: str, mass, position):
 
 def standstill_time_problem(scene, target: float, *, link: str | None = None, mass=(0.5, 0.05, 3.0),
                             position=(-0.3, -0.8, 0.8), t1: float | None = None, adjoint: str = "quadrature", **settings):
-    """Reach a target standstill time (synthesis problem 3, seed 000's standstill):
+    """Reach a target standstill time (synthesis problem 3, Durango et al.'s (2014) standstill):
     choose a counterweight on the driving link so that the first standstill after the
     scene's initial state (from rest: released under its loads) happens at ``target`` (s).
 

@@ -1,6 +1,6 @@
 """Forward sensitivities of the reduced motion: the variational equations, integrated by diffrax.
 
-The reduced equation of motion (seed 000 eq. 1 in time form) is y' = f(t, y, p) with
+The reduced equation of motion (Durango et al. 2014 eq. 1 in time form) is y' = f(t, y, p) with
 y = (q, w) and p every floating-point parameter of the mechanism, gravity and loads.
 Its sensitivities S = dy/dP with respect to P = (q0, w0, p) obey
 

@@ -12,7 +12,15 @@ function says otherwise; forces in N, energies in J, times in s.
 >>> viz.save_gif(viz.animate(mech, frames.q[::3], trace=["E"]), "mech.gif")
 """
 
-from ._animation import animate as animate, animation_html as animation_html, save_gif as save_gif
+from ._animation import (
+    animate as animate,
+    animation_html as animation_html,
+    ffmpeg_available as ffmpeg_available,
+    player as player,
+    render_frames as render_frames,
+    save_gif as save_gif,
+    save_mp4 as save_mp4,
+)
 from ._draw import MechanismDrawing as MechanismDrawing, draw_mechanism as draw_mechanism
 from ._frames import Frames as Frames, frames_from_kinematics as frames_from_kinematics, mechanism_frames as mechanism_frames
 from ._plots import (

@@ -1,14 +1,25 @@
-"""Animations of a mechanism: matplotlib FuncAnimation, saved as GIF (PillowWriter)
-or embedded in notebooks as HTML (``to_jshtml``)."""
+"""Animations of a mechanism: one figure whose moving artists are redrawn frame by frame.
+
+The static part (axes, grid, ground, traced paths, legend) is rendered once; each frame
+restores that background and draws only the moving links, joints, labels, arrows and the
+title (blitting), and the pixels go straight to Pillow (GIF), to ffmpeg (MP4), into a
+self-contained HTML player or an ipywidgets player. :func:`animate` also returns a
+matplotlib ``FuncAnimation``, so ``anim.save`` and ``anim.to_jshtml`` keep working.
+"""
 
 from __future__ import annotations
 
+import base64
+import io
+import shutil
+import subprocess
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.animation import FuncAnimation, PillowWriter
+from matplotlib.animation import FuncAnimation
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from .._mechanism import Mechanism
 from ._draw import MechanismDrawing, place_legend
@@ -29,13 +40,16 @@ def animate(
     ax=None,
     title: str | None = None,
 ) -> FuncAnimation:
-    """Animate ``mechanism`` through the driving coordinates ``q`` (rad or m).
+    """Animate ``mechanism`` through the driving coordinates ``q`` (rad, or m for a slider).
 
     ``omega`` (rad/s or m/s per frame, default 1) scales the velocity arrows of
     ``velocities``; ``t`` (s) is shown in the title when given (a simulation);
     ``trace`` points get their whole path drawn, over ``trace_q`` when given (e.g.
     every sample of a simulation: smoother than the frames alone). Frames where the mechanism does
     not assemble are drawn faded.
+
+    Returns a matplotlib ``FuncAnimation``; write it with :func:`save_gif` or
+    :func:`save_mp4`, show it in a notebook with :func:`animation_html` or :func:`player`.
 
     **Example:**
     >>> anim = assurjax.viz.animate(mech, np.linspace(0, 2 * np.pi, 60), trace=["E"])
@@ -49,30 +63,171 @@ def animate(
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, trace_frames=trace_frames)
     times = None if t is None else np.asarray(t, dtype=float)
     head = title or mechanism.name
+    q_unit = "m" if mechanism.driver.kind == "slider" else "rad"
     place_legend(ax)
 
     def show(i):
         artists = drawing.update(i)
         when = f"t = {times[i]:.3f} s, " if times is not None else ""
-        ax.set_title(f"{head}: {when}q = {frames.q[i]:.3f}")
-        return artists
+        ax.title.set_text(f"{head}: {when}q = {frames.q[i]:.3f} {q_unit}")
+        return [*artists, ax.title]
 
     anim = FuncAnimation(ax.figure, show, frames=len(frames), interval=interval_ms, blit=False)
     anim.drawing = drawing  # keep the artists reachable (tests, further styling)
+    anim.show_frame, anim.frame_count = show, len(frames)
+    show(drawing._first_ok())
     return anim
 
 
-def save_gif(anim: FuncAnimation, path: str | Path, *, fps: int = 20, progress: Callable[[int, int], None] | None = None) -> Path:
-    """Write ``anim`` as an animated GIF (Pillow); ``progress(i, n)`` is called per frame."""
-    path = Path(path)
-    anim.save(path, writer=PillowWriter(fps=fps), progress_callback=progress)
+def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+    """Every frame of an :func:`animate` animation as an (height, width, 3) uint8 RGB array.
+
+    The figure's static part is rendered once; each frame redraws only the artists
+    that move. ``progress(i, n)`` is called after each frame."""
+    fig = anim._fig
+    canvas = FigureCanvasAgg(fig)  # pixels without a display, whatever the backend
+    n = anim.frame_count
+    moving = anim.show_frame(0)
+    canvas.draw()  # lay the figure out once with everything visible (the title included)...
+    fig.set_layout_engine("none")  # ...and keep that layout for every frame
+    for artist in moving:
+        artist.set_animated(True)  # left out of the background
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    images = []
+    for i in range(n):
+        canvas.restore_region(background)
+        for artist in anim.show_frame(i):
+            fig.draw_artist(artist)
+        images.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+        if progress is not None:
+            progress(i, n)
+    for artist in moving:
+        artist.set_animated(False)
+    return images
+
+
+def _images(anim, progress) -> list[np.ndarray]:
+    """Frames rendered from an animation (whose figure is then closed), or given already rendered."""
+    if not isinstance(anim, FuncAnimation):
+        return list(anim)
+    images = render_frames(anim, progress=progress)
     plt.close(anim._fig)
+    return images
+
+
+def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, int], None] | None = None) -> Path:
+    """Write an :func:`animate` animation as a looping GIF (Pillow) and close its figure.
+
+    ``anim`` may also be the frames :func:`render_frames` returned (to write a GIF and an
+    MP4 from one rendering). ``fps``: frames per second; ``progress(i, n)`` is called per
+    frame. All frames share the palette of the first one, so colours do not flicker.
+    Returns the path.
+
+    **Example:**
+    >>> assurjax.viz.save_gif(assurjax.viz.animate(mech, np.linspace(0, 6.28, 36)), "mech.gif")
+    """
+    from PIL import Image
+
+    path = Path(path)
+    images = _images(anim, progress)
+    first = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+    rest = [Image.fromarray(im).quantize(palette=first, dither=Image.Dither.NONE) for im in images[1:]]
+    first.save(path, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)
     return path
 
 
-def animation_html(anim: FuncAnimation, *, default_mode: str = "loop") -> str:
-    """The animation as a self-contained HTML/JavaScript player (for notebooks:
-    ``IPython.display.HTML(animation_html(anim))``)."""
-    html = anim.to_jshtml(default_mode=default_mode)
+def ffmpeg_available() -> bool:
+    """True when an ``ffmpeg`` executable is on the PATH (needed by :func:`save_mp4`)."""
+    return shutil.which("ffmpeg") is not None
+
+
+def save_mp4(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, int], None] | None = None) -> Path:
+    """Write an :func:`animate` animation (or frames from :func:`render_frames`) as an
+    H.264 MP4 through ``ffmpeg`` and close its figure.
+
+    Raises ``FileNotFoundError`` when ffmpeg is not on the PATH (see :func:`ffmpeg_available`).
+
+    **Example:**
+    >>> if assurjax.viz.ffmpeg_available():
+    ...     assurjax.viz.save_mp4(anim, "mech.mp4")
+    """
+    exe = shutil.which("ffmpeg")
+    if exe is None:
+        raise FileNotFoundError("ffmpeg is not on the PATH: cannot write an MP4 (save_gif needs no external program)")
+    path = Path(path)
+    images = _images(anim, progress)
+    h, w = images[0].shape[:2]
+    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps), "-i", "-",
+           "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p", str(path)]
+    done = subprocess.run(cmd, input=b"".join(im.tobytes() for im in images), capture_output=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"ffmpeg failed writing {path}: {done.stderr.decode(errors='replace').strip()}")
+    return path
+
+
+def _png(image: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+PLAYER_TEMPLATE = """<div class="assurjax-player">
+<img id="{id}-img" src="data:image/png;base64,{first}" style="max-width:100%"><br>
+<button onclick="{id}_toggle()" id="{id}-btn">play</button>
+<input type="range" id="{id}-slider" min="0" max="{last}" value="0" oninput="{id}_show(+this.value)" style="width:60%">
+<span id="{id}-label">frame 1 / {count}</span>
+<script>
+var {id}_frames = [{frames}];
+var {id}_i = 0, {id}_timer = null;
+function {id}_show(i) {{
+  {id}_i = i;
+  document.getElementById("{id}-img").src = "data:image/png;base64," + {id}_frames[i];
+  document.getElementById("{id}-slider").value = i;
+  document.getElementById("{id}-label").textContent = "frame " + (i + 1) + " / {count}";
+}}
+function {id}_toggle() {{
+  var btn = document.getElementById("{id}-btn");
+  if ({id}_timer) {{ clearInterval({id}_timer); {id}_timer = null; btn.textContent = "play"; return; }}
+  btn.textContent = "pause";
+  {id}_timer = setInterval(function () {{ {id}_show(({id}_i + 1) % {count}); }}, {interval});
+}}
+</script>
+</div>"""
+
+
+def animation_html(anim: FuncAnimation, *, fps: int = 20) -> str:
+    """The animation as a self-contained HTML/JavaScript player (play/pause button and a
+    frame slider; frames embedded as PNG) and close its figure.
+
+    **Example** (in a notebook):
+    >>> from IPython.display import HTML
+    >>> HTML(assurjax.viz.animation_html(anim))
+    """
+    images = render_frames(anim)
     plt.close(anim._fig)
-    return html
+    frames = ",".join(f'"{base64.b64encode(_png(im)).decode()}"' for im in images)
+    uid = f"aj{id(anim):x}"
+    return PLAYER_TEMPLATE.format(id=uid, first=base64.b64encode(_png(images[0])).decode(), last=len(images) - 1,
+                                  count=len(images), frames=frames, interval=round(1000 / fps))
+
+
+def player(anim: FuncAnimation, *, fps: int = 20):
+    """An interactive ipywidgets player for notebooks (play button linked to a frame
+    slider) and close the animation's figure. Needs ``ipywidgets`` (the ``notebooks`` extra).
+
+    **Example:**
+    >>> assurjax.viz.player(assurjax.viz.animate(mech, np.linspace(0, 6.28, 60)))
+    """
+    import ipywidgets as widgets
+
+    images = [_png(im) for im in render_frames(anim)]
+    plt.close(anim._fig)
+    view = widgets.Image(value=images[0], format="png")
+    slider = widgets.IntSlider(value=0, min=0, max=len(images) - 1, description="frame")
+    play = widgets.Play(value=0, min=0, max=len(images) - 1, interval=round(1000 / fps))
+    widgets.jslink((play, "value"), (slider, "value"))
+    slider.observe(lambda change: setattr(view, "value", images[change["new"]]), names="value")
+    return widgets.VBox([view, widgets.HBox([play, slider])])

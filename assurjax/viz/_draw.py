@@ -17,6 +17,12 @@ from ._frames import Frames, extent, length_scale, mechanism_frames
 
 LINK_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 VELOCITY_COLOR = "crimson"
+TRACE_COLORS = plt.get_cmap("Dark2").colors  # distinct from the links' colours
+
+
+def trace_color(k: int):
+    """Colour of the k-th traced point path (one per point, shared by every plot)."""
+    return TRACE_COLORS[k % len(TRACE_COLORS)]
 
 
 def _hull_order(local: dict[str, np.ndarray]) -> list[str]:
@@ -138,10 +144,9 @@ class MechanismDrawing:
 
     def _draw_traces(self, names):
         s, ok = self.scale, self.trace_frames.ok
-        shades = plt.get_cmap("Greys")(np.linspace(0.9, 0.5, max(len(names), 1)))
-        for name, shade in zip(names, shades):
+        for k, name in enumerate(names):
             xy = np.where(ok[:, None], self.trace_frames.points[name], np.nan) * s
-            self.ax.plot(xy[:, 0], xy[:, 1], lw=1, ls=":", color=shade, zorder=2, label=f"path of {name}")
+            self.ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ls="--", color=trace_color(k), zorder=2, label=f"path of {name}")
 
     def _make_links(self) -> dict:
         artists = {}
@@ -209,7 +214,7 @@ def draw_mechanism(
 
     ``velocities``: points that get velocity arrows for the driving speed ``omega``
     (rad/s or m/s). ``trace``: points whose paths over ``trace_q`` (an array of
-    driving coordinates; default a full turn around q) are drawn dotted.
+    driving coordinates; default a full turn around q) are drawn dashed, one colour per point.
     Returns the :class:`MechanismDrawing` (its ``ax`` is the Axes).
 
     **Example:**
@@ -226,6 +231,6 @@ def draw_mechanism(
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels,
                                velocity_scale=velocity_scale, trace_frames=trace_frames)
     drawing.update(0)
-    ax.set_title(f"{mechanism.name} at q = {q:.4g}")
+    ax.set_title(f"{mechanism.name} at q = {q:.4g} {'m' if mechanism.driver.kind == 'slider' else 'rad'}")
     place_legend(ax)
     return drawing

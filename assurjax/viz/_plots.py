@@ -11,13 +11,23 @@ from collections.abc import Iterable, Mapping
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ._draw import trace_color
 from ._frames import Frames, length_scale, masked
 
 
 def _axes(ax, figsize=(6, 4)):
     if ax is None:
-        _, ax = plt.subplots(figsize=figsize)
+        _, ax = plt.subplots(figsize=figsize, layout="constrained")
     return ax
+
+
+def place_legend_clear(ax, entries: int):
+    """A legend that does not hide data: inside (matplotlib's emptiest corner) for up to
+    two entries, outside on the right of the axes for more."""
+    if entries <= 2:
+        ax.legend(fontsize=8, loc="best")
+    else:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
 def driving_label(frames_or_kind) -> str:
@@ -29,20 +39,27 @@ def driving_label(frames_or_kind) -> str:
 def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, ax=None, unit: str = "m", equal: bool = True):
     """Paths of ``points`` (default: all) over the configurations of ``frames``.
 
-    Gaps show driving coordinates where the mechanism does not assemble. With
-    ``equal=False`` the axes are scaled independently (seed 001, Fig. 2b, where
-    y_P is the straight-line error)."""
+    Gaps show driving coordinates where the mechanism does not assemble; each point
+    has its own colour and legend entry. With ``equal=False`` the axes are scaled
+    independently (Fanghella et al. 2019, Fig. 2b, where y_P is the straight-line error).
+    For smooth curves pass enough configurations (e.g. 721 over a turn).
+
+    **Example:**
+    >>> frames = assurjax.viz.mechanism_frames(mech, np.linspace(0, 2 * np.pi, 721))
+    >>> assurjax.viz.plot_coupler_curves(frames, ["E"], unit="mm")
+    """
     ax, s = _axes(ax), length_scale(unit)
-    for name in points if points is not None else frames.points:
+    names = list(points if points is not None else frames.points)
+    for k, name in enumerate(names):
         xy = masked(frames.points[name], frames.ok) * s
-        ax.plot(xy[:, 0], xy[:, 1], label=f"path of {name}")
+        ax.plot(xy[:, 0], xy[:, 1], color=trace_color(k), label=f"path of {name}")
     if equal:
         ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(f"x ({unit})")
     ax.set_ylabel(f"y ({unit})")
     ax.set_title("coupler curves")
     ax.grid(True, lw=0.3)
-    ax.legend(fontsize=8)
+    place_legend_clear(ax, len(names))
     return ax
 
 
@@ -60,7 +77,7 @@ def plot_against(x, series: Mapping[str, np.ndarray], *, xlabel: str, ylabel: st
         ax.set_title(title)
     ax.grid(True, lw=0.3)
     if series:
-        ax.legend(fontsize=8)
+        place_legend_clear(ax, len(series))
     return ax
 
 
@@ -68,7 +85,7 @@ def plot_angular_velocities(frames: Frames, links: Iterable[str] | None = None, 
     """Angular velocities of ``links`` (default: all) against the driving coordinate.
 
     With the frames computed for omega = 1 these are the kinematic coefficients
-    d(theta)/dq (seed 001, Fig. 3 uses w2 = 1 rad/s and deg/s)."""
+    d(theta)/dq (Fanghella et al. 2019, Fig. 3, use w2 = 1 rad/s and deg/s)."""
     if frames.angular_velocities is None:
         raise ValueError("angular velocities need frames computed with velocities=True")
     k = np.degrees(1.0) if degrees else 1.0
@@ -83,7 +100,7 @@ def plot_time_histories(t, series: Mapping[str, np.ndarray], *, ylabel: str, ax=
 
 
 def plot_energies(t, kinetic, potential, *, ax=None, work=None):
-    """Kinetic T, potential V and total E = T + V (J) against time (seed 000, Fig. 7a).
+    """Kinetic T, potential V and total E = T + V (J) against time (Durango et al. 2014, Fig. 7a).
 
     With ``work`` (J, work of the non-conservative loads since t0) the conserved
     quantity T + V - work is shown instead of E."""
@@ -95,13 +112,13 @@ def plot_energies(t, kinetic, potential, *, ax=None, work=None):
 
 
 def plot_energy_drift(t, total, *, ax=None):
-    """Drift of the conserved energy from its initial value (J) (seed 000, Fig. 7b)."""
+    """Drift of the conserved energy from its initial value (J) (Durango et al. 2014, Fig. 7b)."""
     total = np.asarray(total, dtype=float)
     return plot_time_histories(t, {"E(t) - E(0)": total - total[0]}, ylabel="energy drift (J)", ax=ax, title="energy drift")
 
 
 def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, components: bool = False):
-    """Joint reactions (N) against time: magnitudes (seed 000, Fig. 6c), or x/y components."""
+    """Joint reactions (N) against time: magnitudes (Durango et al. 2014, Fig. 6c), or x/y components."""
     series = {}
     for joint, force in reactions.items():
         force = np.asarray(force, dtype=float)
@@ -114,10 +131,12 @@ def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, component
 
 def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank"):
     """Reduced inertia J_red(q) (kg m^2, or kg for a slider) and reduced load
-    tau_red(q) (N m, or N) against the driving coordinate (seed 000, eqs. 3-6)."""
+    tau_red(q) (N m, or N) against the driving coordinate (Durango et al. 2014, eqs. 3-6).
+
+    Pass one period of q (one crank turn, or the slider's stroke): the curves repeat after it."""
     slider = driver_kind == "slider"
     if axes is None:
-        _, axes = plt.subplots(1, 2 if tau_red is not None else 1, figsize=(10 if tau_red is not None else 5, 4), squeeze=False)
+        _, axes = plt.subplots(1, 2 if tau_red is not None else 1, figsize=(10 if tau_red is not None else 5, 4), squeeze=False, layout="constrained")
         axes = axes[0]
     plot_against(q, {"J_red": j_red}, xlabel=driving_label(driver_kind), ylabel="reduced inertia (kg)" if slider else "reduced inertia (kg m^2)", ax=axes[0], title="reduced inertia")
     if tau_red is not None:
@@ -126,7 +145,7 @@ def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank
 
 
 def plot_velocity_polygon(velocities: Mapping[str, np.ndarray], *, ax=None, unit: str = "mm", relative: Iterable[tuple[str, str]] = ()):
-    """The velocity polygon (seed 001, Fig. 5): absolute velocities drawn from one
+    """The velocity polygon (Fanghella et al. 2019, Fig. 5): absolute velocities drawn from one
     pole, relative velocities v_ab = v_a - v_b joining their tips.
 
     ``velocities``: point -> (2,) velocity (m/s); ``relative``: pairs (a, b) for
