@@ -271,7 +271,8 @@ def _solution_columns(scene, sol, forces, driving) -> dict:
     cols = {"t": sol.t, "q": sol.q, "omega": sol.omega}
     if getattr(sol, "domega", None) is not None:
         cols["domega"] = sol.domega
-    for name, field in (("T", "kinetic"), ("V", "potential"), ("E", "total"), ("W_dissipated", "dissipated")):
+    for name, field in (("T", "kinetic"), ("V", "potential"), ("E", "total"), ("W", "work"), ("W_dissipated", "dissipated"),
+                        ("balance", "balance")):
         if getattr(sol, field, None) is not None:
             cols[name] = getattr(sol, field)
     for p, xy in getattr(sol, "points", {}).items():
@@ -294,7 +295,7 @@ def _history_figure(scene, sol, forces, units):
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
     viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
     if getattr(sol, "kinetic", None) is not None:
-        viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=None if sol.dissipated is None else -sol.dissipated)
+        viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=sol.work)
     else:
         axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
         axes[1, 0].axis("off")
@@ -384,21 +385,16 @@ def _animation(scene, sol, out: Path, frames: int, trace_q, quiet: bool) -> list
     return files
 
 
-CONSERVATIVE_OR_COUNTED = ("Spring", "Damper", "RotaryDamper")  # in the potential, or in the dissipated work
-
-
 def _energy_drift(scene, sol):
-    """max |E(t) + W_dissipated(t) - E(0)| (J) and that over the peak kinetic energy; None when
-    energies were not computed or some load does work that is not accounted (drives, forces)."""
+    """max |T + V - W - (T + V)(t0)| (J), W the work of every load outside the potential
+    energy (drives, motors, forces, couples, dampers, friction), and that over the largest
+    energy; None when energies were not computed."""
     import numpy as np
 
-    if getattr(sol, "total", None) is None:
+    if getattr(sol, "balance", None) is None:
         return None
-    if any(type(load).__name__ not in CONSERVATIVE_OR_COUNTED for load in scene.loads):
-        return None
-    total = np.asarray(sol.total) + (0 if sol.dissipated is None else np.asarray(sol.dissipated))
-    drift = float(np.max(np.abs(total - total[0])))
-    scale = float(np.max(np.abs(sol.kinetic))) or 1.0
+    drift = float(np.max(np.abs(sol.balance)))
+    scale = max(float(np.max(np.abs(sol.kinetic))), float(np.max(np.abs(sol.total))), float(np.max(np.abs(sol.work)))) or 1.0
     return drift, drift / scale
 
 
@@ -458,9 +454,10 @@ def cmd_run(args) -> int:
     print(f"{scene.name}: {sol.status}")
     print(_standstill_line(scene, sol))
     if drift is not None:
-        print(f"  energy drift: max |E(t) - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest kinetic energy)")
+        print(f"  energy balance: max |T + V - W - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest energy; "
+              "W: the work of the loads outside V)")
     else:
-        print("  energy drift: not checked (energies not requested, or the loads do work)")
+        print("  energy balance: not checked (energies not requested)")
     print(f"  {len(sol.t)} output samples, {summary['steps']} solver steps")
     if peaks:
         _print_peaks(peaks, units)

@@ -100,10 +100,9 @@ def plot_time_histories(t, series: Mapping[str, np.ndarray], *, ylabel: str, ax=
 
 
 def plot_energies(t, kinetic, potential, *, ax=None, work=None):
-    """Kinetic T, potential V and total E = T + V (J) against time (Durango et al. 2014, Fig. 7a).
-
-    With ``work`` (J, work of the non-conservative loads since t0) the conserved
-    quantity T + V - work is shown instead of E."""
+    """Kinetic T, potential V and total E = T + V (J) against time (Durango et al. 2014, Fig. 7a);
+    with ``work`` (J, the work of the loads outside V since t0, e.g. ``Solution.work``) the
+    conserved T + V - W instead of E."""
     kinetic, potential = np.asarray(kinetic), np.asarray(potential)
     series = {"T (kinetic)": kinetic, "V (potential)": potential}
     total = kinetic + potential - (0 if work is None else np.asarray(work))
