@@ -30,6 +30,8 @@ USER_ERROR, INTERNAL_ERROR = 2, 1
 RUN_SAMPLES = 2001  # output times of run/reactions unless the scene's [simulation] samples says otherwise
 SWEEP_SAMPLES = 721  # configurations of a kinematic sweep: half-degree steps over a crank turn
 PATH_SAMPLES = 1441  # configurations behind a traced path: smooth curves, no polyline corners
+MAX_SAMPLES = 100_000  # as [simulation] samples: beyond it the outputs alone would take minutes
+MAX_FRAMES = 2_000  # animation frames: ~1 min to render
 
 
 class UserError(Exception):
@@ -167,8 +169,7 @@ def cmd_kinematics(args) -> int:
 
     scene = _load(args.scene)
     mech = scene.mechanism
-    if args.samples < 2:
-        raise UserError(f"--samples must be at least 2, got {args.samples}")
+    _check_count("--samples", args.samples, MAX_SAMPLES)
     lo, hi = _sweep_range(scene, args.start, args.stop)
     q = np.linspace(lo, hi, args.samples)
     out = _out_dir(args.out, scene)
@@ -210,9 +211,14 @@ def cmd_kinematics(args) -> int:
 def _samples(args, scene) -> int:
     """Output times: --samples, else the scene's [simulation] samples, else RUN_SAMPLES."""
     n = args.samples if args.samples is not None else int(scene.simulation.get("samples", RUN_SAMPLES))
-    if n < 2:
-        raise UserError(f"--samples must be at least 2, got {n}")
+    _check_count("--samples", n, MAX_SAMPLES)
     return n
+
+
+def _check_count(option: str, n: int, limit: int) -> None:
+    """A requested amount of work: at least 2, at most ``limit`` (stated with the error)."""
+    if not 2 <= n <= limit:
+        raise UserError(f"{option} must be between 2 and {limit}, got {n}")
 
 
 def _output_times(scene, samples: int):
@@ -412,8 +418,7 @@ def cmd_run(args) -> int:
     t0 = time.perf_counter()
     scene = _load(args.scene)
     load_time = time.perf_counter() - t0
-    if args.frames < 2:
-        raise UserError(f"--frames must be at least 2, got {args.frames}")
+    _check_count("--frames", args.frames, MAX_FRAMES)
     samples = _samples(args, scene)
     out = _out_dir(args.out, scene)
     units = _units(_driver_kind(scene.mechanism))
