@@ -271,6 +271,12 @@ def run_structure(seed, driver, n):
 
 
 def test_random_drawings_of_one_structure_against_loop_closure_newton():
+    """A few drawings of one structure holding every kind (one compile)."""
+    run_structure(0, "crank", 3)
+
+
+@pytest.mark.slow
+def test_200_random_drawings_of_one_structure_against_loop_closure_newton():
     """200 drawings of one structure holding every kind (one compile)."""
     run_structure(0, "crank", 200)
 
@@ -281,6 +287,7 @@ def test_more_random_structures_against_loop_closure_newton(seed, driver):
     run_structure(seed, driver, 50)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(2))
 def test_random_modes_against_loop_closure_newton(seed):
     """Dyads drawn on both sides (random modes): one compile per drawing, so a few."""
