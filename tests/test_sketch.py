@@ -334,3 +334,26 @@ def test_toml_sketch_errors_name_the_field(write_scene):
         assurjax.load_scene(write_scene(bad))
     with pytest.raises(SceneError, match="either a \\[sketch\\] or the explicit"):
         assurjax.load_scene(write_scene(FOUR_BAR + "\n[ground]\nA = [0.0, 0.0]\n"))
+
+
+# -- assembly diagnostics ---------------------------------------------------------------------
+
+
+def test_assembly_report_names_the_group_interval_and_condition():
+    from assurjax.structure import assembly_report
+
+    q = np.linspace(-np.pi, np.pi, 121)
+    report = assembly_report(assurjax.load_scene("roberts").mechanism, q)
+    # closed form: the dyad (BC = 0.12, CD = 0.18) reaches from B = A + 0.18 (cos q, sin q) to D
+    # only while |B D| <= 0.30 (A = (-0.12, 0), D = (0.12, 0))
+    bd = np.hypot(-0.12 + 0.18 * np.cos(q) - 0.12, 0.18 * np.sin(q))
+    expected_bad = bd > 0.30
+    assert np.array_equal(~report.ok, expected_bad)
+    (failure,) = report.failures
+    assert failure.group == "dyad43" and failure.kind == "RRR"
+    covered = np.zeros_like(q, dtype=bool)
+    for lo, hi in failure.intervals:
+        covered |= (q >= lo) & (q <= hi)
+    assert np.array_equal(covered, expected_bad)
+    assert f"|B D| = {bd[0]:.4g} m > 0.12 + 0.18 m" in failure.condition
+    assert "group 'dyad43' (RRR) cannot assemble for q in" in str(report)

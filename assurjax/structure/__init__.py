@@ -13,3 +13,4 @@ from ._build import Built as Built, build as build, check_drawing as check_drawi
 from ._decompose import Decomposition as Decomposition, GroupPlan as GroupPlan, decompose as decompose, gruebler as gruebler
 from ._sketch import LinkSpec as LinkSpec, Sketch as Sketch, Slide as Slide
 from ._export import explicit_toml as explicit_toml, sketch_of as sketch_of
+from ._diagnostics import AssemblyReport as AssemblyReport, GroupFailure as GroupFailure, assembly_report as assembly_report

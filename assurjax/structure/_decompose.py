@@ -222,11 +222,12 @@ def _guide_of(slide, sliding: str) -> tuple[str, str, tuple]:
 
 
 def _dyad(graph, remaining, known, placed, index) -> GroupPlan | None:
+    order = {name: i for i, name in enumerate(remaining)}  # the user's order: the result must not depend on hashing
     for a in remaining:
         if len(known[a]) != 1:
             continue
-        for b in remaining:
-            if b == a or len(known[b]) != 1 or b not in graph.neighbours(a):
+        for b in sorted((n for n in graph.neighbours(a) if n in order), key=order.get):
+            if b == a or len(known[b]) != 1:
                 continue
             inner = graph.between(a, b, placed)
             if not inner:
