@@ -32,7 +32,7 @@ coefficient = 2.0
 
 def _closes(sol, rel=1e-6):
     scale = max(np.abs(sol.kinetic).max(), np.abs(sol.total).max(), np.abs(sol.work).max())
-    assert np.abs(sol.balance).max() < rel * scale, (np.abs(sol.balance).max(), scale)
+    assert np.abs(sol.balance).max() <= rel * scale + 1e-12, (np.abs(sol.balance).max(), scale)
     return scale
 
 

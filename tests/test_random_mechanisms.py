@@ -44,7 +44,8 @@ import assurjax
 from assurjax._kinematics import Kinematics
 from assurjax._kinetostatics._api import from_kinematics
 from assurjax._mechanism import Pose
-from assurjax._reduction import coefficients, reduce_single
+from assurjax._kinematics import coefficients
+from assurjax._reduction import reduce_single
 from assurjax._sweep import stack_mechanisms
 
 GRAVITY = jnp.array([0.0, -9.81])
@@ -250,7 +251,8 @@ def analysis(family: str):
 
     def one(mech, q, w, a, directions, near):
         # one second-order analysis serves the pose, the velocities and the kinetostatics
-        x, dx, d2x, ok = coefficients(mech, q, near=near)
+        c = coefficients(mech, q, near=near)
+        x, dx, d2x, ok = c.x, c.dx, c.d2x, c.ok
         h = 1e-6
         shifted = jax.vmap(lambda qq: assurjax.positions(mech, qq, near=near).points)(q + jnp.array([h, -h]))
         fd = jax.tree.map(lambda s: (s[0] - s[1]) / (2 * h), shifted)
