@@ -55,8 +55,11 @@ def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=
         base = Model(source)
     elif isinstance(source, _scene_class()):
         base = source.model
-    else:
-        raise AssurjaxError(f"expected an assurjax Scene, Model or Mechanism, got {type(source).__name__}")
+    else:  # any object with a scene's three parts
+        try:
+            base = Model(source.mechanism, source.gravity, source.loads)
+        except AttributeError:
+            raise AssurjaxError(f"expected an assurjax Scene, Model or Mechanism, got {type(source).__name__}") from None
     if mechanism is None and gravity is None and loads is None:
         return base
     return Model(
