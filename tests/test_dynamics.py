@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import assurjax as aj
+from scene_texts import SLIDER_DRIVEN
 from assurjax.dynamics._results import LOCKUP, STANDSTILL
 
 import joint_reference as ref
@@ -293,39 +294,6 @@ def test_no_retrace_for_new_initial_state_or_horizon(watt):
     assert first > 0 and len(traces) == first
 
 
-SLIDER_DRIVEN = """
-[scene]
-name = "slider_driven"
-gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-O3 = [0.0, 0.3]
-[links.slider]
-points = { B = [0.0, 0.0] }
-mass = 0.5
-[links.rod]
-points = { B = [0.0, 0.0], C = [0.25, 0.0] }
-mass = 0.3
-inertia = 0.0015625
-[links.rocker]
-points = { O3 = [0.0, 0.0], C = [0.2, 0.0] }
-mass = 0.4
-inertia = 0.0013
-[[formation]]
-group = "slider"
-link = "slider"
-point = "B"
-guide_point = "O"
-direction = [1.0, 0.0]
-[[formation]]
-group = "RRR"
-name = "dyad"
-links = ["rod", "rocker"]
-joints = ["B", "O3", "C"]
-mode = "left"
-[state]
-q0 = 0.2
-"""
 
 
 def test_unassemblable_start_raises_naming_the_group(write_scene):

@@ -11,24 +11,9 @@ import numpy as np
 import pytest
 
 import assurjax
+from scene_texts import SHAPER_LOADS
 
 ROOT = Path(__file__).resolve().parent.parent
-SHAPER_LOADS = """
-[[loads]]
-type = "motor"
-stall = 400.0
-no_load_speed = 12.0
-
-[[loads]]
-type = "damper"
-points = ["H", "S"]
-coefficient = 50.0
-
-[[loads]]
-type = "rotary_damper"
-joint = "O4"
-coefficient = 2.0
-"""
 
 
 def _closes(sol, rel=1e-6):

@@ -31,6 +31,7 @@ from assurjax._reduction import reduce_single
 
 sys.path.insert(0, os.path.dirname(__file__))
 import joint_reference as jr  # noqa: E402
+from scene_texts import SLIDER_DRIVEN  # noqa: E402
 
 N_STATES = 4
 
@@ -75,43 +76,6 @@ q0 = 0.5
 """
 
 # the slider-driven rocker of tests/joint_reference.py (slider_driven): the driver is a slider
-SLIDER_DRIVEN = """
-[scene]
-name = "slider_driven"
-gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-O3 = [0.0, 0.3]
-[links.slider]
-points = { B = [0.0, 0.0] }
-com = [0.0, 0.0]
-mass = 0.5
-inertia = 0.0
-[links.rod]
-points = { B = [0.0, 0.0], C = [0.25, 0.0] }
-com = [0.125, 0.0]
-mass = 0.3
-inertia = 0.0015625
-[links.rocker]
-points = { O3 = [0.0, 0.0], C = [0.2, 0.0] }
-com = [0.1, 0.0]
-mass = 0.4
-inertia = 0.0013333333333333333
-[[formation]]
-group = "slider"
-link = "slider"
-point = "B"
-guide_point = "O"
-direction = [1.0, 0.0]
-[[formation]]
-group = "RRR"
-name = "dyad"
-links = ["rod", "rocker"]
-joints = ["B", "O3", "C"]
-mode = "left"
-[state]
-q0 = 0.2
-"""
 
 # a four-bar whose output dyad is exactly collinear (A, B, O4 on the x axis) at q = 0,
 # where |A O4| = 4 is at its largest and equals coupler + rocker: it assembles for every q

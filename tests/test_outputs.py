@@ -14,33 +14,17 @@ import numpy as np
 import pytest
 
 import assurjax
+from scene_texts import SHAPER_LOADS
 from assurjax._peaks import peak_reactions
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# The bundled quick-return shaper driven by a motor's torque-speed line, with a damper on
-# the ram and a rotary damper at the arm's pivot, starting near its running speed.
-SHAPER_LOADS = """
-[[loads]]
-type = "motor"
-stall = 400.0
-no_load_speed = 12.0
-
-[[loads]]
-type = "damper"
-points = ["H", "S"]
-coefficient = 50.0
-
-[[loads]]
-type = "rotary_damper"
-joint = "O4"
-coefficient = 2.0
-"""
 COARSE, DENSE = 101, 4001
 
 
 @pytest.fixture(scope="module")
 def shaper(tmp_path_factory):
+    """The bundled quick-return mechanism with SHAPER_LOADS, starting near its running speed."""
     text = (ROOT / "assurjax" / "scenes" / "quick_return.toml").read_text()
     text = text.replace('name = "quick_return"', 'name = "shaper"').replace("omega0 = 6.283185307179586", "omega0 = 11.0")
     text = text.replace("[outputs]", '[outputs]\nreactions = ["O2", "A", "O4", "S"]') + SHAPER_LOADS
