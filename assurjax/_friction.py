@@ -22,6 +22,8 @@ follow sign(w) -- or, at rest, the direction the mechanism would start to move i
 
 from __future__ import annotations
 
+import abc
+
 from typing import ClassVar
 
 import equinox as eqx
@@ -59,18 +61,18 @@ class AbstractFriction(AbstractLoad):
     def wrenches(self, mechanism, kin, t):
         return []  # needs the reactions: see friction_wrenches
 
+    @abc.abstractmethod
     def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
         """The relative rate per unit driving velocity (rad or m per unit of q), from the
         positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def unit_wrenches(self, mechanism: Mechanism, kin) -> list[tuple[str, Array, Array]]:
         """(link, force, moment about its COM) of a unit value u = 1."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def limit(self, mechanism: Mechanism, kin, forces: dict, couples: dict) -> Array:
         """The Coulomb magnitude from the pair's reaction (N m or N, >= 0)."""
-        raise NotImplementedError
 
 
 class JointFriction(AbstractFriction):

@@ -45,11 +45,6 @@ def branch_mapping(mechanism: Mechanism, z) -> dict | None:
     return {k: z[..., i] for i, k in enumerate(tracked_links(mechanism))}
 
 
-def branch_state(y):
-    """The link angles carried in an ODE state tuple (q, w[, work][, angles]) or None."""
-    return y[-1] if isinstance(y, tuple) and isinstance(y[-1], dict) else None
-
-
 def branch_rates(reduction, near: dict, omega) -> dict:
     """d(angle)/dt = d(angle)/dq * omega (rad/s) of the carried angles, from the
     kinematic coefficients the reduction already computed (no extra jvp)."""
