@@ -107,6 +107,9 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+VALIDATE_SAMPLES = 361  # the assembly sweep of `validate`: one sample per degree of a crank turn
+
+
 def cmd_validate(args) -> int:
     import assurjax
     import numpy as np
@@ -121,6 +124,12 @@ def cmd_validate(args) -> int:
     print(f"  formation: {' -> '.join(f'{g.name} ({g.kind})' for g in mech.groups)}")
     print(f"  loads: {len(scene.loads)}, gravity: {np.asarray(scene.gravity).tolist()} m/s^2")
     print(f"  assembles at q0 = {scene.state['q0']:.6g} ({len(pose.points)} points)")
+    from assurjax.structure import assembly_report
+
+    lo, hi = _sweep_range(scene, None, None)
+    unit = "m" if _driver_kind(mech) == "slider" else "rad"
+    report = str(assembly_report(mech, np.linspace(lo, hi, VALIDATE_SAMPLES))).replace("samples of q", f"samples of q ({unit})")
+    print("  over the driving range: " + report.replace("\n", "\n  "))
     return 0
 
 

@@ -11,7 +11,7 @@ Strandbeest row (``--strandbeest``): the bundled 8-leg scene (25 groups), the sa
 measurements with its own simulate() defaults (fixed branch), no lean call.
 Sizes whose predicted compile time exceeds ``--compile-budget`` s are skipped.
 
-    python benchmarks/bench_scaling.py [--sizes 1 2 5 10 20 30 40] [--strandbeest] [--stacked-state]
+    python benchmarks/bench_scaling.py [--sizes 1 2 5 10 20 30 40] [--strandbeest]
                                        [--no-user-calls] [--out scaling.json]
 
 Writes benchmarks/results/<out> (default scaling.json) and the matching .png, prints a table.
@@ -34,7 +34,7 @@ import numpy as np
 import assurjax
 from assurjax.dynamics._field import State, field_args, vector_field
 from assurjax._jit import COMPILER_OPTIONS
-from assurjax._tracking import branch_angles, tracked_links
+from assurjax._tracking import branch_angles, stacked_branch
 from bench_work_precision import SOLVERS, best_time
 
 import diffrax
@@ -52,22 +52,14 @@ def predicted_compile(rows, n):
     return c2 * (n / n2) ** p
 
 
-def lean_function(scene, *, stacked_state: bool = False):
-    """The lean simulation of bench_work_precision.lean_runner (tracked branch, Tsit5), unjitted.
-    ``stacked_state``: the tracked link angles travel in the ODE state as one array
-    instead of a dict of scalars (diffrax then handles 3 state leaves, not 2 + links)."""
+def lean_function(scene):
+    """The lean simulation of bench_work_precision.lean_runner (tracked branch, Tsit5), unjitted."""
     mech, gravity, loads = scene.mechanism, scene.gravity, tuple(scene.loads)
-    names = tracked_links(mech)
-
-    def rhs_stacked(t, y, args):
-        out = vector_field(t, y._replace(branch={k: y.branch[i] for i, k in enumerate(names)}), args)
-        return out._replace(branch=jnp.stack([out.branch[k] for k in names]))
 
     def run(q0, w0, ts, rtol, atol):
-        angles = branch_angles(mech, assurjax.positions(mech, q0))
-        y0 = State(q0, w0, branch=jnp.stack([angles[k] for k in names]) if stacked_state else angles)
+        y0 = State(q0, w0, branch=stacked_branch(mech, branch_angles(mech, assurjax.positions(mech, q0))))
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(rhs_stacked if stacked_state else vector_field), SOLVERS["tsit5"](), 0.0, ts[-1], None, y0,
+            diffrax.ODETerm(vector_field), SOLVERS["tsit5"](), 0.0, ts[-1], None, y0,
             args=field_args(assurjax.Model(mech, gravity, loads)),
             saveat=diffrax.SaveAt(ts=ts), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
             max_steps=200_000, throw=False,
@@ -115,7 +107,6 @@ class CompileEvents:
 
 
 EVENTS = None
-STACKED_STATE = False  # --stacked-state
 USER_CALLS = True  # --no-user-calls
 
 
@@ -148,17 +139,13 @@ def measure(n: int, repeats: int) -> dict:
     run_s = best_time(lambda: run(*args), repeats)
     exact = assurjax_exact(n)
     # one right-hand side alone, vmapped over 1000 states near the start
-    z = branch_angles(mech, assurjax.positions(mech, np.pi / 2))
+    z = stacked_branch(mech, branch_angles(mech, assurjax.positions(mech, np.pi / 2)))
     qs = jnp.linspace(1.4, 1.7, 1000)
     args = field_args(assurjax.Model(mech, scene.gravity))
     rhs = assurjax.jit(jax.vmap(lambda q: vector_field(0.0, State(q, -jnp.ones_like(q), branch=z), args).omega))
     rhs_s = best_time(lambda: rhs(qs), repeats) / qs.size
     row = dict(N=n, groups=n + 1, hlo_ops=ops, trace_s=trace_s, compile_s=trace_s + compile_s, xla_compile_s=compile_s, run_s=run_s,
                steps=int(steps), result=int(result), error=float(abs(float(q[0]) - exact)), rhs_us=1e6 * rhs_s)
-    if STACKED_STATE:
-        t, c, r = trace_compile_run(lean_function(scene, stacked_state=True), args, repeats)
-        row.update(stacked_state_trace_s=t, stacked_state_xla_compile_s=c, stacked_state_run_s=r)
-        print(f"     angles stacked in the state: trace {t:.1f} s, compile {c:.1f} s, run {1e3 * r:.3f} ms", flush=True)
     if USER_CALLS:
         row.update(user_calls(scene, repeats, 1.2, branch="tracked", t1=1.0))
     return row
@@ -210,11 +197,10 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--strandbeest", action="store_true")
     parser.add_argument("--out", default="scaling.json")
-    parser.add_argument("--stacked-state", action="store_true", help="also the lean call with the tracked angles as one array")
     parser.add_argument("--no-user-calls", action="store_true", help="skip simulate() and kinematics per size")
     args = parser.parse_args()
-    global STACKED_STATE, USER_CALLS
-    STACKED_STATE, USER_CALLS = args.stacked_state, not args.no_user_calls
+    global USER_CALLS
+    USER_CALLS = not args.no_user_calls
     rows = []
     head = f"{'N':>4s} {'trace':>6s} {'compile':>8s} {'run (ms)':>9s} {'error':>8s} {'rhs (us)':>8s} | simulate: {'trace':>6s} {'compile':>8s} {'run ms':>7s} | kinematics: {'trace':>6s} {'compile':>8s}"
     print(head)

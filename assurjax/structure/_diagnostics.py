@@ -9,6 +9,7 @@ import dataclasses
 import jax
 import numpy as np
 
+from .._jit import jit
 from .._mechanism import Mechanism, positions
 from ..groups import GROUND
 
@@ -96,6 +97,12 @@ def _condition(mech: Mechanism, g, points: dict, angles: dict) -> str:
     return "Newton finds no assembly on the branch followed from the guess (the group's links cannot close)"
 
 
+@jit
+def _poses(mechanism: Mechanism, q):
+    """Positions at every q: compiled once per mechanism structure (new dimensions reuse it)."""
+    return jax.vmap(lambda qq: positions(mechanism, qq))(q)
+
+
 def assembly_report(mechanism: Mechanism, q) -> AssemblyReport:
     """Where the mechanism assembles over the driving coordinates ``q`` (rad or m, an
     array), and for each group that fails while every group it depends on assembles:
@@ -103,7 +110,7 @@ def assembly_report(mechanism: Mechanism, q) -> AssemblyReport:
 
     Example: ``print(assembly_report(load_scene("roberts").mechanism, np.linspace(-3, 3, 121)))``."""
     q = np.asarray(q, dtype=float).reshape(-1)
-    pose = jax.vmap(lambda qq: positions(mechanism, qq))(q)
+    pose = _poses(mechanism, q)
     ok = np.asarray(pose.ok)
     failures = []
     for i, g in enumerate(mechanism.groups):
