@@ -6,9 +6,10 @@
     assurjax kinematics SCENE [--samples N]          sweep the driving coordinate: coupler curves, angular velocities
     assurjax reactions SCENE [--samples N]           joint reactions and driving effort along the motion (or at rest)
 
-``--samples`` is the number of equally spaced output times (run, reactions) or
-configurations (kinematics). Peak reactions and driving efforts are located on the
-solver's dense output, not read off those samples.
+``--samples`` is the number of equally spaced output times (run, reactions; the
+solver's own steps are saved with them, so fast changes are sampled where the solver
+resolves them) or configurations (kinematics). Peak reactions and driving efforts are
+located on the solver's dense output, not read off those samples.
 
 Exit status: 0 success, 2 bad input (scene, file, arguments), 1 anything else.
 Errors print one line; ``--debug`` shows the traceback.
@@ -141,8 +142,7 @@ def _sweep_range(scene, start, stop) -> tuple[float, float]:
 
     q0 = scene.state["q0"]
     if _driver_kind(scene.mechanism) == "slider":
-        pts = np.concatenate([np.atleast_2d(np.asarray(p)) for link in scene.mechanism.links.values() for p in link.points.values()])
-        reach = float(np.max(np.ptp(pts, axis=0))) or 1.0  # the links' size: the slider cannot go much further
+        reach = _size(scene.mechanism)  # the slider cannot go much further than the links reach
         default = (q0 - reach, q0 + reach)
     else:
         default = (q0 - np.pi, q0 + np.pi)
@@ -244,11 +244,19 @@ def _simulate(scene, samples: int):
 
     ts = _output_times(scene, samples)
     t0 = time.perf_counter()
-    sol = assurjax.simulate(scene, saveat=ts)
+    sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sol = assurjax.simulate(scene, saveat=ts)
+    sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
     return sol, first, time.perf_counter() - t0
+
+
+def _with_solver_steps(scene) -> bool:
+    """Outputs at the solver's own steps as well as the grid (not for stick-slip motions,
+    integrated in segments)."""
+    from ._friction import frictions_of
+
+    return not frictions_of(scene.loads) or scene.simulation.get("stop") == "standstill"
 
 
 def _reactions_along(scene, sol, joints):
@@ -273,11 +281,28 @@ def _peaks(scene, sol, joints, forces: dict, driving) -> dict:
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid)
 
 
-def _print_peaks(peaks: dict, units: dict):
+def _print_peaks(peaks: dict, units: dict, scene):
     forces = [p for name, p in peaks.items() if name != "driving"]
     print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
     drive = peaks["driving"]
-    print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
+    if _round_off(drive.value, max((p.value for p in forces), default=0.0), scene, units):
+        print(f"  driving effort: none needed (the loads alone drive this motion; largest value {drive.value:.1e} "
+              f"{units['driving']} is round-off)")
+    else:
+        print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
+
+
+def _round_off(driving: float, force: float, scene, units: dict) -> bool:
+    """A driving effort at the rounding level of the reactions (N, or N m over the mechanism's size)."""
+    return driving <= 1e-9 * force * (1.0 if units["driving"] == "N" else _size(scene.mechanism))
+
+
+def _size(mechanism) -> float:
+    """The largest extent of the links' points in their own frames (m; 1 if they have none)."""
+    import numpy as np
+
+    pts = np.concatenate([np.atleast_2d(np.asarray(p)) for link in mechanism.links.values() for p in link.points.values()])
+    return float(np.max(np.ptp(pts, axis=0))) or 1.0
 
 
 def _solution_columns(scene, sol, forces, driving) -> dict:
@@ -472,9 +497,11 @@ def cmd_run(args) -> int:
               "W: the work of the loads outside V)")
     else:
         print("  energy balance: not checked (energies not requested)")
-    print(f"  {len(sol.t)} output samples, {summary['steps']} solver steps")
+    spacing = (float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))) / (samples - 1)
+    grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
+    print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps")
     if peaks:
-        _print_peaks(peaks, units)
+        _print_peaks(peaks, units, scene)
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)
@@ -502,7 +529,8 @@ def cmd_reactions(args) -> int:
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
         return 0
     samples = _samples(args, scene)
-    sol = assurjax.simulate(scene, saveat=_output_times(scene, samples))  # once: this command reports no simulation timings
+    # once: this command reports no simulation timings
+    sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
     forces, driving, ok, elapsed = _reactions_along(scene, sol, joints)
     peaks = _peaks(scene, sol, joints, forces, driving)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": ok}
@@ -516,7 +544,7 @@ def cmd_reactions(args) -> int:
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units)
-    _print_peaks(peaks, units)
+    _print_peaks(peaks, units, scene)
     _print_files(files)
     return 0
 
@@ -551,7 +579,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", parents=[common], help="simulate a scene: CSV, plots, animation, summary")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"scene file or bundled name (default: {DEFAULT_SCENE})")
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
-    p.add_argument("--samples", type=int, help=f"equally spaced output times (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
+    p.add_argument("--samples", type=int, help=f"equally spaced output times, saved with the solver's own steps (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
     p.add_argument("--frames", type=int, default=60, help="frames of the animation (default: 60)")
     p.add_argument("--no-animation", action="store_true", help="skip the animation (GIF, and MP4 when ffmpeg is installed)")
     p.set_defaults(func=cmd_run)
@@ -578,7 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reactions", parents=[common], help="joint reactions and driving effort along the simulated motion")
     p.add_argument("scene")
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
-    p.add_argument("--samples", type=int, help=f"equally spaced output times (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
+    p.add_argument("--samples", type=int, help=f"equally spaced output times, saved with the solver's own steps (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
     p.add_argument("--static", action="store_true", help="the mechanism held at rest at q0 instead (printed only)")
     p.set_defaults(func=cmd_reactions)
     return parser

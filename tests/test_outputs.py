@@ -101,7 +101,16 @@ def test_standstill_message_follows_the_scene(tmp_path, capsys):
     assert main(["run", "quick_return", "--samples", "11", "--no-animation", "--out", str(tmp_path), "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "standstill detection: off" in text and "none before t1" not in text
-    assert len((tmp_path / "solution.csv").read_text().strip().splitlines()) == 12
+    # the 11 equally spaced times, and the solver's own steps among them, in time order
+    table = np.genfromtxt(tmp_path / "solution.csv", delimiter=",", names=True)
+    t = table["t"]
+    assert np.all(np.diff(t) >= 0) and len(t) > 11 + 10
+    scene = assurjax.load_scene("quick_return")
+    grid = np.linspace(scene.state["t0"], scene.state["t1"], 11)
+    assert np.min(np.abs(t[:, None] - grid[None, :]), axis=0).max() < 1e-12
+    # each row is the motion at its time: against the dense output saved at exactly those times
+    dense = assurjax.simulate(scene, saveat=t)
+    assert np.max(np.abs(dense.q - table["q"])) < 1e-6
 
 
 def test_scenes_into_a_closed_pipe_ends_quietly_with_status_0():
@@ -157,3 +166,11 @@ def test_api_reference_builds_in_strict_mode(tmp_path):
     for page in ("api/dynamics/index.html", "api/viz/index.html", "notebooks/01_roberts_straight_line/index.html"):
         assert (tmp_path / "site" / page).stat().st_size > 1000, page
     assert "def simulate" not in (tmp_path / "site" / "api" / "dynamics" / "index.html").read_text()  # docstrings, not source
+
+
+def test_save_steps_is_for_single_runs():
+    scene = assurjax.load_scene("roberts")
+    with pytest.raises(assurjax.AssurjaxError, match="save_steps .* single runs"):
+        assurjax.simulate(scene, q0=np.array([1.2, 1.3]), save_steps=True)
+    with pytest.raises(assurjax.AssurjaxError, match="save_steps"):
+        assurjax.settings_from(None, save_steps="yes")

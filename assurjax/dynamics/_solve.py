@@ -117,7 +117,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         dt0=_initial_step(settings, dt),
         y0=y0,
         args=args,
-        saveat=diffrax.SaveAt(ts=ts, t1=True),
+        saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
         stepsize_controller=controller_for(settings),
         event=stop_event(settings),
         max_steps=settings.max_steps,
@@ -215,18 +215,21 @@ def _tabulated(settings: Settings) -> bool:
 
 
 def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings) -> Solution:
-    # diffrax writes the final state right after the saved times reached (an event
-    # deletes those past it) and pads with inf.
+    # diffrax writes the saved times reached (and, with save_steps, every accepted step's
+    # end, in time order), then the final state (an event deletes the times past it), and
+    # pads with inf.
     last = jnp.sum(jnp.isfinite(sol.ts)) - 1
     ys: State = sol.ys
     t_final, q_final, w_final = sol.ts[last], ys.q[last], ys.omega[last]
-    # The times reached, then the final state itself (an event stops between two
-    # saved times); the rest repeat the final state, so every output stays finite.
-    valid = jnp.arange(ts.shape[0]) <= last
-    reached = jnp.arange(ts.shape[0]) < last
-    along = lambda z: jnp.where(reached.reshape((-1,) + (1,) * (z.ndim - 1)), z[:-1], z[last])  # noqa: E731
+    if settings.save_steps:  # diffrax's own times, the steps' ends among them: keep them all
+        times, reached, head = sol.ts, jnp.arange(sol.ts.shape[0]) <= last, lambda z: z
+    else:  # the times reached, then the final state itself (an event stops between two saved times)
+        times, reached, head = ts, jnp.arange(ts.shape[0]) < last, lambda z: z[:-1]
+    # the rest repeat the final state, so every output stays finite
+    valid = jnp.arange(times.shape[0]) <= last
+    along = lambda z: jnp.where(reached.reshape((-1,) + (1,) * (z.ndim - 1)), head(z), z[last])  # noqa: E731
     q, w = along(ys.q), along(ys.omega)
-    t = jnp.where(reached, ts, t_final)
+    t = jnp.where(reached, times, t_final)
     near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
     near_final = None if ys.branch is None else branch_mapping(model.mechanism, ys.branch[last])
     mechanism = model.mechanism
@@ -281,6 +284,7 @@ def simulate(
     table_nodes: int | None = None,
     table: ReducedTable | None = None,
     steps: int | None = None,
+    save_steps: bool | None = None,
     throw: bool = False,
 ) -> Solution:
     """Simulate a mechanism's motion from its initial state (Durango et al.'s (2014) forward dynamics).
@@ -316,7 +320,10 @@ def simulate(
     solver's own step (no step-size control, no events: ``stop`` must be None; saves
     every step) -- the fastest path for short runs: with a table, ``steps=80``
     (Tsit5) keeps the Watt six-bar within 4e-9 rad over 1 s in ~60 us.
-    ``saveat``: an array of times (s). ``events``: functions ``cond(t, q, omega)``;
+    ``saveat``: an array of times (s). ``save_steps``: also save the state at the end of
+    every accepted solver step, merged in time order with ``saveat`` (outputs then
+    follow the solver where the motion changes fast; up to ``max_steps`` extra samples;
+    single runs only, not with joint friction past standstill). ``events``: functions ``cond(t, q, omega)``;
     the motion stops where one changes sign. ``mechanism``, ``loads``, ``gravity``
     replace the scene's. ``throw``: raise :class:`assurjax.AssurjaxError` with the
     status when the solver stops early (e.g. the step budget is used up) instead of
@@ -340,7 +347,7 @@ def simulate(
         scene_or_none, stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
         events=tuple(events), check_assembly=bool(check_assembly), points=points, angles=angles, energies=energies,
         velocities=velocities, accelerations=accelerations, coms=coms,
-        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps,
+        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps, save_steps=save_steps,
     )
     _check_outputs(model.mechanism, settings)
     q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)
@@ -362,6 +369,7 @@ def simulate(
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
+    _check_save_steps(settings, model, batch)
     if max_steps is None and "max_steps" not in simulation_table(scene_or_none):
         settings = settings._replace(max_steps=step_budget(t0, t1))  # longer runs get a larger budget
     step = None if step is None else np.asarray(step, dtype=float)
@@ -438,6 +446,16 @@ def _batch(model, q0, omega0, t0, t1, ts, dt, settings, table):
 
 
 _batch_jit = jit(_batch)
+
+
+def _check_save_steps(settings: Settings, model: Model, batch) -> None:
+    if not settings.save_steps:
+        return
+    if batch is not None:
+        raise AssurjaxError("save_steps saves up to max_steps states per run: it is for single runs, not batches")
+    if frictions_of(model.loads) and not settings.standstill:
+        raise AssurjaxError("save_steps is not available with joint friction past standstill (the motion is "
+                            "integrated in stick and slip segments): use saveat or samples, or stop='standstill'")
 
 
 def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:
