@@ -41,7 +41,7 @@ from ._kinetostatics import (
 )
 from ._model import Model as Model
 from ._friction import JointFriction as JointFriction, SlideFriction as SlideFriction
-from ._kinematics import Coefficients as Coefficients, coefficients as coefficients
+from ._kinematics import Coefficients as Coefficients, bridged_coefficients as bridged_coefficients, coefficients as coefficients
 from .dynamics import (
     RESULTS as RESULTS,
     ReducedTable as ReducedTable,

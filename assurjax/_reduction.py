@@ -30,7 +30,7 @@ from jaxtyping import Array
 
 from ._geometry import dot
 from ._jit import jit
-from ._kinematics import Coefficients, Kinematics, coefficients
+from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
 from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
 from ._mechanism import Mechanism, Pose, positions
 
@@ -123,31 +123,34 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
     return reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)[0]
 
 
-def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> tuple[Reduction, Pose]:
+def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None,
+                     bridge: float = 0.0) -> tuple[Reduction, Pose]:
     """:func:`reduce_single` and the :class:`Pose` it was computed at (one position analysis for both)."""
-    reduction, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)
+    reduction, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near,
+                                            bridge=bridge)
     return reduction, Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
 
 
 def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None,
-                           near=None, work: bool = False) -> tuple[Reduction, Kinematics]:
+                           near=None, work: bool = False, bridge: float = 0.0) -> tuple[Reduction, Kinematics]:
     """:func:`reduce_single` and the single-configuration :class:`Kinematics` the loads
     were evaluated on (velocities filled when ``velocities``), e.g. for the dampers'
     dissipated power without a second position analysis. ``work``: also fill
-    ``Reduction.work_force`` (the energy balance)."""
+    ``Reduction.work_force`` (the energy balance). ``bridge``: on a tracked branch
+    (``near``), the window of :func:`bridged_coefficients` (0: off)."""
     if velocities is None:
         velocities = any_velocity_dependent(loads)
     # arrays: the jit below would take Python floats as static and compile per value
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
-    return _reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities, near, work)
+    return _reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities, near, work, bridge)
 
 
 # A nested jit: a simulation uses the reduction in several places (the solver's stages,
 # the outputs); it is traced once and reused, which halves the tracing time of a first
 # simulate() (XLA inlines it, so the compiled program and its speed are unchanged).
 @jit
-def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near, work: bool):
-    coeffs = coefficients(mechanism, q, order=2, near=near)
+def _reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, velocities: bool, near, work: bool, bridge: float):
+    coeffs = branch_coefficients(mechanism, q, near=near, bridge=bridge)
     return reduce_coefficients(mechanism, gravity, loads, coeffs, omega, t, velocities=velocities, work=work,
                                rates=near is not None)
 

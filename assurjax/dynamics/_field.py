@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._friction import friction_wrenches, frictions_of, solve_friction
-from .._kinematics import coefficients
+from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
 from .._model import Model
@@ -55,6 +55,7 @@ class FieldArgs(eqx.Module):
     direction: Array
     q0: Array
     user_signs: tuple
+    bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
 
 
 def field_args(model: Model, table: ReducedTable | None = None) -> FieldArgs:
@@ -71,9 +72,9 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     if frictions_of(model.loads):
         # the Coulomb signs of the segment's direction of motion, frozen until w returns to 0
         # (an event ends the segment there): the field stays smooth across the stop
-        red, kin, alpha, friction_power = frictional(model, t, y, args.direction)
+        red, kin, alpha, friction_power = frictional(model, t, y, args.direction, args.bridge)
     else:
-        red, kin = _reduce(model, t, y)
+        red, kin = _reduce(model, t, y, args.bridge)
         alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
     return State(
         q=y.omega,
@@ -84,14 +85,14 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     )
 
 
-def frictional(model: Model, t, y: State, direction):
+def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
     """The reduction, its kinematics, dw/dt and the friction power (W, <= 0) of a model
     with friction in its joints: the reduced equation with the friction's generalized
     force sum_k u_k dphi_k/dq, u from ``solve_friction`` (signs from ``direction``:
     sign(w), or at rest the direction tested for break-away; an array of directions
     gives one dw/dt and power per direction)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    coeffs = coefficients(mechanism, y.q, order=2, near=near(model, y))
+    coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
     rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
@@ -166,6 +167,6 @@ def near(model: Model, y: State) -> dict | None:
     return branch_mapping(model.mechanism, y.branch)
 
 
-def _reduce(model: Model, t, y: State):
+def _reduce(model: Model, t, y: State, bridge: float = 0.0):
     return reduce_with_kinematics(model.mechanism, model.gravity, model.loads, y.q, y.omega, t, near=near(model, y),
-                                  work=y.work is not None)
+                                  work=y.work is not None, bridge=bridge)

@@ -14,6 +14,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._values import concrete, value_problem
+from .._kinematics import BRIDGE_WINDOW
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -82,6 +83,7 @@ class Settings(NamedTuple):
     reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
     table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
     steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
+    bridge: float = BRIDGE_WINDOW  # tracked branch: half-width (rad or m of q) of the bridged singular windows; 0: off
     save_steps: bool = False  # also save the state at every accepted solver step, merged in time with the saved times
 
 
@@ -126,6 +128,7 @@ SIMULATION_KEYS: dict[str, tuple[Callable, str]] = {
     "table_nodes": (_bounded("table_nodes", lambda v: _positive_int(v) and v >= 8), f"an integer from 8 to {WORK_LIMITS['table_nodes'][0]}"),
     "steps": (_bounded("steps", _positive_int), f"a positive integer, at most {WORK_LIMITS['steps'][0]}"),
     "save_steps": (lambda v: isinstance(v, bool), "true or false"),
+    "bridge": (lambda v: _number(v) and 0 <= v <= 0.1, "a number from 0 (off) to 0.1 (rad or m of the driving coordinate)"),
 }
 
 
@@ -219,7 +222,7 @@ def settings_from(scene=None, **overrides) -> Settings:
         max_steps=sim.get("max_steps", DEFAULT_MAX_STEPS), samples=sim.get("samples", DEFAULT_SAMPLES),
         branch=sim.get("branch", "fixed"), reduction=sim.get("reduction", "auto"),
         table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
-        save_steps=sim.get("save_steps", False),
+        save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", BRIDGE_WINDOW),
         fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
         points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
         velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
@@ -261,7 +264,7 @@ def check(settings: Settings) -> None:
     """Types and ranges of every field, with errors naming the field."""
     if settings.solver not in SOLVERS and settings.solver not in BASELINES:
         raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
-    for key in ("rtol", "atol", "max_steps", "samples", "branch", "table_nodes", "save_steps"):
+    for key in ("rtol", "atol", "max_steps", "samples", "branch", "table_nodes", "save_steps", "bridge"):
         problem = setting_problem(key, getattr(settings, key))
         if problem is not None:
             raise AssurjaxError(f"setting '{key}': {problem}")

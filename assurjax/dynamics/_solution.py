@@ -109,7 +109,7 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
         z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
-            red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z)
+            red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
             if settings.domega:
                 values["domega"] = acceleration_at(model, t, State(q, w, branch=stacked)) if frictions_of(loads) \
                     else red.acceleration(w)

@@ -108,7 +108,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     if frictional:
         direction = start_direction(model, t0, y0)
         direction = jnp.where(direction != 0, direction, 1.0)
-    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs)
+    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs, bridge=settings.bridge)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
         solver_for(settings),
@@ -285,6 +285,7 @@ def simulate(
     table: ReducedTable | None = None,
     steps: int | None = None,
     save_steps: bool | None = None,
+    bridge: float | None = None,
     throw: bool = False,
 ) -> Solution:
     """Simulate a mechanism's motion from its initial state (Durango et al.'s (2014) forward dynamics).
@@ -309,7 +310,10 @@ def simulate(
     or ``"tracked"``: the link angles travel in the ODE state (d theta/dt =
     d theta/dq w, from the same jvp) and every group takes the root nearest to them,
     which keeps the motion on one continuous branch through singular configurations
-    (e.g. the N-four-bar's). ``reduction``: ``"exact"`` (the reduction at every
+    (e.g. the N-four-bar's); within ``bridge`` (default 5e-3 rad or m of q; 0: off) of an
+    RRR dyad's singular configuration the kinematic coefficients are interpolated from
+    outside that window (:func:`assurjax.bridged_coefficients`), where the closed forms
+    would lose their precision. ``reduction``: ``"exact"`` (the reduction at every
     right-hand side), ``"table"``: a :class:`ReducedTable` of ``table_nodes`` (default
     4096) nodes over one crank turn is built and checked first, and the right-hand side
     interpolates it (crank drivers, loads of q only; see :func:`build_table`), or
@@ -347,7 +351,7 @@ def simulate(
         scene_or_none, stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
         events=tuple(events), check_assembly=bool(check_assembly), points=points, angles=angles, energies=energies,
         velocities=velocities, accelerations=accelerations, coms=coms,
-        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps, save_steps=save_steps,
+        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge,
     )
     _check_outputs(model.mechanism, settings)
     q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)

@@ -191,5 +191,12 @@ class AbstractGroup(eqx.Module):
         of the pair; direction in its link's frame; offset to the left, m) of each guide."""
         return ()
 
+    def singularity(self, x: dict, dx: dict) -> tuple[Array, Array] | None:
+        """A scale-free measure that crosses zero at this group's singular configurations
+        and its q-derivative, from the global points ``x`` and their coefficients ``dx``
+        (dx/dq); None when the kind declares none (then it is never bridged; see
+        :func:`assurjax.bridged_coefficients`)."""
+        return None
+
     def describe(self) -> str:
         return f"group '{self.name}' ({self.kind})"

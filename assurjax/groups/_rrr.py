@@ -45,6 +45,16 @@ class RRR(AbstractGroup):
         e1, e2, j = self.joints
         return {self.links[0]: (e1, j), self.links[1]: (e2, j)}
 
+    def singularity(self, x: dict, dx: dict):
+        """The sine of the angle at J (signed): zero when the dyad is stretched or folded,
+        or its external joints coincide (the link lengths are constant, so only the
+        cross product varies)."""
+        e1, e2, j = self.joints
+        u, v, du, dv = x[j] - x[e1], x[j] - x[e2], dx[j] - dx[e1], dx[j] - dx[e2]
+        cross = lambda a, b: a[0] * b[1] - a[1] * b[0]  # noqa: E731
+        scale = 1.0 / jnp.sqrt(u.dot(u) * v.dot(v))
+        return cross(u, v) * scale, (cross(du, v) + cross(u, dv)) * scale
+
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (a, b), (e1, e2, j) = self.links, self.joints
         p1, p2 = placed.xy(e1), placed.xy(e2)
