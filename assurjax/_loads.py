@@ -194,14 +194,14 @@ class AbstractLoad(eqx.Module):
         return jnp.zeros(())
 
 
-def com_link(point: str) -> str | None:
+def _com_link(point: str) -> str | None:
     """The link whose centre of mass ``point`` names (``"com:<link>"``), or None for a named point."""
     return point[len(COM_PREFIX):] if isinstance(point, str) and point.startswith(COM_PREFIX) else None
 
 
 def _carriers(mechanism: Mechanism, point: str) -> list[str]:
     """Links carrying ``point`` (the ground first when it is a fixed point); a centre of mass: its link."""
-    link = com_link(point)
+    link = _com_link(point)
     if link is not None:
         return [link] if link in mechanism.links else []
     found = [GROUND] if point in mechanism.ground else []
@@ -212,7 +212,7 @@ def point_problem(mechanism: Mechanism, point: str) -> str | None:
     """What is wrong with ``point`` as a load's point of application, or None."""
     if not isinstance(point, str):
         return f"expected a point name (a string), got {point!r}"
-    link = com_link(point)
+    link = _com_link(point)
     if link is not None:
         if link not in mechanism.links:
             return f"unknown link '{link}' in '{point}' (a centre of mass is 'com:<moving link>'; links: {sorted(mechanism.links)})"
@@ -266,7 +266,7 @@ def _link_of(mechanism: Mechanism, point: str, link: str | None) -> str:
     """The carrier: ``link`` if given, else the centre of mass's link or the point's owner."""
     if link is not None:
         return link
-    return com_link(point) or dict(mechanism.owner)[point]
+    return _com_link(point) or dict(mechanism.owner)[point]
 
 
 def _moment_about_com(kin, link: str, at: Array, force: Array) -> Array:
@@ -275,7 +275,7 @@ def _moment_about_com(kin, link: str, at: Array, force: Array) -> Array:
 
 def _point_velocity(kin, point: str) -> Array:
     """Velocity (m/s) of a moving point or centre of mass; a fixed point's is zero."""
-    link = com_link(point)
+    link = _com_link(point)
     if link is not None:
         return kin.com_velocities[link]
     return kin.velocities[point] if point in kin.velocities else jnp.zeros(2)
@@ -284,7 +284,7 @@ def _point_velocity(kin, point: str) -> Array:
 def _point_position(mechanism: Mechanism, kin, point: str) -> Array:
     """A moving point from ``kin.points`` (a Kinematics or a Pose), a centre of mass from
     ``kin.coms``, a fixed one from the ground."""
-    link = com_link(point)
+    link = _com_link(point)
     if link is not None:
         return kin.coms[link]
     return kin.points[point] if point in kin.points else mechanism.ground[point]
@@ -517,7 +517,7 @@ class Drive(AbstractLoad):
     (it enters as the generalized force conjugate to q).
 
     **Example:**
-    >>> assurjax.Drive(aj.Polynomial([0.5, 0.1], variable="t"))   # 0.5 + 0.1 t N m
+    >>> assurjax.Drive(assurjax.Polynomial([0.5, 0.1], variable="t"))   # 0.5 + 0.1 t N m
     """
 
     value: Any
