@@ -324,19 +324,21 @@ class System:
         return self.to_frames(self.newton(q, self.to_internal(guess))[0])
 
     # -- forces and dynamics ---------------------------------------------------------
+    def _at(self, z, body, s):
+        """Global position of point s (body frame) of body."""
+        return self._pt(z, self.idx[body], self._rel(body, s))[0]
+
     def applied_point_forces(self, z):
         """Springs and point loads as [(body, point P, force at P)] (a spring gives two)."""
         out = []
         for sp in self.springs:
-            Pa, _ = self._pt(z, self.idx[sp.body_a], self._rel(sp.body_a, sp.s_a))
-            Pb, _ = self._pt(z, self.idx[sp.body_b], self._rel(sp.body_b, sp.s_b))
+            Pa, Pb = self._at(z, sp.body_a, sp.s_a), self._at(z, sp.body_b, sp.s_b)
             d = Pb - Pa
             length = np.linalg.norm(d)
             f = sp.k * (length - sp.free_length) * d / length  # on a, towards b when stretched
             out += [(sp.body_a, Pa, f), (sp.body_b, Pb, -f)]
         for pl in self.point_loads:
-            P, _ = self._pt(z, self.idx[pl.body], self._rel(pl.body, pl.s))
-            out.append((pl.body, P, np.asarray(pl.force, float)))
+            out.append((pl.body, self._at(z, pl.body, pl.s), np.asarray(pl.force, float)))
         return out
 
     def forces(self, z, zd, tau=0.0, row=None):
@@ -423,12 +425,10 @@ class System:
         T = 0.5 * np.sum(self.Mdiag * zd**2)
         V = -np.sum(self.mass * (z[0::3] * self.gravity[0] + z[1::3] * self.gravity[1]))
         for sp in self.springs:
-            Pa, _ = self._pt(z, self.idx[sp.body_a], self._rel(sp.body_a, sp.s_a))
-            Pb, _ = self._pt(z, self.idx[sp.body_b], self._rel(sp.body_b, sp.s_b))
-            V += 0.5 * sp.k * (np.linalg.norm(Pb - Pa) - sp.free_length) ** 2
+            length = np.linalg.norm(self._at(z, sp.body_b, sp.s_b) - self._at(z, sp.body_a, sp.s_a))
+            V += 0.5 * sp.k * (length - sp.free_length) ** 2
         for pl in self.point_loads:
-            P, _ = self._pt(z, self.idx[pl.body], self._rel(pl.body, pl.s))
-            V -= np.dot(pl.force, P)
+            V -= np.dot(pl.force, self._at(z, pl.body, pl.s))
         return T, V
 
     # -- simulation ------------------------------------------------------------------
