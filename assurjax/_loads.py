@@ -238,6 +238,15 @@ def carrier_problem(mechanism: Mechanism, point: str, link: str | None) -> str |
     return None
 
 
+def joint_problem(mechanism: Mechanism, joint: str) -> str | None:
+    """What is wrong with ``joint`` as a revolute between exactly two carriers, or None."""
+    carriers = _carriers(mechanism, joint)
+    if len(carriers) == 2:
+        return None
+    return (f"point '{joint}' must be a joint of exactly two links (or a link and the ground), "
+            f"it is carried by {carriers or 'nothing'}")
+
+
 def _check_point(mechanism: Mechanism, point: str, link: str | None, what: str, keyword: str) -> None:
     """Raise :class:`MechanismError` for an unknown point or a carrier not carrying it;
     ``keyword``: the argument that named the carrier (e.g. ``"link"``)."""
@@ -489,12 +498,9 @@ class RotaryDamper(AbstractLoad):
         self.velocity_dependent = True
 
     def check(self, mechanism):
-        carriers = _carriers(mechanism, self.joint)
-        if len(carriers) != 2:
-            raise MechanismError(
-                f"rotary damper: point '{self.joint}' must be a joint of exactly two links (or a link and the ground), "
-                f"it is carried by {carriers or 'nothing'}"
-            )
+        problem = joint_problem(mechanism, self.joint)
+        if problem is not None:
+            raise MechanismError(f"rotary damper: {problem}")
 
     def _relative(self, mechanism, kin):
         a, b = _carriers(mechanism, self.joint)

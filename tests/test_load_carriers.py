@@ -260,7 +260,7 @@ BAD_TOML = [
      r"field 'link': link 'slider' does not carry point 'com:rod' \(carried by \['rod'\]\)"),
     ('type = "damper"\npoints = ["com:rod", "B"]\nlinks = ["crank", ""]\ncoefficient = 1.0',
      r"field 'links': entry 1 \(end 'com:rod'\): link 'crank' does not carry point 'com:rod'"),
-    ('type = "rotary_damper"\njoint = "com:rod"\ncoefficient = 1.0', r"#1 \(rotary_damper\): .*must be a joint of exactly two links"),
+    ('type = "rotary_damper"\njoint = "com:rod"\ncoefficient = 1.0', r"#1 \(rotary_damper\), field 'joint': point 'com:rod' must be a joint of exactly two links .*carried by \['rod'\]"),
 ]
 
 

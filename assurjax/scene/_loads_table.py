@@ -136,7 +136,11 @@ def _damper(f, mechanism):
 
 
 def _rotary_damper(f, mechanism):
-    return _loads.RotaryDamper(_point(f, "joint", mechanism), f.number("coefficient", nonnegative=True))
+    joint = _point(f, "joint", mechanism)
+    problem = _loads.joint_problem(mechanism, joint)
+    if problem is not None:
+        f.fail("joint", problem)
+    return _loads.RotaryDamper(joint, f.number("coefficient", nonnegative=True))
 
 
 def _drive(f, mechanism):
