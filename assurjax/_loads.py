@@ -13,6 +13,17 @@ Sign conventions (all in the global frame, SI units):
   counterclockwise positive) on a crank, a force (N) along the guide direction
   on a slider. It is not part of :func:`applied_wrenches`.
 
+Points of application and carriers. A load's point is a named point of the
+mechanism, or ``"com:<link>"``, the centre of mass of a moving link (e.g.
+``"com:rod"``). A named point shared by several links (a joint) or by a link and
+the ground belongs to all of them; the load acts on one of them, its **carrier**:
+by default the point's owner (the ground for a fixed point, otherwise the first
+link of the formation sequence that carries the point, the earlier link of the
+joint), or the link named by ``link=`` (point loads) or ``links=(a, b)`` (spring
+and damper ends; None or "" for the default). The motion does not depend on the
+carrier (the point moves the same on every link carrying it), but the reaction at
+that joint does: it differs by the load. A centre of mass is carried by its link only.
+
 A load value may be a number (or array), one of the documented forms
 (:class:`Polynomial`, :class:`Table`), or any JAX function ``f(q, omega, t)``.
 User functions are assumed to depend on velocity unless the load is given
@@ -30,7 +41,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, safe_norm
-from ._mechanism import Mechanism, Pose
+from ._mechanism import COM_PREFIX, Mechanism, Pose
 from .groups._base import GROUND
 
 # ---------------------------------------------------------------------------- value forms
@@ -183,22 +194,88 @@ class AbstractLoad(eqx.Module):
         return jnp.zeros(())
 
 
+def _com_link(point: str) -> str | None:
+    """The link whose centre of mass ``point`` names (``"com:<link>"``), or None for a named point."""
+    return point[len(COM_PREFIX):] if isinstance(point, str) and point.startswith(COM_PREFIX) else None
+
+
 def _carriers(mechanism: Mechanism, point: str) -> list[str]:
-    """Links carrying ``point`` (the ground first when it is a fixed point)."""
+    """Links carrying ``point`` (the ground first when it is a fixed point); a centre of mass: its link."""
+    link = _com_link(point)
+    if link is not None:
+        return [link] if link in mechanism.links else []
     found = [GROUND] if point in mechanism.ground else []
     return found + [name for name, link in mechanism.links.items() if point in link.points]
 
 
-def _check_point(mechanism: Mechanism, point: str, link: str | None, what: str) -> None:
+def point_problem(mechanism: Mechanism, point: str) -> str | None:
+    """What is wrong with ``point`` as a load's point of application, or None."""
+    if not isinstance(point, str):
+        return f"expected a point name (a string), got {point!r}"
+    link = _com_link(point)
+    if link is not None:
+        if link not in mechanism.links:
+            return f"unknown link '{link}' in '{point}' (a centre of mass is 'com:<moving link>'; links: {sorted(mechanism.links)})"
+        return None
+    if point in mechanism.point_names:
+        return None
+    hint = ""
+    if "com" in point.lower() or "centre" in point.lower() or "center" in point.lower():
+        hint = f"; a link's centre of mass is written 'com:<link>', e.g. 'com:{next(iter(mechanism.links))}'"
+    return f"unknown point '{point}' (known: {sorted(mechanism.point_names)}){hint}"
+
+
+def carrier_problem(mechanism: Mechanism, point: str, link: str | None) -> str | None:
+    """What is wrong with ``link`` as the carrier of a load at the known ``point``, or
+    None (None: the default carrier)."""
+    if link is None:
+        return None
     carriers = _carriers(mechanism, point)
-    if not carriers:
-        raise MechanismError(f"{what}: unknown point '{point}' (known: {sorted(mechanism.point_names)})")
-    if link is not None and link not in carriers:
-        raise MechanismError(f"{what}: link '{link}' does not carry point '{point}' (carried by {carriers})")
+    if link != GROUND and link not in mechanism.links:
+        return f"unknown link '{link}' (known: {sorted(mechanism.links)})"
+    if link not in carriers:
+        return f"link '{link}' does not carry point '{point}' (carried by {carriers})"
+    return None
+
+
+def joint_problem(mechanism: Mechanism, joint: str) -> str | None:
+    """What is wrong with ``joint`` as a revolute between exactly two carriers, or None."""
+    carriers = _carriers(mechanism, joint)
+    if len(carriers) == 2:
+        return None
+    return (f"point '{joint}' must be a joint of exactly two links (or a link and the ground), "
+            f"it is carried by {carriers or 'nothing'}")
+
+
+def _check_point(mechanism: Mechanism, point: str, link: str | None, what: str, keyword: str) -> None:
+    """Raise :class:`MechanismError` for an unknown point or a carrier not carrying it;
+    ``keyword``: the argument that named the carrier (e.g. ``"link"``)."""
+    problem = point_problem(mechanism, point)
+    if problem is not None:
+        raise MechanismError(f"{what}: {problem}")
+    problem = carrier_problem(mechanism, point, link)
+    if problem is not None:
+        raise MechanismError(f"{what}, argument '{keyword}': {problem}")
+
+
+def _carrier_argument(link: str | None) -> str | None:
+    """A carrier argument: a link name, or None / "" for the default."""
+    return link or None
+
+
+def _two_ends(kind: str, a: str, b: str, links) -> tuple[tuple[str, str], tuple[str | None, str | None]]:
+    """A two-point load's ends and their carriers (None for the default)."""
+    links = (links,) if isinstance(links, str) else tuple(links)
+    if len(links) != 2:
+        raise MechanismError(f"{kind}: links must be (carrier of a, carrier of b), each a link name or None, got {links!r}")
+    return (a, b), (_carrier_argument(links[0]), _carrier_argument(links[1]))
 
 
 def _link_of(mechanism: Mechanism, point: str, link: str | None) -> str:
-    return link if link is not None else dict(mechanism.owner)[point]
+    """The carrier: ``link`` if given, else the centre of mass's link or the point's owner."""
+    if link is not None:
+        return link
+    return _com_link(point) or dict(mechanism.owner)[point]
 
 
 def _moment_about_com(kin, link: str, at: Array, force: Array) -> Array:
@@ -206,11 +283,19 @@ def _moment_about_com(kin, link: str, at: Array, force: Array) -> Array:
 
 
 def _point_velocity(kin, point: str) -> Array:
+    """Velocity (m/s) of a moving point or centre of mass; a fixed point's is zero."""
+    link = _com_link(point)
+    if link is not None:
+        return kin.com_velocities[link]
     return kin.velocities[point] if point in kin.velocities else jnp.zeros(2)
 
 
 def _point_position(mechanism: Mechanism, kin, point: str) -> Array:
-    """A moving point from ``kin.points`` (a Kinematics or a Pose), a fixed one from the ground."""
+    """A moving point from ``kin.points`` (a Kinematics or a Pose), a centre of mass from
+    ``kin.coms``, a fixed one from the ground."""
+    link = _com_link(point)
+    if link is not None:
+        return kin.coms[link]
     return kin.points[point] if point in kin.points else mechanism.ground[point]
 
 
@@ -218,9 +303,21 @@ def _point_position(mechanism: Mechanism, kin, point: str) -> Array:
 
 
 class PointForce(AbstractLoad):
-    """A force (N, global frame) on a named point. ``force``: a 2-vector, or a
-    function ``f(q, omega, t) -> (2,)``. ``link`` picks the carrier when the point
-    is a joint (the power, hence the motion, is the same either way)."""
+    """A force (N, global frame) at a point of application.
+
+    ``point``: a named point, or ``"com:<link>"`` for a link's centre of mass.
+    ``force``: a 2-vector, or a function ``f(q, omega, t) -> (2,)``. ``link``: the
+    carrier, the link the force acts on, when the point is shared by several links
+    (a joint) or by a link and the ground. Default (None or ""): the point's owner,
+    i.e. the ground for a fixed point, otherwise the first link of the formation
+    sequence that carries it; a centre of mass is carried by its link. The motion
+    is the same whichever carrier (the point has one velocity); the reaction at the
+    joint differs by the force.
+
+    **Example:**
+    >>> assurjax.PointForce("B", [0.0, -50.0], link="slider")   # at the joint B, on the slider
+    >>> assurjax.PointForce("com:rod", [10.0, 0.0])              # at the rod's centre of mass
+    """
 
     point: str = eqx.field(static=True)
     force: Any
@@ -228,7 +325,7 @@ class PointForce(AbstractLoad):
     velocity_dependent: bool = eqx.field(static=True, default=False)
 
     def __init__(self, point: str, force, *, link: str | None = None, velocity_dependent: bool | None = None):
-        self.point, self.link = point, link
+        self.point, self.link = point, _carrier_argument(link)
         self.force = _as_value(force, "PointForce: force")
         self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
 
@@ -236,18 +333,23 @@ class PointForce(AbstractLoad):
         return (self.force,)
 
     def check(self, mechanism):
-        _check_point(mechanism, self.point, self.link, f"force on point '{self.point}'")
+        _check_point(mechanism, self.point, self.link, f"force on point '{self.point}'", "link")
 
     def wrenches(self, mechanism, kin, t):
         link = _link_of(mechanism, self.point, self.link)
         if link == GROUND:
             return []
         f = evaluate(self.force, kin.q, kin.omega, t)
-        return [(link, f, _moment_about_com(kin, link, kin.points[self.point], f))]
+        return [(link, f, _moment_about_com(kin, link, _point_position(mechanism, kin, self.point), f))]
 
 
 class Couple(AbstractLoad):
-    """A couple (N m, counterclockwise positive) on a link: a number or ``f(q, omega, t)``."""
+    """A couple (N m, counterclockwise positive) on the moving ``link``: a number or
+    ``f(q, omega, t)``. It has no point of application: ``link`` is its carrier.
+
+    **Example:**
+    >>> assurjax.Couple("rocker", -2.0)   # 2 N m clockwise on the rocker
+    """
 
     link: str = eqx.field(static=True)
     moment: Any
@@ -270,14 +372,15 @@ class Couple(AbstractLoad):
 
 
 class _TwoPoint(AbstractLoad):
-    """Shared geometry of springs and dampers between points a and b."""
+    """Shared geometry of springs and dampers between points a and b, and their
+    carriers ``links`` (one per end, None for the default; see :class:`PointForce`)."""
 
     points: tuple[str, str] = eqx.field(static=True)
     links: tuple[str | None, str | None] = eqx.field(static=True)
 
     def check(self, mechanism):
-        for p, link in zip(self.points, self.links):
-            _check_point(mechanism, p, link, f"{type(self).__name__.lower()} {self.points[0]}-{self.points[1]}")
+        for k, (p, link) in enumerate(zip(self.points, self.links)):
+            _check_point(mechanism, p, link, f"{type(self).__name__.lower()} {self.points[0]}-{self.points[1]}", f"links[{k}]")
         if self.points[0] == self.points[1]:
             raise MechanismError(f"{type(self).__name__.lower()}: both ends are point '{self.points[0]}'")
 
@@ -308,7 +411,17 @@ class _TwoPoint(AbstractLoad):
 
 class Spring(_TwoPoint):
     """Linear spring between points a and b: tension k (L - L0) (N), potential
-    k (L - L0)^2 / 2 (J). ``stiffness`` k in N/m, ``free_length`` L0 in m."""
+    k (L - L0)^2 / 2 (J). ``stiffness`` k in N/m, ``free_length`` L0 in m.
+
+    ``a``, ``b``: named points or ``"com:<link>"`` (a centre of mass). ``links``:
+    the carrier of each end, the link that end acts on when its point is a joint;
+    None or "" for the default, the point's owner (the ground for a fixed point,
+    otherwise the first link of the formation sequence that carries it). The motion
+    does not depend on the carriers; the reaction at a joint end does.
+
+    **Example:**
+    >>> assurjax.Spring("O", "B", 200.0, 0.3, links=(None, "slider"))   # B end on the slider, not the rod
+    """
 
     stiffness: Array
     free_length: Array
@@ -316,7 +429,7 @@ class Spring(_TwoPoint):
     conservative: ClassVar[bool] = True
 
     def __init__(self, a: str, b: str, stiffness, free_length=0.0, *, links: tuple[str | None, str | None] = (None, None)):
-        self.points, self.links = (a, b), tuple(links)
+        self.points, self.links = _two_ends("Spring", a, b, links)
         self.stiffness, self.free_length = jnp.asarray(stiffness, dtype=float), jnp.asarray(free_length, dtype=float)
         check_value(MechanismError, "Spring: stiffness", stiffness, nonnegative=True)
         check_value(MechanismError, "Spring: free_length", free_length, nonnegative=True)
@@ -336,14 +449,19 @@ class Spring(_TwoPoint):
 
 class Damper(_TwoPoint):
     """Linear viscous damper between points a and b: tension c dL/dt (N),
-    ``coefficient`` c in N s/m; dissipates c (dL/dt)^2 (W)."""
+    ``coefficient`` c in N s/m; dissipates c (dL/dt)^2 (W). Ends and ``links``
+    (their carriers) as for :class:`Spring`.
+
+    **Example:**
+    >>> assurjax.Damper("H", "com:ram", 50.0)   # from the frame point H to the ram's centre of mass
+    """
 
     coefficient: Array
     velocity_dependent: bool = eqx.field(static=True, default=True)
     dissipative: ClassVar[bool] = True
 
     def __init__(self, a: str, b: str, coefficient, *, links: tuple[str | None, str | None] = (None, None)):
-        self.points, self.links = (a, b), tuple(links)
+        self.points, self.links = _two_ends("Damper", a, b, links)
         self.coefficient = jnp.asarray(coefficient, dtype=float)
         check_value(MechanismError, "Damper: coefficient", coefficient, nonnegative=True)
         self.velocity_dependent = True
@@ -360,7 +478,13 @@ class Damper(_TwoPoint):
 class RotaryDamper(AbstractLoad):
     """Viscous damper on the revolute ``joint`` (a point name shared by exactly two
     links, or a link and the ground): couple c (w_b - w_a) on link a, the opposite
-    on link b; ``coefficient`` c in N m s/rad; dissipates c (w_b - w_a)^2 (W)."""
+    on link b; ``coefficient`` c in N m s/rad; dissipates c (w_b - w_a)^2 (W).
+    Both links carry it, a the point's owner (the ground for a fixed point, otherwise
+    the earlier in the formation sequence), b the other: there is no carrier to pick.
+
+    **Example:**
+    >>> assurjax.RotaryDamper("O4", 2.0)
+    """
 
     joint: str = eqx.field(static=True)
     coefficient: Array
@@ -374,12 +498,9 @@ class RotaryDamper(AbstractLoad):
         self.velocity_dependent = True
 
     def check(self, mechanism):
-        carriers = _carriers(mechanism, self.joint)
-        if len(carriers) != 2:
-            raise MechanismError(
-                f"rotary damper: point '{self.joint}' must be a joint of exactly two links (or a link and the ground), "
-                f"it is carried by {carriers or 'nothing'}"
-            )
+        problem = joint_problem(mechanism, self.joint)
+        if problem is not None:
+            raise MechanismError(f"rotary damper: {problem}")
 
     def _relative(self, mechanism, kin):
         a, b = _carriers(mechanism, self.joint)
@@ -398,7 +519,12 @@ class RotaryDamper(AbstractLoad):
 
 class Drive(AbstractLoad):
     """The driving effort on the driver: torque (N m, crank) or force (N along the
-    guide, slider), a number or ``f(q, omega, t)``."""
+    guide, slider), a number or ``f(q, omega, t)``. Its carrier is the driver link
+    (it enters as the generalized force conjugate to q).
+
+    **Example:**
+    >>> assurjax.Drive(assurjax.Polynomial([0.5, 0.1], variable="t"))   # 0.5 + 0.1 t N m
+    """
 
     value: Any
     velocity_dependent: bool = eqx.field(static=True, default=False)
@@ -418,7 +544,11 @@ class MotorLine(AbstractLoad):
     """A motor's linear torque-speed line on the driver:
     tau = stall (1 - omega / no_load_speed). ``stall`` in N m (N for a linear motor),
     ``no_load_speed`` in rad/s (m/s). The line is not clipped: beyond the no-load
-    speed the motor brakes."""
+    speed the motor brakes. Its carrier is the driver link, as for :class:`Drive`.
+
+    **Example:**
+    >>> assurjax.MotorLine(1.5, 10.0)
+    """
 
     stall: Array
     no_load_speed: Array

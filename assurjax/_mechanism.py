@@ -15,6 +15,10 @@ from ._values import check_value, concrete as _concrete
 from .groups._base import GROUND, AbstractGroup, Link
 
 
+COM_PREFIX = "com:"
+"""``"com:<link>"`` names a link's centre of mass where a load's point goes; no point may be so named."""
+
+
 class Pose(eqx.Module):
     """Result of the position analysis at one driving coordinate q.
 
@@ -125,6 +129,9 @@ def _check_structure(ground, links, groups) -> dict[str, str]:
         for link in g.links:
             for p in links[link].points:
                 owner.setdefault(p, link)
+    reserved = [p for p in owner if p.startswith(COM_PREFIX)]
+    if reserved:
+        raise MechanismError(f"point name(s) {reserved}: names starting with '{COM_PREFIX}' are reserved for centres of mass ('com:<link>')")
     unused = [name for name in links if name not in placed_links]
     if unused:
         raise MechanismError(f"link(s) {unused} belong to no group of the formation sequence")

@@ -89,6 +89,30 @@ class Damper:
     c: float
 
 
+@dataclass(frozen=True)
+class Spring:
+    """Linear spring between point s_a of body_a and point s_b of body_b (body frames;
+    global for the ground): tension k (L - L0) pulls the two points together when
+    stretched; potential k (L - L0)^2 / 2."""
+    name: str
+    body_a: str
+    s_a: tuple
+    body_b: str
+    s_b: tuple
+    k: float
+    free_length: float = 0.0
+
+
+@dataclass(frozen=True)
+class PointLoad:
+    """A constant force (global frame, N) at point s of body (body frame; the body's
+    COM for a force at its centre of mass); potential -force . P."""
+    name: str
+    body: str
+    s: tuple
+    force: tuple
+
+
 @dataclass
 class Initial:
     """Assembled initial state: q, w and frame coordinates {body: (x, y, theta)}."""
@@ -118,10 +142,10 @@ class System:
     bodies: {name: dict(mass, inertia, com_local=(x, y))}, inertia about the COM.
     joints: list of Revolute / Prismatic; "ground" is the fixed body.
     driver: (body, kind), kind in {"angle", "x", "y"} -- q is that frame coordinate.
-    dampers: list of Damper.
+    dampers: list of Damper; springs: list of Spring; point_loads: list of PointLoad.
     """
 
-    def __init__(self, bodies, joints, driver, gravity=(0.0, -G), dampers=(), max_dq=0.05):
+    def __init__(self, bodies, joints, driver, gravity=(0.0, -G), dampers=(), max_dq=0.05, springs=(), point_loads=()):
         self.names = list(bodies)
         self.body_data = {b: dict(d) for b, d in bodies.items()}
         self.idx = {b: k for k, b in enumerate(self.names)}
@@ -134,6 +158,8 @@ class System:
         self.gravity = np.asarray(gravity, float)
         self.joints = list(joints)
         self.dampers = list(dampers)
+        self.springs = list(springs)
+        self.point_loads = list(point_loads)
         self.m = 2 * len(self.joints)
         if self.m != self.n - 1:
             raise ValueError(f"{self.m} constraint rows for {self.n} coordinates: not 1-DOF")
@@ -298,10 +324,33 @@ class System:
         return self.to_frames(self.newton(q, self.to_internal(guess))[0])
 
     # -- forces and dynamics ---------------------------------------------------------
+    def _at(self, z, body, s):
+        """Global position of point s (body frame) of body."""
+        return self._pt(z, self.idx[body], self._rel(body, s))[0]
+
+    def applied_point_forces(self, z):
+        """Springs and point loads as [(body, point P, force at P)] (a spring gives two)."""
+        out = []
+        for sp in self.springs:
+            Pa, Pb = self._at(z, sp.body_a, sp.s_a), self._at(z, sp.body_b, sp.s_b)
+            d = Pb - Pa
+            length = np.linalg.norm(d)
+            f = sp.k * (length - sp.free_length) * d / length  # on a, towards b when stretched
+            out += [(sp.body_a, Pa, f), (sp.body_b, Pb, -f)]
+        for pl in self.point_loads:
+            out.append((pl.body, self._at(z, pl.body, pl.s), np.asarray(pl.force, float)))
+        return out
+
     def forces(self, z, zd, tau=0.0, row=None):
-        """Generalized forces Q (n,) (gravity, driver tau, dampers) and damper power."""
+        """Generalized forces Q (n,) (gravity, driver tau, dampers, springs, point loads)
+        and damper power."""
         row = self._full(z)[1][-1] if row is None else row
         Q = self.Qg + tau * row
+        for body, P, f in self.applied_point_forces(z):
+            k = self.idx[body]
+            if k >= 0:
+                Q[3 * k: 3 * k + 2] += f
+                Q[3 * k + 2] += _cross(P - z[3 * k: 3 * k + 2], f)
         power = 0.0
         for dm in self.dampers:
             a, b = self.idx[dm.body_a], self.idx[dm.body_b]
@@ -372,8 +421,14 @@ class System:
         return F, C
 
     def energies(self, z, zd):
+        """Kinetic and potential energy (gravity, springs, constant point loads)."""
         T = 0.5 * np.sum(self.Mdiag * zd**2)
         V = -np.sum(self.mass * (z[0::3] * self.gravity[0] + z[1::3] * self.gravity[1]))
+        for sp in self.springs:
+            length = np.linalg.norm(self._at(z, sp.body_b, sp.s_b) - self._at(z, sp.body_a, sp.s_a))
+            V += 0.5 * sp.k * (length - sp.free_length) ** 2
+        for pl in self.point_loads:
+            V -= np.dot(pl.force, self._at(z, pl.body, pl.s))
         return T, V
 
     # -- simulation ------------------------------------------------------------------
@@ -489,6 +544,8 @@ def newton_euler_residuals(system, z, zd, zdd, reactions, couples, tau=0.0):
         f = -dm.c * (e @ (system._vel(zd, b, ab) - system._vel(zd, a, aa))) * e
         apply(dm.body_b, Pb, f)
         apply(dm.body_a, Pa, -f)
+    for body, P, f in system.applied_point_forces(z):
+        apply(body, P, f)
     res = np.empty((nb, 3))
     for k, m in enumerate(system.mass):
         res[k, :2] = m * zdd[3 * k: 3 * k + 2] - m * system.gravity - F[k]
@@ -539,6 +596,15 @@ class Model:
     def simulate(self, t1, **kw):
         kw.setdefault("tau", self.tau)
         return self.system.simulate(self.initial, t1, **kw)
+
+
+def with_loads(model: Model, springs=(), point_loads=(), dampers=()) -> Model:
+    """The same mechanism, initial state, driver effort and data with ``springs``,
+    ``point_loads`` and ``dampers`` added (lists of Spring / PointLoad / Damper)."""
+    s = model.system
+    system = System(s.body_data, s.joints, s.driver, gravity=s.gravity, dampers=list(s.dampers) + list(dampers), max_dq=s.max_dq,
+                    springs=list(s.springs) + list(springs), point_loads=list(s.point_loads) + list(point_loads))
+    return Model(system, model.initial, model.tau, dict(model.data))
 
 
 # ----------------------------------------------------------------------------- geometry

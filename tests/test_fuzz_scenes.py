@@ -52,6 +52,7 @@ LOADS = [
     {"type": "motor", "stall": 2.0, "no_load_speed": 10.0},
     {"type": "drive", "value": 0.3},
     {"type": "force", "point": None, "force": [1.0, 0.0]},
+    {"type": "spring", "points": None, "links": ["", ""], "stiffness": 5.0},  # "": the default carriers
 ]
 
 

@@ -24,6 +24,16 @@ def _slider_driven_offset():
     return jr.Model(jr.System(bodies, m.system.joints, m.system.driver), m.initial)
 
 
+def _slider_crank_loaded():
+    """Slider-crank with a spring from the frame to the slider pin, a force on the slider
+    and on the rod's COM, and a damper at the rod's COM: the springs and point loads."""
+    loads = dict(springs=[jr.Spring("spring", jr.GROUND, (0.0, 0.05), "slider", (0.0, 0.0), 150.0, 0.1)],
+                 point_loads=[jr.PointLoad("push", "slider", (0.0, 0.0), (-20.0, 15.0)),
+                              jr.PointLoad("at_com", "rod", (0.15, 0.0), (12.0, -30.0))],
+                 dampers=[jr.Damper("damper", jr.GROUND, (0.0, 0.0), "rod", (0.15, 0.0), 4.0)])
+    return jr.with_loads(jr.slider_crank(0.5, 3.0), **loads)
+
+
 MODELS = {
     "watt": lambda: jr.watt_sixbar(0.3, 1.0),
     "slider_crank": lambda: jr.slider_crank(0.5, 3.0),
@@ -31,6 +41,7 @@ MODELS = {
     "slider_driven": lambda: jr.slider_driven(0.2, 0.1),
     "quick_return": lambda: jr.quick_return(0.4, 4.0),
     "slider_driven_offset": _slider_driven_offset,
+    "slider_crank_loaded": _slider_crank_loaded,
 }
 
 
@@ -69,6 +80,14 @@ def test_energy_conserved_without_dissipation(name):
     # relative to the largest kinetic energy reached (E itself may be near zero)
     assert np.ptp(r.E) / r.T.max() < 1e-9
     assert r.residual.max() < 1e-12
+
+
+def test_energy_balance_with_springs_point_loads_and_damper():
+    """Springs and constant point loads are in V, the damper's power in the work."""
+    r = _slider_crank_loaded().simulate(1.0)
+    assert np.ptp(r.E - r.work) / r.T.max() < 1e-9
+    assert np.min(r.work) < -1e-3  # the damper really dissipates
+    assert np.ptp(r.V) > 1.0  # and the spring and forces really work
 
 
 def test_energy_balance_with_motor_and_damper():

@@ -63,27 +63,51 @@ def _numbers(v) -> bool:
 
 
 def _point(f: Fields, key: str, mechanism: Mechanism) -> str:
+    """A point of application: a named point or "com:<link>"."""
     p = f.string(key)
-    if p not in mechanism.point_names:
-        f.fail(key, f"unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    problem = _loads.point_problem(mechanism, p)
+    if problem is not None:
+        f.fail(key, problem)
     return p
 
 
-def _link(f: Fields, key: str, mechanism: Mechanism, default=...) -> str | None:
-    link = f.string(key, default) if default is ... or f.has(key) else default
-    if link is not None and link not in mechanism.links:
+def _link(f: Fields, key: str, mechanism: Mechanism) -> str:
+    link = f.string(key)
+    if link not in mechanism.links:
         f.fail(key, f"unknown link '{link}' (known: {sorted(mechanism.links)})")
+    return link
+
+
+def _carrier(f: Fields, point: str, mechanism: Mechanism) -> str | None:
+    """The optional ``link`` carrying a point load ("" or absent: the default)."""
+    link = f.string("link", "") or None
+    problem = _loads.carrier_problem(mechanism, point, link)
+    if problem is not None:
+        f.fail("link", problem)
     return link
 
 
 def _two_points(f: Fields, mechanism: Mechanism) -> tuple[str, str]:
     a, b = f.names("points", 2)
     for p in (a, b):
-        if p not in mechanism.point_names:
-            f.fail("points", f"unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+        problem = _loads.point_problem(mechanism, p)
+        if problem is not None:
+            f.fail("points", problem)
     if a == b:
         f.fail("points", f"both ends are point '{a}'")
     return a, b
+
+
+def _two_carriers(f: Fields, points: tuple[str, str], mechanism: Mechanism) -> tuple[str | None, str | None]:
+    """The optional ``links = [carrier of a, carrier of b]`` ("" or absent: the default)."""
+    if not f.has("links"):
+        return None, None
+    links = tuple(link or None for link in f.names("links", 2))
+    for k, (p, link) in enumerate(zip(points, links)):
+        problem = _loads.carrier_problem(mechanism, p, link)
+        if problem is not None:
+            f.fail("links", f"entry {k + 1} (end '{p}'): {problem}")
+    return links
 
 
 def _force(f, mechanism):
@@ -93,7 +117,7 @@ def _force(f, mechanism):
         f.fail("force", f"expected [fx, fy] (numbers or value forms), got {raw!r}")
     components = [_value(Fields({"fx": raw[0], "fy": raw[1]}, f.where + ", field 'force'", f.source), k) for k in ("fx", "fy")]
     force = components if all(isinstance(c, float) for c in components) else _loads.Vector(*components)
-    return _loads.PointForce(point, force, link=_link(f, "link", mechanism, None))
+    return _loads.PointForce(point, force, link=_carrier(f, point, mechanism))
 
 
 def _couple(f, mechanism):
@@ -102,16 +126,21 @@ def _couple(f, mechanism):
 
 def _spring(f, mechanism):
     a, b = _two_points(f, mechanism)
-    return _loads.Spring(a, b, f.number("stiffness", nonnegative=True), f.number("free_length", 0.0, nonnegative=True))
+    return _loads.Spring(a, b, f.number("stiffness", nonnegative=True), f.number("free_length", 0.0, nonnegative=True),
+                         links=_two_carriers(f, (a, b), mechanism))
 
 
 def _damper(f, mechanism):
     a, b = _two_points(f, mechanism)
-    return _loads.Damper(a, b, f.number("coefficient", nonnegative=True))
+    return _loads.Damper(a, b, f.number("coefficient", nonnegative=True), links=_two_carriers(f, (a, b), mechanism))
 
 
 def _rotary_damper(f, mechanism):
-    return _loads.RotaryDamper(_point(f, "joint", mechanism), f.number("coefficient", nonnegative=True))
+    joint = _point(f, "joint", mechanism)
+    problem = _loads.joint_problem(mechanism, joint)
+    if problem is not None:
+        f.fail("joint", problem)
+    return _loads.RotaryDamper(joint, f.number("coefficient", nonnegative=True))
 
 
 def _drive(f, mechanism):
