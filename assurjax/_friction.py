@@ -213,7 +213,8 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, direction
     (forces, couples) costs one kinetostatic solve, its K tangents one more each).
     ``kin``: the positions the limits are read on; ``rates``: (K,) relative rates
     per unit driving velocity; ``direction``: +1/-1, the sign of w or, at rest, the
-    direction of the motion tested. Returns (u, ok)."""
+    direction of the motion tested. Returns (u, ok); ok is False where Newton fails or the
+    solution is not consistent (Painleve: the friction would drive the motion it opposes)."""
     k = len(frictions)
     signs = jnp.sign(rates) * direction
     (forces0, couples0), linear = jax.linearize(react, jnp.zeros(k))
@@ -231,4 +232,8 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, direction
 
     u0 = law(jnp.zeros(k))
     sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), u0, max_steps=64, throw=False)
-    return sol.value, sol.result == optx.RESULTS.successful
+    # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
+    # than inertia resists (the effective inertia is not positive): no consistent motion has
+    # the assumed signs, the mechanism jams (K x K: a few forward passes of the linear law)
+    consistent = jnp.linalg.det(jax.jacfwd(residual)(sol.value, None)) > 0
+    return sol.value, (sol.result == optx.RESULTS.successful) & consistent

@@ -71,6 +71,20 @@ def test_self_locking_stays_at_rest(slider):
     assert np.all(np.isfinite(locked.total))
 
 
+def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
+    """stop='standstill' from a start the friction holds: a standstill at t0, at rest (it
+    used to run with the Coulomb signs of an assumed direction, against the motion they
+    caused, and ran away to ~7e5 rad/s). Same program as the mu = 0 run below."""
+    held = aj.simulate(slider, loads=frictions(slider.mechanism, 5.0), stop="standstill", t1=T1, dt=2e-3)
+    assert held.t_stop == 0.0 and held.status.startswith("standstill at t = 0 s"), held.status
+    assert np.all(held.q == 0.5) and np.all(held.omega == 0.0)
+    # the forward-sensitivity routes have no direction for the Coulomb signs: they say so
+    loaded = aj.Scene(mechanism=slider.mechanism, gravity=slider.gravity, loads=frictions(slider.mechanism, 0.2),
+                      state=slider.state, simulation=slider.simulation, outputs=slider.outputs, name=slider.name)
+    with pytest.raises(aj.AssurjaxError, match="adjoint='recursive'"):
+        aj.synthesis.standstill_time(loaded, adjoint="quadrature")
+
+
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
     """mu = 0 on every pair: with the same (fixed) steps up to the first standstill, the same
     motion as without friction to round-off; past it, the stick-slip segments (adaptive)

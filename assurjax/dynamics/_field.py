@@ -58,10 +58,11 @@ class FieldArgs(eqx.Module):
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
 
 
-def field_args(model: Model, table: ReducedTable | None = None) -> FieldArgs:
-    """The arguments of the vector field evaluated on its own (no stop events)."""
+def field_args(model: Model, table: ReducedTable | None = None, *, direction=1.0) -> FieldArgs:
+    """The arguments of the vector field evaluated on its own (no stop events).
+    ``direction``: of the motion, for the Coulomb signs of joint friction (0: held at rest)."""
     zero = jnp.zeros(())
-    return FieldArgs(model=model, table=table, direction=zero, q0=zero, user_signs=())
+    return FieldArgs(model=model, table=table, direction=jnp.asarray(direction, dtype=float), q0=zero, user_signs=())
 
 
 def vector_field(t, y: State, args: FieldArgs) -> State:
@@ -72,7 +73,12 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     if frictions_of(model.loads):
         # the Coulomb signs of the segment's direction of motion, frozen until w returns to 0
         # (an event ends the segment there): the field stays smooth across the stop
-        red, kin, alpha, friction_power = frictional(model, t, y, args.direction, args.bridge)
+        red, kin, alpha, friction_power, consistent = frictional(model, t, y, args.direction, args.bridge)
+        # direction 0: held at rest by the friction from the start (the standstill path): nothing moves;
+        # no consistent friction (a jam): NaN, so that the solver stops there instead of running away
+        moving = args.direction != 0
+        alpha = jnp.where(moving, jnp.where(consistent, alpha, jnp.nan), 0.0)
+        friction_power = jnp.where(moving, friction_power, 0.0)
     else:
         red, kin = _reduce(model, t, y, args.bridge)
         alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
@@ -90,7 +96,8 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
     with friction in its joints: the reduced equation with the friction's generalized
     force sum_k u_k dphi_k/dq, u from ``solve_friction`` (signs from ``direction``:
     sign(w), or at rest the direction tested for break-away; an array of directions
-    gives one dw/dt and power per direction)."""
+    gives one dw/dt and power per direction), and whether the friction has a consistent
+    solution with those signs (see ``solve_friction``)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
@@ -106,17 +113,19 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
         return forces, couples
 
     def solve(direction):
-        u, _ = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
-        return alpha_of(u), jnp.dot(rates, u) * y.omega
+        u, ok = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
+        return alpha_of(u), jnp.dot(rates, u) * y.omega, ok
 
     # several directions (the break-away test): one vmapped solve on the same coefficients
-    alpha, power = solve(direction) if jnp.ndim(direction) == 0 else jax.vmap(solve)(direction)
-    return red, kin, alpha, power
+    alpha, power, ok = solve(direction) if jnp.ndim(direction) == 0 else jax.vmap(solve)(direction)
+    return red, kin, alpha, power, ok
 
 
 def directional_accelerations(model: Model, t, y: State):
-    """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction."""
-    a = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))[2]
+    """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction (0 where
+    that friction has no consistent solution: it cannot start that way)."""
+    _, _, a, _, consistent = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
+    a = jnp.where(consistent, a, 0.0)  # a direction whose friction has no consistent solution stays jammed
     return a[0], a[1]
 
 
@@ -148,7 +157,8 @@ def acceleration_at(model: Model, t, y: State):
     else the acceleration of the direction it breaks away in."""
     if not frictions_of(model.loads):
         return _reduce(model, t, y)[0].acceleration(y.omega)
-    moving, a_plus, a_minus = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))[2]
+    _, _, a, _, consistent = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))
+    moving, a_plus, a_minus = a[0], jnp.where(consistent[1], a[1], 0.0), jnp.where(consistent[2], a[2], 0.0)
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest)
 

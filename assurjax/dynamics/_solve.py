@@ -24,7 +24,7 @@ from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import assembles, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
-from ._results import LOCKUP, NO_EVENT, RESULTS
+from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
                         state_problem, step_budget)
 from ._solution import Solution, batch_summary, outputs, trim
@@ -103,11 +103,8 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
     # with friction, up to the first standstill: one segment with the Coulomb signs of the
-    # start's direction (a start held by the friction stops at once: w turns against +1)
-    direction = jnp.sign(omega0)
-    if frictional:
-        direction = start_direction(model, t0, y0)
-        direction = jnp.where(direction != 0, direction, 1.0)
+    # start's direction; 0 when the friction holds it at rest (the field is then frozen)
+    direction = start_direction(model, t0, y0) if frictional else jnp.sign(omega0)
     args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs, bridge=settings.bridge)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
@@ -124,7 +121,16 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    return _package(model, sol, ts, args, settings)
+    sol = _package(model, sol, ts, args, settings)
+    return _held_at_start(sol, direction == 0, t0) if frictional else sol
+
+
+def _held_at_start(sol: Solution, held, t0) -> Solution:
+    """A start held at rest by the friction: a standstill at t0 (every sample stayed at rest)."""
+    first = jnp.arange(sol.valid.shape[0]) == 0
+    return eqx.tree_at(lambda s: (s.event, s.t_final, s.t_stop, s.valid, s.t), sol,
+                       (jnp.where(held, STANDSTILL, sol.event), jnp.where(held, t0, sol.t_final),
+                        jnp.where(held, t0, sol.t_stop), jnp.where(held, first, sol.valid), jnp.where(held, t0, sol.t)))
 
 
 def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:

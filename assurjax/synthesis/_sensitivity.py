@@ -49,6 +49,7 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .._errors import AssurjaxError
+from .._friction import frictions_of
 from .._model import Model, as_model
 from .._reduction import generalized_force
 from ..dynamics._field import State, field_args, vector_field
@@ -291,6 +292,15 @@ def _standstill_fn(f, options: SensitivityOptions):
     return stop
 
 
+def _without_friction(model: Model) -> Model:
+    """The model, checked to carry no joint friction: these routes' field has no direction
+    of motion to take the Coulomb signs from."""
+    if frictions_of(model.loads):
+        raise AssurjaxError("joint friction: the forward-sensitivity routes (adjoint='quadrature' or 'sensitivity') do not "
+                            "carry the Coulomb signs; use adjoint='recursive' (derivatives through the simulation itself)")
+    return model
+
+
 def _initial(scene, q0, omega0):
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
@@ -329,7 +339,7 @@ def final_state_sensitivity(scene, t1, *, q0=None, omega0=None, mechanism=None, 
     Fixed assembly branch, exact reduction, no stop events.
     """
     options = _options(scene, settings)
-    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    model = _without_friction(as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads))
     p, rebuild = _split(model)
     t0 = jnp.asarray(scene.state.get("t0", 0.0), dtype=float)
     y, result = _final_state_fn(_field(rebuild), options)(p, _initial(scene, q0, omega0), t0, jnp.asarray(t1, dtype=float))
@@ -346,7 +356,7 @@ def standstill_time_sensitivity(scene, *, t1=None, q0=None, omega0=None, mechani
     solve for the whole gradient.
     """
     options = _options(scene, settings)
-    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    model = _without_friction(as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads))
     p, rebuild = _split(model)
     y0 = _initial(scene, q0, omega0)
     t0 = jnp.asarray(scene.state.get("t0", 0.0), dtype=float)
