@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import assurjax
-from assurjax import _dynamics
+from assurjax.dynamics import _settings
 from assurjax import synthesis as syn
 
 RESULTS = Path(__file__).parent / "results"
@@ -110,7 +110,7 @@ def main():
     ap.add_argument("--output", default="gradients.json")
     args = ap.parse_args()
     # every step stored: no recomputation in the backward pass (memory ~ steps x state)
-    _dynamics.ADJOINTS["recursive_all_steps"] = lambda: diffrax.RecursiveCheckpointAdjoint(checkpoints=OPTS["max_steps"])
+    _settings.ADJOINTS["recursive_all_steps"] = lambda: diffrax.RecursiveCheckpointAdjoint(checkpoints=OPTS["max_steps"])
 
     scene = assurjax.load_scene("watt_sixbar")
     theta, unflatten = syn.flatten_parameters(scene, select=lambda s: (s.mechanism, s.gravity))

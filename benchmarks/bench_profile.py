@@ -30,7 +30,6 @@ import jax.numpy as jnp
 import assurjax as aj
 from _timing import best_time
 from assurjax.dynamics._field import State, field_args, vector_field
-from assurjax._reduction import _coords
 
 HERE = Path(__file__).resolve().parent
 LOOP = 20_000  # evaluations per timed loop
@@ -74,9 +73,9 @@ def adaptive_per_step(solver, term) -> tuple[float, int]:
 
     @aj.jit
     def solve(q0):
-        sol = diffrax.diffeqsolve(term, solver, 0.0, 200.0, None, (q0, jnp.zeros(())), saveat=diffrax.SaveAt(t1=True),
+        sol = diffrax.diffeqsolve(term, solver, 0.0, 200.0, None, State(q0, jnp.zeros(())), saveat=diffrax.SaveAt(t1=True),
                                   stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-8), max_steps=100_000)
-        return sol.ys[0], sol.stats["num_steps"]
+        return sol.ys.q, sol.stats["num_steps"]
 
     steps = int(solve(jnp.asarray(0.3))[1])
     return best_time(lambda: solve(jnp.asarray(0.3))) / steps, steps
@@ -85,10 +84,13 @@ def adaptive_per_step(solver, term) -> tuple[float, int]:
 def main():
     scene = aj.load_scene("watt_sixbar")
     mech, gravity = scene.mechanism, scene.gravity
-    coords = _coords(mech)
+    def coords(q):  # q -> (points, coms, angles), ok: what the reduction differentiates
+        pose = aj.positions(mech, q)
+        return (pose.points, pose.coms, pose.angles), pose.ok
+
     table = aj.build_table(mech, gravity, ())
-    args = field_args(assurjax.Model(mech, gravity))
-    table_args = field_args(assurjax.Model(mech, gravity), table)
+    args = field_args(aj.Model(mech, gravity))
+    table_args = field_args(aj.Model(mech, gravity), table)
 
     def first_order(q):
         x, dx, _ = jax.jvp(coords, (q,), (jnp.ones_like(q),), has_aux=True)
