@@ -35,6 +35,9 @@ def cross(a, b):
     return a[0] * b[1] - a[1] * b[0]
 
 
+MAX_TRIES = 1000  # random placements per group before the drawing is given up
+
+
 class Drawing:
     """A random drawing built group by group (its own formation sequence, kept for the check)."""
 
@@ -94,11 +97,13 @@ class Drawing:
     # -- the groups (each keeps |sin| of its critical angle above MARGIN) -----------------
     def RRR(self):
         e1, e2 = self.externals(2)
-        while True:
+        for _ in range(MAX_TRIES):
             j = self.near(e1)
             a, b = j - self.joints[e1], j - self.joints[e2]
             if abs(cross(a, b)) > MARGIN * np.hypot(*a) * np.hypot(*b):
                 break
+        else:
+            raise RuntimeError("no admissible random placement (e.g. coinciding joints)")
         d = self.joints[e2] - self.joints[e1]
         if np.sign(cross(d, a)) != self.sign():  # the mode: reflect J across the line E1 E2
             j = self.joints[e1] + 2 * np.dot(a, unit(d)) * unit(d) - a
@@ -109,10 +114,12 @@ class Drawing:
     def RRP(self):
         (e,) = self.externals(1)
         guide = self.guide()
-        while True:
+        for _ in range(MAX_TRIES):
             j, u = self.near(e), unit(self.rng.normal(size=2))
             if abs(np.dot(unit(j - self.joints[e]), u)) > MARGIN:
                 break
+        else:
+            raise RuntimeError("no admissible random placement (e.g. coinciding joints)")
         u = u * np.sign(np.dot(j - self.joints[e], u)) * self.sign()
         jn = self.point(j)
         rod = self.link([e, jn], extra=False)
@@ -124,10 +131,12 @@ class Drawing:
     def RPR(self):
         e1, e2 = self.externals(2)
         d = self.joints[e1] - self.joints[e2]
-        while True:
+        for _ in range(MAX_TRIES):
             u = unit(self.rng.normal(size=2))
             if abs(np.dot(unit(d), u)) > MARGIN:
                 break
+        else:
+            raise RuntimeError("no admissible random placement (e.g. coinciding joints)")
         u = u * np.sign(np.dot(d, u)) * self.sign()
         block = self.link([e1], extra=False)
         guide = self.link([e2])
@@ -136,10 +145,12 @@ class Drawing:
 
     def PRP(self):
         g1, g2 = self.guide(), self.guide()
-        while True:
+        for _ in range(MAX_TRIES):
             u1, u2 = unit(self.rng.normal(size=2)), unit(self.rng.normal(size=2))
             if abs(cross(u1, u2)) > MARGIN:
                 break
+        else:
+            raise RuntimeError("no admissible random placement (e.g. coinciding joints)")
         jn = self.point(self.rng.uniform(-1, 1, 2))
         s1 = self.link([jn], extra=False)
         self.slides.append(Slide(s1, g1, tuple(u1)))
@@ -264,9 +275,20 @@ def check_batch(drawings, names):
     return len(drawings)
 
 
+def random_drawings(rng, kinds, driver, seed, count):
+    """Up to ``count`` drawings; a drawing whose groups find no admissible placement is skipped."""
+    out = []
+    for _ in range(count):
+        try:
+            out.append(Drawing(rng, kinds, driver, "+", seed))
+        except RuntimeError:
+            continue
+    return out
+
+
 def run_structure(seed, driver, n):
     rng, kinds, *names = structure(seed, driver)
-    drawings = usable([Drawing(rng, kinds, driver, "+", seed) for _ in range(3 * n)], n)
+    drawings = usable(random_drawings(rng, kinds, driver, seed, 3 * n), n)
     assert check_batch(drawings, names) == n
 
 
