@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -183,10 +184,16 @@ def to_host(tree):
     transfer for JAX's transfer guards): device_get's asynchronous copy requests, made
     for accelerators, cost ~5 us per array, more than a small simulation's run."""
     scope = getattr(_jax_config, "explicit_device_get_scope", None)
-    if scope is None or jax.default_backend() != "cpu":
+    if scope is None or not _on_cpu():
         return jax.device_get(tree)
     with scope():
         return jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, tree)
+
+
+@functools.cache
+def _on_cpu() -> bool:
+    """JAX computes on the CPU (fixed once its backends are up; asking costs 3-60 us a call)."""
+    return jax.default_backend() == "cpu"
 
 
 def _replaced(sol: Solution, **changes) -> Solution:
