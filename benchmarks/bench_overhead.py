@@ -118,7 +118,7 @@ def measure(quick: bool) -> dict:
     repeats, budget = (100, 1.0) if quick else (400, 3.0)
     scene = aj.load_scene("watt_sixbar")
     prebuilt = aj.build_table(scene.mechanism, scene.gravity, scene.loads)
-    out = dict(package=aj.__file__, shapes={})
+    out = dict(shapes={})
     for name, (what, kwargs) in SHAPES.items():
         kwargs = {k: prebuilt if v == "prebuilt" else v for k, v in kwargs.items()}
         calls = _calls(aj, scene, kwargs, repeats + 2)
@@ -165,8 +165,14 @@ def _in_process(code_dir: str, quick: bool) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _revision() -> str:
+    """This tree's commit, marked when files differ from it."""
+    git = lambda *a: subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True).stdout.strip()  # noqa: E731
+    return git("rev-parse", "--short", "HEAD") + (" with uncommitted changes" if git("status", "--porcelain", "assurjax") else "")
+
+
 def _print(label: str, result: dict) -> None:
-    print(f"== {label} ({result['package']})")
+    print(f"== {label}")
     print(f"{'call shape':24} {'whole (us)':>11} {'program (us)':>13} {'overhead (us)':>14}")
     for name, r in result["shapes"].items():
         print(f"{name:24} {r['whole_us']:11.0f} {r['program_us']:13.0f} {r['overhead_us']:14.0f}")
@@ -195,9 +201,9 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             results["before"] = dict(ref=args.before, **_in_process(_export(args.before, tmp), args.quick))
         _print(f"before ({args.before})", results["before"])
-    results["after"] = _in_process(str(ROOT), args.quick)
+    results["after"] = dict(ref=_revision(), **_in_process(str(ROOT), args.quick))
     results["machine"]["load_average_at_end"] = os.getloadavg()
-    _print("this tree", results["after"])
+    _print(f"this tree ({results['after']['ref']})", results["after"])
     if args.before:
         results["ratios_before_over_after"] = {
             name: {key: results["before"]["shapes"][name][key] / results["after"]["shapes"][name][key]
@@ -208,7 +214,7 @@ def main():
     path = HERE / "results" / "overhead.json"
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(results, indent=2))
-    print(f"saved {path}")
+    print(f"saved {path.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":
