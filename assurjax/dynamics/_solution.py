@@ -10,7 +10,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax._src import config as _jax_config
 from jaxtyping import Array
 
 from .._loads import potential_energy
@@ -183,11 +182,21 @@ def to_host(tree):
     the device's memory is the host's, each array is read directly (still an explicit
     transfer for JAX's transfer guards): device_get's asynchronous copy requests, made
     for accelerators, cost ~5 us per array, more than a small simulation's run."""
-    scope = getattr(_jax_config, "explicit_device_get_scope", None)
+    scope = _explicit_transfer_scope()
     if scope is None or not _on_cpu():
         return jax.device_get(tree)
     with scope():
         return jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, tree)
+
+
+@functools.cache
+def _explicit_transfer_scope():
+    """JAX's own scope of device_get (a private name: None if it moves)."""
+    try:
+        from jax._src import config
+    except ImportError:
+        return None
+    return getattr(config, "explicit_device_get_scope", None)
 
 
 @functools.cache

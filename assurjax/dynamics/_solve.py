@@ -341,6 +341,10 @@ def simulate(
 
     Returns a :class:`Solution` trimmed to the times reached (a single run).
 
+    What depends only on the scene and the options (the checked settings and model, a
+    table) is kept for later calls with the same scene object and equal options; a
+    changed scene is a new object (scenes are immutable) and is checked anew.
+
     **Example:**
     >>> sol = assurjax.simulate(assurjax.load_scene("watt_sixbar"))
     >>> float(sol.t_stop)   # first standstill after falling from rest (the scene asks for stop = "standstill")
