@@ -91,3 +91,17 @@ def test_checks_run_for_every_distinct_option_value():
     for _ in range(2):  # a failed check is not remembered as a success
         with pytest.raises(aj.AssurjaxError, match="rtol"):
             aj.simulate(scene, rtol=-1.0)
+
+
+@pytest.mark.parametrize("values", [(0.0, 0.0, 0.0, 1.0), (1e12, -1e12, 0, 2), (1e12 + 1e-3, 0.0, 0.0, 1.0),
+                                    (float("nan"), 0.0, 0.0, 1.0), (0.0, float("inf"), 0.0, 1.0), (0.0, 0.0, 1.0, 1.0),
+                                    (0.0, 0.0, 2, 1), (10**400, 0.0, 0.0, 1.0), (0.0, 0.0, -1e12, 1e12)])
+def test_start_checks_of_python_numbers_agree_with_numpy_scalars(values):
+    """The start check decides Python numbers without NumPy: the same verdict and words as for NumPy scalars."""
+    from assurjax.dynamics._settings import state_problem
+
+    as_numpy = tuple(np.float64(v) if abs(v) < 1e300 else v for v in values)
+    plain, numpy = state_problem(*values), state_problem(*as_numpy)
+    assert (plain is None) == (numpy is None)
+    if plain is not None:
+        assert plain[0] == numpy[0]
