@@ -23,6 +23,7 @@ HERE = Path(__file__).resolve().parent
 BENCHMARKS = {
     "kinematics": ("bench_kinematics.py", ["--n", "10000", "--repeats", "3"]),
     "dynamics": ("bench_dynamics.py", ["--quick"]),
+    "overhead": ("bench_overhead.py", ["--quick"]),
     "profile": ("bench_profile.py", []),
     "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),

@@ -13,7 +13,7 @@ import diffrax
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._values import concrete, value_problem
+from .._values import MAGNITUDE_LIMIT, concrete, value_problem
 from .._kinematics import BRIDGE_WINDOW
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
@@ -186,6 +186,8 @@ def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     """(field, what is wrong) with a starting state and time span, or None: finite values of
     sane magnitude, t1 later than t0. Arrays (a batch of starts) are checked elementwise;
     tracers are not checked. Shared by the scene loader's [state] and ``simulate``'s keywords."""
+    if _plain_state_ok(q0, omega0, t0, t1):  # the common case, decided without NumPy (~30 us less per call)
+        return None
     for key, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
         if (problem := value_problem(value)) is not None:
             return key, problem
@@ -193,6 +195,15 @@ def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     if start is not None and end is not None and not np.all(end > start):
         return "t1", f"must be later than t0 = {t0}, got {t1}"
     return None
+
+
+def _plain_state_ok(*values) -> bool:
+    """True for Python numbers (not bool, not NumPy) that the checks of state_problem accept:
+    finite, of magnitude at most MAGNITUDE_LIMIT, t1 > t0. False: let those checks decide."""
+    if not all(type(v) in (int, float) for v in values):
+        return False
+    t0, t1 = values[2], values[3]
+    return all(abs(v) <= MAGNITUDE_LIMIT and math.isfinite(v) for v in values) and t1 > t0
 
 
 def _pick(given, table: Mapping, key: str, default):

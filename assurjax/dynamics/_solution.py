@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -159,20 +160,59 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     """Keep only the saved times reached, and turn codes into readable fields."""
     # On the host, in one transfer: slicing device arrays to a new length n would
     # compile per n. The trimmed Solution holds NumPy arrays.
-    sol = jax.device_get(sol)
-    n_saved = sol.valid.shape[0]
-    n = int(np.sum(sol.valid))
+    sol = to_host(sol)
+    valid = sol.valid
+    n_saved, n = valid.shape[0], int(np.count_nonzero(valid))
     cut = lambda x: x[:n] if isinstance(x, np.ndarray) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
-    fields = {k: jax.tree.map(cut, getattr(sol, k)) for k in _SAVED}
-    event, failed = int(sol.event), int(sol.failed_group_index)
+    fields = jax.tree.map(cut, {k: getattr(sol, k) for k in _SAVED})
+    event, failed, code = int(sol.event), int(sol.failed_group_index), int(result_code(sol.result))
     group = mechanism.groups[failed].name if failed >= 0 else None
-    if int(result_code(sol.result)) == START_NOT_ASSEMBLED:
+    if code == START_NOT_ASSEMBLED:
         raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(sol.q[0]):.6g}: "
                             "choose a starting driving coordinate where the mechanism closes (or, for a triad or class-IV "
                             "group, a better 'guess' of its inner joints)", group=group)
-    t_stop = float(sol.t_final) if event >= 0 else None
-    status = status_text(int(result_code(sol.result)), event, group, float(sol.t_final), max_steps=settings.max_steps)
-    return dataclasses.replace(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+    t_final = float(sol.t_final)
+    t_stop = t_final if event >= 0 else None
+    status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
+    return _replaced(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+
+
+def to_host(tree):
+    """``jax.device_get(tree)``: NumPy arrays for the jax arrays in it. On the CPU, where
+    the device's memory is the host's, each array is read directly (still an explicit
+    transfer for JAX's transfer guards): device_get's asynchronous copy requests, made
+    for accelerators, cost ~5 us per array, more than a small simulation's run."""
+    scope = _explicit_transfer_scope()
+    if scope is None or not _on_cpu():
+        return jax.device_get(tree)
+    with scope():
+        return jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, tree)
+
+
+@functools.cache
+def _explicit_transfer_scope():
+    """JAX's own scope of device_get (a private name: None if it moves)."""
+    try:
+        from jax._src import config
+    except ImportError:
+        return None
+    return getattr(config, "explicit_device_get_scope", None)
+
+
+@functools.cache
+def _on_cpu() -> bool:
+    """JAX computes on the CPU (fixed once its backends are up; asking costs 3-60 us a call)."""
+    return jax.default_backend() == "cpu"
+
+
+def _replaced(sol: Solution, **changes) -> Solution:
+    """``dataclasses.replace(sol, **changes)`` without running the Module's __init__ again
+    (~60 us: every field passes equinox's checks), as equinox itself rebuilds a Module
+    when unflattening it: a new instance with its fields set. Every field is set."""
+    new = object.__new__(type(sol))
+    for field in dataclasses.fields(sol):
+        object.__setattr__(new, field.name, changes[field.name] if field.name in changes else getattr(sol, field.name))
+    return new
 
 
 def batch_summary(sols: Solution) -> Solution:

@@ -8,6 +8,7 @@ the stop events of ``_events`` and the outputs of ``_solution``. Durango et al.'
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import diffrax
@@ -27,7 +28,8 @@ from ._field import FieldArgs, State, start_direction, vector_field, vector_fiel
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
                         state_problem, step_budget)
-from ._solution import Solution, batch_summary, outputs, trim
+from ._call_cache import CallCache
+from ._solution import Solution, batch_summary, outputs, to_host, trim
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -345,21 +347,25 @@ def simulate(
 
     Returns a :class:`Solution` trimmed to the times reached (a single run).
 
+    What depends only on the scene and the options (the checked settings and model, a
+    table) is kept for later calls with the same scene object and equal options; a
+    changed scene is a new object (scenes are immutable) and is checked anew.
+
     **Example:**
     >>> sol = assurjax.simulate(assurjax.load_scene("watt_sixbar"))
     >>> float(sol.t_stop)   # first standstill after falling from rest (the scene asks for stop = "standstill")
     >>> batch = assurjax.simulate(scene, q0=np.linspace(0, 6, 10_000), stop=None)
     """
-    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
-    scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
+    options = dict(stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
+                   events=events, check_assembly=check_assembly, points=points, angles=angles, energies=energies,
+                   velocities=velocities, accelerations=accelerations, coms=coms, branch=branch, reduction=reduction,
+                   table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge)
+    prepared = _PREPARED.get(
+        (scene, getattr(scene, "simulation", None), getattr(scene, "outputs", None), mechanism, gravity, loads, table,
+         *options.values()),
+        lambda: _prepare(scene, mechanism, gravity, loads, options))
+    model, scene_or_none, settings = prepared.model, prepared.scene, prepared.settings
     state = {} if scene_or_none is None else scene_or_none.state
-    settings = settings_from(
-        scene_or_none, stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
-        events=tuple(events), check_assembly=bool(check_assembly), points=points, angles=angles, energies=energies,
-        velocities=velocities, accelerations=accelerations, coms=coms,
-        branch=branch, reduction=reduction, table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge,
-    )
-    _check_outputs(model.mechanism, settings)
     q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)
                           for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
     if (problem := state_problem(q0, omega0, t0, t1)) is not None:
@@ -380,10 +386,9 @@ def simulate(
     saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
-    if max_steps is None and "max_steps" not in simulation_table(scene_or_none):
-        settings = settings._replace(max_steps=step_budget(t0, t1))  # longer runs get a larger budget
+    max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
     step = None if step is None else np.asarray(step, dtype=float)
-    settings, table = _resolve_reduction(settings, table, model, batch)
+    settings, table = prepared.resolved(table, batch, max_steps)
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
         if batch is None:
             sol = trim(_core_jit(model, q0, omega0, t0, t1, saveat, step, settings, table), model.mechanism, settings)
@@ -392,10 +397,43 @@ def simulate(
             return sol
         q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
         sols = _batch_jit(model, q0, omega0, t0, t1, saveat, step, settings, table)
-    sols = batch_summary(jax.device_get(sols))
+    sols = batch_summary(to_host(sols))
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
     return sols
+
+
+@dataclasses.dataclass(frozen=True)
+class _Prepared:
+    """What simulate() derives from the scene and the options alone (checked once, then
+    kept in _PREPARED for later calls with the same scene and options)."""
+
+    model: Model
+    scene: object | None  # the Scene (its [state] is read per call), or None for a Model or Mechanism
+    settings: Settings  # validated; max_steps and the reduction are resolved per call
+    budget_per_span: bool  # max_steps from the time span (neither the keyword nor the scene sets it)
+    _resolutions: dict = dataclasses.field(default_factory=dict)
+
+    def resolved(self, table, batch, max_steps: int):
+        """(settings with max_steps and the reduction resolved, the table or None): the
+        table is built (and checked) once per prepared call, not per call."""
+        key = (max_steps, batch is not None and batch[0] >= AUTO_TABLE_BATCH)  # all _resolve_reduction reads of batch
+        if key not in self._resolutions:
+            self._resolutions[key] = _resolve_reduction(self.settings._replace(max_steps=max_steps), table, self.model, batch)
+        return self._resolutions[key]
+
+
+def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
+    settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"]),
+                                               "check_assembly": bool(options["check_assembly"])})
+    _check_outputs(model.mechanism, settings)
+    budget_per_span = options["max_steps"] is None and "max_steps" not in simulation_table(scene_or_none)
+    return _Prepared(model, scene_or_none, settings, budget_per_span)
+
+
+_PREPARED = CallCache()
 
 
 def simulation_table(scene) -> dict:

@@ -1,0 +1,107 @@
+"""simulate() keeps what depends only on the scene and the options between calls: a changed
+scene or option must never be served from that cache. Each changed call is compared with
+a simulation of a freshly loaded scene carrying the change, run with the cache emptied, and
+with the unchanged result (it must differ, so that a stale entry would be caught)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import assurjax as aj
+from assurjax.dynamics._solve import _PREPARED
+
+LEAN = dict(stop=None, steps=40, t1=0.5, points=(), angles=(), energies=False)  # one small program for the module
+
+
+def fresh(change=lambda scene: scene, **options):
+    """The simulation of a freshly loaded Watt six-bar with ``change`` applied, nothing cached."""
+    _PREPARED.clear()
+    return aj.simulate(change(aj.load_scene("watt_sixbar")), **{**LEAN, **options})
+
+
+def same(a, b):
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.omega, b.omega)
+
+
+def test_a_repeated_call_reuses_its_entry():
+    scene = aj.load_scene("watt_sixbar")
+    first = aj.simulate(scene, **LEAN)
+    entries = len(_PREPARED)
+    same(aj.simulate(scene, **LEAN), first)
+    assert len(_PREPARED) == entries
+
+
+def with_gravity(g):
+    return lambda scene: eqx.tree_at(lambda s: s.gravity, scene, jnp.asarray(g))
+
+
+def test_changed_gravity_is_simulated_anew():
+    scene = aj.load_scene("watt_sixbar")
+    before = aj.simulate(scene, **LEAN)
+    after = aj.simulate(with_gravity([0.0, -3.0])(scene), **LEAN)
+    assert not np.allclose(after.q, before.q)
+    same(after, fresh(with_gravity([0.0, -3.0])))
+    same(aj.simulate(scene, gravity=[0.0, -3.0], **LEAN), after)  # the same change as a keyword
+
+
+def test_changed_options_and_scene_tables_are_simulated_anew():
+    scene = aj.load_scene("watt_sixbar")
+    base = aj.simulate(scene, **LEAN)
+    finer = aj.simulate(scene, **{**LEAN, "steps": 80})
+    assert finer.t.shape == (81,) and base.t.shape == (41,)
+    same(finer, fresh(steps=80))
+    moved = scene.with_settings(state={"q0": 0.3})
+    started = aj.simulate(moved, **LEAN)
+    assert started.q[0] == 0.3
+    same(started, fresh(lambda s: s.with_settings(state={"q0": 0.3})))
+    pointed = aj.simulate(scene.with_settings(outputs={"points": ["E"]}), **{**LEAN, "points": None})
+    assert set(pointed.points) == {"E"}
+    expected = fresh(lambda s: s.with_settings(outputs={"points": ["E"]}), points=None)
+    np.testing.assert_array_equal(pointed.points["E"], expected.points["E"])
+
+
+def test_table_is_rebuilt_for_a_changed_scene():
+    scene = aj.load_scene("watt_sixbar")
+    tabulated = dict(reduction="table", **LEAN)
+    before = aj.simulate(scene, **tabulated)
+    after = aj.simulate(with_gravity([0.0, -3.0])(scene), **tabulated)
+    assert not np.allclose(after.q, before.q)
+    same(after, fresh(with_gravity([0.0, -3.0]), reduction="table"))
+    # and the table agrees with the exact reduction, to the table's interpolation error
+    np.testing.assert_allclose(after.q, aj.simulate(with_gravity([0.0, -3.0])(scene), **LEAN).q, atol=1e-7)
+
+
+def test_a_numpy_leaf_changed_in_place_is_seen():
+    scene = eqx.tree_at(lambda s: s.gravity, aj.load_scene("watt_sixbar"), np.array([0.0, -9.81]))
+    before = aj.simulate(scene, **LEAN)
+    scene.gravity[1] = -3.0  # NumPy arrays can change under the same object: such scenes are not cached
+    after = aj.simulate(scene, **LEAN)
+    assert not np.allclose(after.q, before.q)
+    same(after, fresh(with_gravity([0.0, -3.0])))
+
+
+def test_checks_run_for_every_distinct_option_value():
+    scene = aj.load_scene("watt_sixbar")
+    aj.simulate(scene, **{**LEAN, "steps": None, "samples": 5})
+    with pytest.raises(aj.AssurjaxError, match="samples"):  # equal to 5 as a key, but not an integer
+        aj.simulate(scene, **{**LEAN, "steps": None, "samples": 5.0})
+    for _ in range(2):  # a failed check is not remembered as a success
+        with pytest.raises(aj.AssurjaxError, match="rtol"):
+            aj.simulate(scene, rtol=-1.0)
+
+
+@pytest.mark.parametrize("values", [(0.0, 0.0, 0.0, 1.0), (1e12, -1e12, 0, 2), (1e12 + 1e-3, 0.0, 0.0, 1.0),
+                                    (float("nan"), 0.0, 0.0, 1.0), (0.0, float("inf"), 0.0, 1.0), (0.0, 0.0, 1.0, 1.0),
+                                    (0.0, 0.0, 2, 1), (10**400, 0.0, 0.0, 1.0), (0.0, 0.0, -1e12, 1e12)])
+def test_start_checks_of_python_numbers_agree_with_numpy_scalars(values):
+    """The start check decides Python numbers without NumPy: the same verdict and words as for NumPy scalars."""
+    from assurjax.dynamics._settings import state_problem
+
+    as_numpy = tuple(np.float64(v) if abs(v) < 1e300 else v for v in values)
+    plain, numpy = state_problem(*values), state_problem(*as_numpy)
+    assert (plain is None) == (numpy is None)
+    if plain is not None:
+        assert plain[0] == numpy[0]
