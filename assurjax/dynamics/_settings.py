@@ -14,7 +14,6 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._values import MAGNITUDE_LIMIT, concrete, value_problem
-from .._kinematics import BRIDGE_WINDOW
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -83,7 +82,7 @@ class Settings(NamedTuple):
     reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
     table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
     steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
-    bridge: float = BRIDGE_WINDOW  # tracked branch: half-width (rad or m of q) of the bridged singular windows; 0: off
+    bridge: float = 0.0  # tracked branch: half-width (rad or m of q) of the bridged singular windows (BRIDGE_WINDOW); 0: off
     save_steps: bool = False  # also save the state at every accepted solver step, merged in time with the saved times
 
 
@@ -233,7 +232,7 @@ def settings_from(scene=None, **overrides) -> Settings:
         max_steps=sim.get("max_steps", DEFAULT_MAX_STEPS), samples=sim.get("samples", DEFAULT_SAMPLES),
         branch=sim.get("branch", "fixed"), reduction=sim.get("reduction", "auto"),
         table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
-        save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", BRIDGE_WINDOW),
+        save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", 0.0),
         fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
         points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
         velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
