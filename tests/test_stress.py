@@ -290,14 +290,17 @@ def test_n_four_bar_10_for_20_s_within_1e_6_rad():
 
 @pytest.mark.slow
 def test_n_four_bar_40_for_20_s():
-    """The benchmark as specified: N = 40, 20 s; B_0 against the exact motion, energy drift."""
+    """The benchmark as specified: N = 40, 20 s; B_0 against the exact motion, energy drift.
+    Bridged (unbridged, Dopri8 at 1e-10 reached 20 s with 1.6e-6 rad in one run and stalled
+    at t = 2.69 s in another: which stage lands how close to the singular points decides)."""
     n = 40
     ts = np.linspace(0.0, 20.0, 401)
     sol = assurjax.simulate(assurjax.n_four_bar(n), branch="tracked", saveat=ts, solver="dopri8", rtol=1e-10, atol=1e-10,
-                            energies=True, points=["B0"], angles=[])
-    assert sol.status.startswith("reached t1")
+                            energies=True, points=["B0"], angles=[], bridge=5e-3)
+    assert sol.status.startswith("reached t1"), sol.status
     theta, _ = jr.n_four_bar_exact(n, np.asarray(sol.t))
-    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=1e-5)
+    np.testing.assert_allclose(sol.q, theta, atol=1e-6)
+    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=1e-6)
     total = np.asarray(sol.total)
     assert np.ptp(total) < 1e-5 * np.abs(total).max()
 

@@ -152,5 +152,9 @@ def test_batch_simulate_matches_single_simulations():
         m = jax.tree.map(lambda x: x[i], batch)
         one = assurjax.simulate(scene, mechanism=m, t1=0.3, solver="tsit5", samples=4, stop=None,
                                 points=(), angles=(), energies=False)
-        np.testing.assert_allclose(sols.q[i], one.q, rtol=1e-12, atol=1e-12)
+        # the same method at the same tolerance, but two programs (vmapped with the scene's
+        # standstill event, and alone): their step sequences may differ by a borderline
+        # step, so they agree to the tolerance, not bit for bit; a mixed-up member would
+        # differ by ~1e-3 (the masses differ by 2 %)
+        np.testing.assert_allclose(sols.q[i], one.q, rtol=0, atol=1e-8)
     assert np.all(sols.result == assurjax.RESULTS.successful)
