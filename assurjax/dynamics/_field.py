@@ -54,7 +54,7 @@ class FieldArgs(eqx.Module):
     table: ReducedTable | None
     direction: Array
     q0: Array
-    user_signs: tuple
+    user_signs: tuple | None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
 
 
@@ -62,7 +62,7 @@ def field_args(model: Model, table: ReducedTable | None = None, *, direction=1.0
     """The arguments of the vector field evaluated on its own (no stop events).
     ``direction``: of the motion, for the Coulomb signs of joint friction (0: held at rest)."""
     zero = jnp.zeros(())
-    return FieldArgs(model=model, table=table, direction=jnp.asarray(direction, dtype=float), q0=zero, user_signs=())
+    return FieldArgs(model=model, table=table, direction=jnp.asarray(direction, dtype=float), q0=zero, user_signs=None)
 
 
 def vector_field(t, y: State, args: FieldArgs) -> State:

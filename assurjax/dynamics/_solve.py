@@ -103,7 +103,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     frictional = bool(frictions_of(model.loads)) and table is None
     if frictional and not settings.standstill:
         return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings)
-    user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events)
+    user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # with friction, up to the first standstill: one segment with the Coulomb signs of the
     # start's direction; 0 when the friction holds it at rest (the field is then frozen)
     direction = start_direction(model, t0, y0) if frictional else jnp.sign(omega0)
@@ -163,7 +163,7 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     check_steps(settings)
     tabulated = table is not None
     term = diffrax.ODETerm(vector_field_or_nan if settings.check_assembly else vector_field)
-    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=())
+    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None)
     solver = solver_for(settings)
     h = (t1 - t0) / settings.steps
     y0 = State(q0, omega0)

@@ -54,7 +54,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = diffrax.Event(breakaway_cond, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
 
     def segment(start, y, direction, stuck):
-        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=(), bridge=settings.bridge)
+        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=None, bridge=settings.bridge)
         kwargs = dict(t0=start, t1=t1, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
                       saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, t1), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
