@@ -51,6 +51,14 @@ class AbstractFriction(AbstractLoad):
     dissipative: ClassVar[bool] = True
     kind: ClassVar[str]
 
+    def _set_law(self, pair: str, coefficient, viscous) -> None:
+        """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0)."""
+        for key, value in (("coefficient", coefficient), ("viscous", viscous)):
+            check_value(MechanismError, f"{type(self).__name__}: {key}", value, nonnegative=True)
+        self.pair = pair
+        self.coefficient, self.viscous = jnp.asarray(coefficient, dtype=float), jnp.asarray(viscous, dtype=float)
+        self.velocity_dependent = True
+
     def check(self, mechanism: Mechanism) -> None:
         pairs = pairs_by_name(mechanism)
         what = "revolute joint" if self.kind == "R" else "prismatic pair"
@@ -94,12 +102,9 @@ class JointFriction(AbstractFriction):
     kind: ClassVar[str] = "R"
 
     def __init__(self, joint: str, coefficient, radius, *, viscous=0.0):
-        self.pair = joint
-        self.coefficient, self.radius = jnp.asarray(coefficient, dtype=float), jnp.asarray(radius, dtype=float)
-        self.viscous = jnp.asarray(viscous, dtype=float)
-        for key, value in (("coefficient", coefficient), ("radius", radius), ("viscous", viscous)):
-            check_value(MechanismError, f"JointFriction: {key}", value, nonnegative=True)
-        self.velocity_dependent = True
+        self._set_law(joint, coefficient, viscous)
+        check_value(MechanismError, "JointFriction: radius", radius, nonnegative=True)
+        self.radius = jnp.asarray(radius, dtype=float)
 
     def rate_coefficient(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
@@ -134,13 +139,9 @@ class SlideFriction(AbstractFriction):
     kind: ClassVar[str] = "P"
 
     def __init__(self, pair: str, coefficient, length, *, viscous=0.0):
-        self.pair = pair
-        self.coefficient, self.length = jnp.asarray(coefficient, dtype=float), jnp.asarray(length, dtype=float)
-        self.viscous = jnp.asarray(viscous, dtype=float)
-        for key, value in (("coefficient", coefficient), ("viscous", viscous)):
-            check_value(MechanismError, f"SlideFriction: {key}", value, nonnegative=True)
+        self._set_law(pair, coefficient, viscous)
         check_value(MechanismError, "SlideFriction: length", length, positive=True)
-        self.velocity_dependent = True
+        self.length = jnp.asarray(length, dtype=float)
 
     def _direction(self, kin, p):
         return rotation(kin.angles[p.on])  # the slider's x axis lies along the guide
