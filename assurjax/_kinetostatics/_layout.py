@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 from .._errors import MechanismError
 from .._mechanism import Mechanism
-from ..groups._base import GROUND, AbstractGroup
+from ..groups._base import GROUND
 
 
 class Pair(NamedTuple):

@@ -205,10 +205,6 @@ def _plain_state_ok(*values) -> bool:
     return all(abs(v) <= MAGNITUDE_LIMIT and math.isfinite(v) for v in values) and t1 > t0
 
 
-def _pick(given, table: Mapping, key: str, default):
-    return given if given is not None else table.get(key, default)
-
-
 def settings_from(scene=None, **overrides) -> Settings:
     """Validated :class:`Settings` from a scene's ``[simulation]`` and ``[outputs]``
     tables (None: the defaults) under keyword overrides (None: keep the scene's).
