@@ -237,6 +237,13 @@ def test_tolerance_stops_and_multistart_keeps_every_start():
     assert result.loss == result.starts.loss.min()
     np.testing.assert_allclose(np.asarray(result.starts.initial[0]), np.asarray(starts[0]))
     assert result.status == "converged" and result.history.grad_norm[-1] <= 1e-10
+    # the values reported (computed inside the compiled run) are the design's values at the reported z
+    best = int(np.argmin(result.starts.loss))
+    for got, start, expected, in_mechanism in zip(result.values, result.starts.values, design.values(result.z),
+                                                 design.select(result.mechanism)):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=1e-14)
+        np.testing.assert_allclose(np.asarray(start[best]), np.asarray(expected), rtol=1e-14)
+        np.testing.assert_allclose(np.asarray(in_mechanism), np.asarray(expected), rtol=1e-14)
     for batch in ("vmap", "sequential"):
         again = syn.optimize(design, _path_objective, optax.adam, 50, options={"learning_rate": 0.01}, has_aux=True,
                              starts=starts, batch=batch)

@@ -129,6 +129,9 @@ class _Problem(eqx.Module):
 
     def loss_and_aux(self, z, params):
         """(loss, (acceptable, aux)): the loss is +inf where the design is not acceptable."""
+        return _traced_once(self, z, params)
+
+    def _loss_and_aux(self, z, params):
         tree = self.design.build(z)
         out = self.objective(tree, params) if self.takes_params else self.objective(tree)
         loss, aux = out if self.has_aux else (out, None)
@@ -148,6 +151,13 @@ class _Problem(eqx.Module):
     def line_search_value(self, params):
         """The scalar function a line search evaluates (+inf and a zero gradient where not acceptable)."""
         return lambda z: self.loss_and_aux(_finite_cotangent(z), params)[0]
+
+
+@eqx.filter_jit
+def _traced_once(problem: _Problem, z, params):
+    """The objective as one jitted function: its trace (and its derivatives' traces) are reused by
+    every place that evaluates it (the shape probe, the accepted steps, a line search's trials)."""
+    return problem._loss_and_aux(z, params)
 
 
 @jax.custom_vjp
@@ -304,13 +314,19 @@ def _run_one(problem: _Problem, options: dict, schedule, z0):
 
 
 @jit
-def _run(problem: _Problem, options: dict, schedule, z0, batch: str):
-    """Every start: side by side (vmap) or one after the other (lax.map); one start alone unbatched
-    (a vmapped loop takes seconds longer to compile)."""
-    one = lambda z: _run_one(problem, options, schedule, z)  # noqa: E731
+def _run(problem: _Problem, options: dict, schedule, initial, batch: str):
+    """Every start (parameter values with a leading start axis): side by side (vmap) or one after
+    the other (lax.map); one start alone unbatched (a vmapped loop takes seconds longer to compile).
+    The maps between values and unconstrained variables run here too: done eagerly, op by op,
+    they cost more than a second of small compilations on a first call."""
+    design = problem.design
+    one = lambda x: _run_one(problem, options, schedule, design.unconstrained(x))  # noqa: E731
     if batch == "single":
-        return jax.tree.map(lambda x: x[None], one(jax.tree.map(lambda x: x[0], z0)))
-    return jax.vmap(one)(z0) if batch == "vmap" else jax.lax.map(one, z0)
+        per_stage = jax.tree.map(lambda x: x[None], one(jax.tree.map(lambda x: x[0], initial)))
+    else:
+        per_stage = jax.vmap(one)(initial) if batch == "vmap" else jax.lax.map(one, initial)
+    final_values = jax.vmap(design.values)(jax.tree.map(lambda x: x[:, -1], per_stage[0]))
+    return per_stage, final_values
 
 
 # --------------------------------------------------------------------------- the public entry point
@@ -413,18 +429,19 @@ def optimize(
                        restarts=jnp.asarray(restarts), max_backtracks=jnp.asarray(max_backtracks))
     stages = _stages(schedule)
     initial = _starting_values(design, starts, seed)
-    z0 = jax.vmap(design.unconstrained)(initial)
     if batch == "auto":
-        batch = "sequential" if _has_line_search(problem, numeric, design.init()) else "vmap"
-    out = _run(problem, run_options, stages, z0, batch if _count(z0) > 1 else "single")
-    best_z, best_loss, status, evaluations, counts, history = jax.device_get(out)
+        batch = "sequential" if _has_line_search(problem, numeric, initial) else "vmap"
+    per_stage, final_values = jax.device_get(_run(problem, run_options, stages, initial, batch if _count(initial) > 1 else "single"))
+    best_z, best_loss, status, evaluations, counts, history = per_stage
     elapsed = time.perf_counter() - started
-    return _result(design, initial, best_z, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed, callback)
+    return _result(design, initial, best_z, final_values, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed,
+                   callback)
 
 
-def _has_line_search(problem: _Problem, numeric: dict, z) -> bool:
+def _has_line_search(problem: _Problem, numeric: dict, initial) -> bool:
     """Whether the method's state holds a line search (its value and gradient at the current point)."""
-    state = jax.eval_shape(lambda n: problem.optimizer(n).init(z), numeric)
+    z = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), initial)
+    state = jax.eval_shape(lambda n, z: problem.optimizer(n).init(z), numeric, z)
     return optax.tree_utils.tree_get(state, "value", default=None) is not None
 
 
@@ -491,7 +508,7 @@ def _starting_values(design: Design, starts, seed: int):
     return given
 
 
-def _result(design, initial, best_z, best_loss, status, evaluations, counts, history, elapsed, callback) -> SynthesisResult:
+def _result(design, initial, best_z, final_values, best_loss, status, evaluations, counts, history, elapsed, callback) -> SynthesisResult:
     final_loss, names = best_loss[:, -1], tuple(STATUSES[k] for k in status[:, -1])
     found = np.isfinite(final_loss)
     if not found.any():
@@ -505,10 +522,10 @@ def _result(design, initial, best_z, best_loss, status, evaluations, counts, his
     if callback is not None:
         for i in range(len(hist.loss)):
             callback(i, float(hist.loss[i]), design.build(jax.tree.map(lambda x: jnp.asarray(x[i]), hist.z)))
-    last_z = jax.tree.map(lambda x: jnp.asarray(x[:, -1]), best_z)
-    starts = StartResults(values=jax.device_get(jax.vmap(design.values)(last_z)), z=jax.device_get(last_z), loss=final_loss,
+    values = jax.tree.map(lambda x: jnp.asarray(x[best]), final_values)
+    starts = StartResults(values=final_values, z=jax.tree.map(lambda x: x[:, -1], best_z), loss=final_loss,
                           status=names, evaluations=evaluations, initial=jax.device_get(initial))
-    return SynthesisResult(mechanism=design.build(z), values=design.values(z), z=z, loss=float(final_loss[best]),
+    return SynthesisResult(mechanism=design.with_values(values), values=values, z=z, loss=float(final_loss[best]),
                            status=names[best], message=_message(names[best], hist, len(counts[best])), evaluations=int(evaluations.sum()),
                            history=hist, starts=starts, time=elapsed)
 
