@@ -20,6 +20,7 @@ from ._errors import AssemblyError, AssurjaxError
 from ._geometry import wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
+from ._positions import stacked_positions
 
 
 class Kinematics(eqx.Module):
@@ -108,43 +109,85 @@ class Coefficients(eqx.Module):
     """Positions and kinematic coefficients of every point, centre of mass and link at
     one driving coordinate: ``x``, ``dx`` = dx/dq, ``d2x`` = d2x/dq2, each a triple of
     dicts (points (m), coms (m), angles (rad)); ``dx``/``d2x`` are None when not asked
-    for. ``ok``: one flag per group (False: cannot assemble)."""
+    for. ``ok``: one flag per group (False: cannot assemble).
+
+    Held as ``stacked``: for each order a triple of arrays (points (P, 2), coms (L, 2),
+    angles (L,)) whose rows are named by ``names`` = (point names, link names); the
+    dicts are views on them, so work on every link (the reduction) is a few array
+    operations instead of a few per name."""
 
     q: Array
-    x: tuple
-    dx: tuple | None
-    d2x: tuple | None
+    stacked: tuple
     ok: Array
+    names: tuple = eqx.field(static=True)
 
-    def kinematics(self, omega, alpha=None) -> Kinematics:
+    @property
+    def x(self) -> tuple:
+        return self.named(0)
+
+    @property
+    def dx(self) -> tuple | None:
+        return self.named(1)
+
+    @property
+    def d2x(self) -> tuple | None:
+        return self.named(2)
+
+    def named(self, order: int) -> tuple | None:
+        """The order's (points, coms, angles) as dicts by name (leading batch axes kept)."""
+        return _by_name(self.stacked[order], self.names)
+
+    def link_angles(self, order: int) -> dict | None:
+        """The order's link angles (or their derivatives) alone as a dict by link name."""
+        arrays = self.stacked[order]
+        return None if arrays is None else {k: arrays[2][..., i] for i, k in enumerate(self.names[1])}
+
+    def kinematics(self, omega, alpha=None, *, velocities: bool = True) -> Kinematics:
         """The :class:`Kinematics` at driving velocity ``omega`` and acceleration ``alpha``:
-        v = dx/dq w, a = d2x/dq2 w^2 + dx/dq alpha (accelerations only with ``alpha``)."""
+        v = dx/dq w, a = d2x/dq2 w^2 + dx/dq alpha (accelerations only with ``alpha``,
+        velocities only with ``velocities``)."""
         omega = jnp.asarray(omega, dtype=float)
-        vel = (None, None, None) if self.dx is None else jax.tree.map(lambda d: d * omega, self.dx)
-        acc = (None, None, None)
+        x, dx, d2x = self.stacked
+        vel = acc = None
+        if dx is not None and velocities:
+            vel = jax.tree.map(lambda d: d * omega, dx)
         if alpha is not None:
-            acc = jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, self.d2x, self.dx)
+            acc = jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
+        named = lambda arrays: (None, None, None) if arrays is None else _by_name(arrays, self.names)  # noqa: E731
+        (points, coms, angles), v, a = named(x), named(vel), named(acc)
         return Kinematics(
             q=self.q, omega=omega, alpha=jnp.zeros_like(self.q) if alpha is None else jnp.asarray(alpha, dtype=float),
-            points=self.x[0], velocities=vel[0], accelerations=acc[0],
-            coms=self.x[1], com_velocities=vel[1], com_accelerations=acc[1],
-            angles=self.x[2], angular_velocities=vel[2], angular_accelerations=acc[2],
+            points=points, velocities=v[0], accelerations=a[0],
+            coms=coms, com_velocities=v[1], com_accelerations=a[1],
+            angles=angles, angular_velocities=v[2], angular_accelerations=a[2],
             ok=self.ok,
         )
+
+
+
+def _by_name(arrays, names) -> tuple | None:
+    """(points (..., P, 2), coms (..., L, 2), angles (..., L)) as three dicts by name."""
+    if arrays is None:
+        return None
+    points, links = names
+    return ({p: arrays[0][..., i, :] for i, p in enumerate(points)},
+            {k: arrays[1][..., i, :] for i, k in enumerate(links)},
+            {k: arrays[2][..., i] for i, k in enumerate(links)})
 
 
 def coefficients(mechanism: Mechanism, q, *, order: int = 2, near=None) -> Coefficients:
     """Positions and first/second kinematic coefficients of every point, centre of mass
     and link angle at ``q`` (see :func:`taylor`). ``near``: link angles (rad) selecting
     the branch (see :func:`assurjax.positions`)."""
+    names = {}
 
     def coords(q):
-        pose = positions(mechanism, q, near=near)
-        return (pose.points, pose.coms, pose.angles), pose.ok
+        stacked, ok, names["rows"] = stacked_positions(mechanism, q, near)
+        return stacked, ok
 
     q = jnp.asarray(q, dtype=float)
     x, dx, d2x, ok = taylor(coords, q, order)
-    return Coefficients(q=q, x=x, dx=dx, d2x=d2x, ok=ok)
+    return Coefficients(q=q, stacked=(x, dx, d2x), ok=ok, names=names["rows"])
 
 
 # Bridging a singular window: nodes at q + s d0 outside it, and the weights of the cubic
@@ -189,10 +232,10 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
         nodes = jax.vmap(lambda s, n: coefficients(mechanism, q + s, order=2, near=n))(steps, predicted)
         weights = jnp.asarray(BRIDGE_WEIGHTS)
         combine = lambda v: jnp.tensordot(weights, v, axes=1)  # noqa: E731
-        angles = {k: v[0] + wrap_angle(v - v[0]) for k, v in nodes.x[2].items()}  # continuous across +-pi
-        x = (jax.tree.map(combine, nodes.x[0]), jax.tree.map(combine, nodes.x[1]), jax.tree.map(combine, angles))
-        bridged = Coefficients(q=q, x=x, dx=jax.tree.map(combine, nodes.dx), d2x=jax.tree.map(combine, nodes.d2x),
-                               ok=jnp.ones_like(plain.ok))  # every node assembles: so does q
+        (points, coms, angles), dx, d2x = nodes.stacked
+        angles = angles[0] + wrap_angle(angles - angles[0])  # continuous across +-pi
+        stacked = (jax.tree.map(combine, (points, coms, angles)), jax.tree.map(combine, dx), jax.tree.map(combine, d2x))
+        bridged = Coefficients(q=q, stacked=stacked, ok=jnp.ones_like(plain.ok), names=plain.names)  # every node assembles
         # a node that cannot assemble: the branch ends there (a limit position), nothing to bridge
         crossing = jnp.all(nodes.ok)
         return jax.tree.map(lambda b, p: jnp.where(crossing, b, p), bridged, plain)

@@ -26,12 +26,12 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
-from ._geometry import dot
 from ._jit import jit
 from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
-from ._loads import any_velocity_dependent, applied_wrenches, check_loads, driver_effort
+from ._loads import any_velocity_dependent, check_loads, driver_effort
 from ._mechanism import Mechanism, Pose, positions
 
 
@@ -84,36 +84,44 @@ def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Arra
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     coeffs = coefficients(mechanism, q, order=1)
     kin = kinematics_from_coefficients(coeffs, omega, velocities=any_velocity_dependent(loads))
-    return _reduced_force(coeffs.dx, applied_wrenches(mechanism, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
+    return jnp.sum(_torque_terms(mechanism, coeffs, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
 
 
 def kinematics_from_coefficients(coeffs: Coefficients, omega, *, velocities: bool = True) -> Kinematics:
     """A single-configuration :class:`Kinematics` (order 1) built from the coefficients:
     v = dx/dq w. Without ``velocities`` only positions are filled (loads that do not
     depend on velocity need no more)."""
-    kin = coeffs.kinematics(omega)
-    if velocities:
-        return kin
-    return eqx.tree_at(lambda k: (k.velocities, k.com_velocities, k.angular_velocities), kin, (None, None, None),
-                       is_leaf=lambda x: x is None)
+    return coeffs.kinematics(omega, velocities=velocities)
 
 
-def _reduced_force(dx, wrenches) -> Array:
-    """sum_j F_j . dG_j/dq + M_j dtheta_j/dq (Durango et al. 2014 eqs. 3-4)."""
-    return sum((dot(f, dx[1][k]) + m * dx[2][k] for k, (f, m) in wrenches.items()), jnp.zeros(()))
+def _link_parameters(mechanism: Mechanism, links: tuple[str, ...]):
+    """Masses (kg) and inertias (kg m^2) of the links, stacked in the order given."""
+    return (jnp.stack([jnp.asarray(mechanism.links[k].mass, dtype=float) for k in links]),
+            jnp.stack([jnp.asarray(mechanism.links[k].inertia, dtype=float) for k in links]))
 
 
-def _link_terms(mechanism: Mechanism, dx, d2x, wrenches):
-    """Per link: (inertia term, its q-derivative, torque term), eqs. 3-6."""
-    out = {}
-    for name, link in mechanism.links.items():
-        dg, d2g = dx[1][name], d2x[1][name]
-        dth, d2th = dx[2][name], d2x[2][name]
-        j = link.mass * dot(dg, dg) + link.inertia * dth**2
-        dj = 2.0 * (link.mass * dot(dg, d2g) + link.inertia * dth * d2th)
-        force, moment = wrenches[name]
-        out[name] = (j, dj, dot(force, dg) + moment * dth)
-    return out
+def _torque_terms(mechanism: Mechanism, coeffs: Coefficients, gravity, loads, kin, t, mass=None) -> Array:
+    """Per link (rows ``coeffs.names[1]``): F_j . dG_j/dq + M_j dtheta_j/dq, F_j and M_j the
+    resultant of gravity and ``loads`` on link j (Durango et al. 2014 eqs. 3-4). ``mass``:
+    the links' masses when already stacked."""
+    links = coeffs.names[1]
+    row = {k: i for i, k in enumerate(links)}
+    mass = _link_parameters(mechanism, links)[0] if mass is None else mass
+    force = mass[:, None] * jnp.asarray(gravity, dtype=float)
+    moment = jnp.zeros(len(links))
+    for load in loads:
+        for link, f, m in load.wrenches(mechanism, kin, t):
+            force, moment = force.at[row[link]].add(f), moment.at[row[link]].add(m)
+    _, dg, dth = coeffs.stacked[1]
+    return jnp.sum(force * dg, axis=-1) + moment * dth
+
+
+def _inertia_terms(mass, inertia, coeffs: Coefficients):
+    """Per link: m_j |dG_j/dq|^2 + J_j (dtheta_j/dq)^2 and its q-derivative (eqs. 5-6)."""
+    (_, dg, dth), (_, d2g, d2th) = coeffs.stacked[1], coeffs.stacked[2]
+    j = mass * jnp.sum(dg * dg, axis=-1) + inertia * dth**2
+    dj = 2.0 * (mass * jnp.sum(dg * d2g, axis=-1) + inertia * dth * d2th)
+    return j, dj
 
 
 def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None) -> Reduction:
@@ -160,27 +168,29 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     """The reduction from kinematic coefficients already computed (order 2), and the
     Kinematics (order 1) the loads were evaluated on. ``rates``: fill ``angle_rates``."""
     kin = kinematics_from_coefficients(coeffs, omega, velocities=velocities)
-    wrenches = applied_wrenches(mechanism, gravity, loads, kin, t)
-    terms = _link_terms(mechanism, coeffs.dx, coeffs.d2x, wrenches)
-    zero = jnp.zeros(())
-    gj, gdj, gt = {}, {}, {}
-    for group in mechanism.groups:  # each group reduces its own links
-        parts = [terms[link] for link in group.links]
-        gj[group.name] = sum((p[0] for p in parts), zero)
-        gdj[group.name] = sum((p[1] for p in parts), zero)
-        gt[group.name] = sum((p[2] for p in parts), zero)
+    mass, inertia = _link_parameters(mechanism, coeffs.names[1])
+    j, dj = _inertia_terms(mass, inertia, coeffs)
+    torque = _torque_terms(mechanism, coeffs, gravity, loads, kin, t, mass)
+    # each group reduces its own links: one sum matrix (groups x links) for all of them
+    row = {k: i for i, k in enumerate(coeffs.names[1])}
+    members = np.zeros((len(mechanism.groups), len(row)))
+    for n, group in enumerate(mechanism.groups):
+        members[n, [row[k] for k in group.links]] = 1.0
+    per_group = jnp.asarray(members) @ jnp.stack([j, dj, torque], axis=-1)
+    gj, gdj, gt = ({g.name: per_group[n, c] for n, g in enumerate(mechanism.groups)} for c in range(3))
     effort = driver_effort(mechanism, loads, coeffs.q, omega, t)
     work_force = None
     if work:  # the loads outside V: every load but gravity and springs
         outside = tuple(load for load in loads if not load.conservative)
-        work_force = _reduced_force(coeffs.dx, applied_wrenches(mechanism, jnp.zeros(2), outside, kin, t)) + effort
+        work_force = jnp.sum(_torque_terms(mechanism, coeffs, jnp.zeros(2), outside, kin, t, mass)) + effort
+    total = jnp.sum(per_group, axis=0)
     reduction = Reduction(
-        inertia=sum(gj.values(), zero),
-        dinertia=sum(gdj.values(), zero),
-        torque=sum(gt.values(), zero),
+        inertia=total[0],
+        dinertia=total[1],
+        torque=total[2],
         effort=effort,
         group_inertia=gj, group_dinertia=gdj, group_torque=gt,
-        ok=coeffs.ok, angle_rates=coeffs.dx[2] if rates else None, work_force=work_force,
+        ok=coeffs.ok, angle_rates=coeffs.link_angles(1) if rates else None, work_force=work_force,
     )
     return reduction, kin
 
