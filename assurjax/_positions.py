@@ -97,6 +97,17 @@ def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose
     return _pose_per_name(mechanism, table, ok, wanted_points)
 
 
+def assembled(mechanism: Mechanism, q, near: Mapping | None = None):
+    """One flag per group: True where it assembles at ``q`` (``positions(...).ok``, without
+    building the Pose: the events and start checks of a simulation need only this)."""
+    return _assembled(mechanism, jnp.asarray(q, dtype=float), near)
+
+
+@jit
+def _assembled(mechanism: Mechanism, q, near):
+    return _analysis_of_all(mechanism, q, near, materialize=True)[1]
+
+
 def stacked_positions(mechanism: Mechanism, q, near: Mapping | None = None):
     """The position analysis of every point, centre of mass and link angle as three stacked
     arrays, ``((points (P, 2), coms (L, 2), angles (L,)), ok, (point names, link names))``,

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._mechanism import positions
+from .._positions import assembled
 from ._field import FieldArgs, State, near
 from ._results import LOCKUP, NO_EVENT, STANDSTILL, USER
 from ._settings import Settings
@@ -35,7 +35,7 @@ def margins(settings: Settings, t, y: State, args: FieldArgs, lockup=None) -> li
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
     if settings.check_assembly:
         if lockup is None:
-            ok = positions(args.model.mechanism, y.q, near=near(args.model, y)).ok
+            ok = assembled(args.model.mechanism, y.q, near=near(args.model, y))
             lockup = jnp.where(jnp.all(ok), 1.0, -_TINY)
         out.append(lockup)
     for k, cond in enumerate(settings.events):
@@ -81,4 +81,5 @@ def which_event(sol, settings: Settings, args: FieldArgs, last, ok_final):
 def assembles(mechanism, q_final, w_final, near=None):
     """Per group: assembled at the final state and just past it (in the direction of motion)."""
     nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
-    return positions(mechanism, q_final + nudge, near=near).ok & positions(mechanism, q_final, near=near).ok
+    both = jax.vmap(lambda q: assembled(mechanism, q, near=near))(jnp.stack([q_final + nudge, q_final]))  # one copy
+    return both[0] & both[1]

@@ -21,6 +21,7 @@ from .._errors import AssurjaxError
 from .._friction import frictions_of
 from .._jit import checks_without_callbacks, jit
 from .._mechanism import Mechanism, positions
+from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import assembles, stop_event, which_event
@@ -83,7 +84,7 @@ def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -
     if not settings.check_assembly or _tabulated(settings):
         return sol
     # a start where some group cannot assemble is no motion at all: say so, whatever the solver did
-    ok = positions(model.mechanism, q0).ok
+    ok = assembled(model.mechanism, q0)
     bad = ~jnp.all(ok)
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(bad, RESULTS.start_not_assembled, sol.result),
@@ -182,12 +183,12 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     if tabulated or not settings.check_assembly:  # nothing can fail (the table checked a full turn)
         valid, last, locked, failed = jnp.ones(n + 1, dtype=bool), n, jnp.asarray(False), jnp.asarray(-1)
     else:  # a NaN marks a step that met a configuration that cannot assemble
-        assembled = jnp.isfinite(q) & jnp.isfinite(w)
-        locked = ~jnp.all(assembled)
-        last = jnp.where(locked, jnp.argmin(assembled) - 1, n)  # the last sample before it
+        finite = jnp.isfinite(q) & jnp.isfinite(w)
+        locked = ~jnp.all(finite)
+        last = jnp.where(locked, jnp.argmin(finite) - 1, n)  # the last sample before it
         valid = jnp.arange(n + 1) <= last
         t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
-        ahead = positions(mechanism, q[last] + h * w[last]).ok  # the group failing one step on
+        ahead = assembled(mechanism, q[last] + h * w[last])  # the group failing one step on
         failed = jnp.where(locked & ~jnp.all(ahead), jnp.argmin(ahead), -1)
     values = outputs(model, t, q, w, settings)
     return Solution(
