@@ -66,6 +66,12 @@ def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tup
     want_coms, want_angles = what
     materialize = _many_outputs(mechanism, points, what)
 
+    def every(q):  # every point: the stacked analysis, no per-name arrays in between
+        (xp, xc, xa), ok, (names["points"], links) = stacked_positions(mechanism, q)
+        names["coms"] = links if want_coms else ()
+        names["angles"] = links if want_angles else ()
+        return (xp, xc if want_coms else None, xa if want_angles else None), ok
+
     def coords(q):
         pose = positions(mechanism, q, points=points, materialize=materialize)
         names["points"] = tuple(pose.points)
@@ -78,7 +84,7 @@ def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tup
         )
         return x, pose.ok
 
-    return coords
+    return every if points is None and materialize else coords
 
 
 def taylor(fn: Callable, q, order: int):
@@ -140,7 +146,7 @@ class Coefficients(eqx.Module):
     def link_angles(self, order: int) -> dict | None:
         """The order's link angles (or their derivatives) alone as a dict by link name."""
         arrays = self.stacked[order]
-        return None if arrays is None else {k: arrays[2][..., i] for i, k in enumerate(self.names[1])}
+        return None if arrays is None else _rows(arrays[2], self.names[1])
 
     def kinematics(self, omega, alpha=None, *, velocities: bool = True) -> Kinematics:
         """The :class:`Kinematics` at driving velocity ``omega`` and acceleration ``alpha``:
@@ -164,15 +170,17 @@ class Coefficients(eqx.Module):
         )
 
 
-
 def _by_name(arrays, names) -> tuple | None:
     """(points (..., P, 2), coms (..., L, 2), angles (..., L)) as three dicts by name."""
     if arrays is None:
         return None
     points, links = names
-    return ({p: arrays[0][..., i, :] for i, p in enumerate(points)},
-            {k: arrays[1][..., i, :] for i, k in enumerate(links)},
-            {k: arrays[2][..., i] for i, k in enumerate(links)})
+    return _rows(arrays[0], points, vectors=True), _rows(arrays[1], links, vectors=True), _rows(arrays[2], links)
+
+
+def _rows(array, names, *, vectors: bool = False) -> dict:
+    """The rows of a stacked array by name (leading batch axes kept; ``vectors``: rows are 2-vectors)."""
+    return {k: array[..., i, :] if vectors else array[..., i] for i, k in enumerate(names)}
 
 
 def coefficients(mechanism: Mechanism, q, *, order: int = 2, near=None) -> Coefficients:

@@ -32,7 +32,7 @@ from jaxtyping import Array
 from ._jit import jit
 from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
 from ._loads import any_velocity_dependent, check_loads, driver_effort
-from ._mechanism import Mechanism, Pose, positions
+from ._mechanism import Mechanism, Pose
 
 
 def reduced_acceleration(inertia, dinertia, force, omega):
@@ -84,7 +84,8 @@ def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Arra
     q, omega, t = (jnp.asarray(v, dtype=float) for v in (q, omega, t))
     coeffs = coefficients(mechanism, q, order=1)
     kin = kinematics_from_coefficients(coeffs, omega, velocities=any_velocity_dependent(loads))
-    return jnp.sum(_torque_terms(mechanism, coeffs, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
+    mass, _ = _link_parameters(mechanism, coeffs.names[1])
+    return jnp.sum(_torque_terms(mechanism, coeffs, mass, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
 
 
 def kinematics_from_coefficients(coeffs: Coefficients, omega, *, velocities: bool = True) -> Kinematics:
@@ -100,13 +101,11 @@ def _link_parameters(mechanism: Mechanism, links: tuple[str, ...]):
             jnp.stack([jnp.asarray(mechanism.links[k].inertia, dtype=float) for k in links]))
 
 
-def _torque_terms(mechanism: Mechanism, coeffs: Coefficients, gravity, loads, kin, t, mass=None) -> Array:
-    """Per link (rows ``coeffs.names[1]``): F_j . dG_j/dq + M_j dtheta_j/dq, F_j and M_j the
-    resultant of gravity and ``loads`` on link j (Durango et al. 2014 eqs. 3-4). ``mass``:
-    the links' masses when already stacked."""
+def _torque_terms(mechanism: Mechanism, coeffs: Coefficients, mass, gravity, loads, kin, t) -> Array:
+    """Per link (rows ``coeffs.names[1]``, masses ``mass``): F_j . dG_j/dq + M_j dtheta_j/dq,
+    F_j and M_j the resultant of gravity and ``loads`` on link j (Durango et al. 2014 eqs. 3-4)."""
     links = coeffs.names[1]
     row = {k: i for i, k in enumerate(links)}
-    mass = _link_parameters(mechanism, links)[0] if mass is None else mass
     force = mass[:, None] * jnp.asarray(gravity, dtype=float)
     moment = jnp.zeros(len(links))
     for load in loads:
@@ -170,7 +169,7 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     kin = kinematics_from_coefficients(coeffs, omega, velocities=velocities)
     mass, inertia = _link_parameters(mechanism, coeffs.names[1])
     j, dj = _inertia_terms(mass, inertia, coeffs)
-    torque = _torque_terms(mechanism, coeffs, gravity, loads, kin, t, mass)
+    torque = _torque_terms(mechanism, coeffs, mass, gravity, loads, kin, t)
     # each group reduces its own links: one sum matrix (groups x links) for all of them
     row = {k: i for i, k in enumerate(coeffs.names[1])}
     members = np.zeros((len(mechanism.groups), len(row)))
@@ -182,7 +181,7 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     work_force = None
     if work:  # the loads outside V: every load but gravity and springs
         outside = tuple(load for load in loads if not load.conservative)
-        work_force = jnp.sum(_torque_terms(mechanism, coeffs, jnp.zeros(2), outside, kin, t, mass)) + effort
+        work_force = jnp.sum(_torque_terms(mechanism, coeffs, mass, jnp.zeros(2), outside, kin, t)) + effort
     total = jnp.sum(per_group, axis=0)
     reduction = Reduction(
         inertia=total[0],
