@@ -138,6 +138,12 @@ def _has_time_form(value) -> bool:
     return False
 
 
+def _may_vary_in_time(value) -> bool:
+    if isinstance(value, Vector):
+        return _may_vary_in_time(value.x) or _may_vary_in_time(value.y)
+    return _has_time_form(value) if isinstance(value, (Polynomial, Table)) else callable(value)
+
+
 def _as_value(v, where: str):
     """A load value: a function or form as it is, a number (or array) checked finite."""
     if callable(v):
@@ -169,6 +175,10 @@ class AbstractLoad(eqx.Module):
         """True when the load's values depend on time t (forms in t; functions are not
         inspected here: a table build probes them)."""
         return any(_has_time_form(v) for v in self._values())
+
+    def may_depend_on_time(self) -> bool:
+        """:meth:`time_dependent`, or some value is a function (not inspected: it may read t)."""
+        return any(_may_vary_in_time(v) for v in self._values())
 
     def _values(self) -> tuple:
         """The load's value fields (numbers, forms or functions)."""

@@ -155,12 +155,19 @@ def arrival_acceleration(model: Model, t, q, omega, q0, omega0, t0):
 def acceleration_at(model: Model, t, y: State):
     """dw/dt at a state, friction included; at rest with friction, 0 while it sticks,
     else the acceleration of the direction it breaks away in."""
+    return acceleration_and_reduction(model, t, y)[0]
+
+
+def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
+    """(:func:`acceleration_at`, the reduction and the Kinematics it was computed on): one
+    analysis for dw/dt and the energies of an output sample."""
     if not frictions_of(model.loads):
-        return _reduce(model, t, y)[0].acceleration(y.omega)
-    _, _, a, _, consistent = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]))
+        red, kin = _reduce(model, t, y, bridge)
+        return red.acceleration(y.omega), red, kin
+    red, kin, a, _, consistent = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]), bridge)
     moving, a_plus, a_minus = a[0], jnp.where(consistent[1], a[1], 0.0), jnp.where(consistent[2], a[2], 0.0)
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
-    return jnp.where(y.omega != 0, moving, at_rest)
+    return jnp.where(y.omega != 0, moving, at_rest), red, kin
 
 
 def vector_field_or_nan(t, y: State, args: FieldArgs) -> State:

@@ -13,11 +13,11 @@ from jaxtyping import Array
 
 from .._loads import potential_energy
 from .._tracking import branch_mapping
-from .._mechanism import Mechanism, positions
+from .._mechanism import Mechanism, Pose, positions
 from .._model import Model
 from .._reduction import reduce_with_pose
 from .._friction import frictions_of
-from ._field import State, acceleration_at
+from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
 from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, status_text
 from ._settings import Settings
@@ -109,10 +109,14 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
         z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
-            red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
+            if settings.domega and frictions_of(loads):  # the friction's solve gives the reduction too
+                alpha, red, kin = acceleration_and_reduction(model, t, State(q, w, branch=stacked), settings.bridge)
+                pose = Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
+            else:
+                red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
+                alpha = red.acceleration(w)
             if settings.domega:
-                values["domega"] = acceleration_at(model, t, State(q, w, branch=stacked)) if frictions_of(loads) \
-                    else red.acceleration(w)
+                values["domega"] = alpha
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)

@@ -45,6 +45,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                             "standstill; use stop='standstill' or no events")
     solver, n = solver_for(settings), ts.shape[0]
     slip_settings = settings._replace(standstill=True)
+    # without loads that vary in time a mechanism held at rest stays held: no stick segment
+    # (and no break-away event, two copies of the friction solve) is needed in the program
+    timeless = not any(load.may_depend_on_time() for load in model.loads)
 
     def breakaway_cond(t, y, args, **kwargs):
         a_plus, a_minus = directional_accelerations(args.model, t, y)
@@ -62,12 +65,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                                            event=stop_event(slip_settings), **kwargs)
         hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
-        sol = jax.lax.cond(stuck, hold, slip)
-        return sol, args
+        return slip() if timeless else jax.lax.cond(stuck, hold, slip)
 
     def body(carry):
         start, y, direction, stuck, saved, filled, k, steps, result, event, failed, _ = carry
-        sol, args = segment(start, y, direction, stuck)
+        sol = segment(start, y, direction, stuck)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
@@ -82,7 +84,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         go = rest_direction(a_plus, a_minus)
         y_next = y_end._replace(omega=jnp.where(fired, jnp.zeros_like(y_end.omega), y_end.omega))
         segment_result = RESULTS.promote(sol.result)
-        done = ~fired | locked | (end >= t1) | ~finished(segment_result)
+        done = ~fired | locked | (end >= t1) | ~finished(segment_result) | (timeless & (go == 0))
         result = RESULTS.where(finished(result), segment_result, result)
         event = jnp.where(locked, LOCKUP, event)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed)
@@ -95,8 +97,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     go0 = start_direction(model, t0, y0)
     carry = (t0, y0, jnp.where(go0 != 0, go0, 1.0), go0 == 0, saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
-             jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
-    end, y_end, _, _, saved, filled, _, steps, result, event, failed, _ = jax.lax.while_loop(cond, body, carry)
+             jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), timeless & (go0 == 0))
+    end, y_end, _, stuck, saved, filled, _, steps, result, event, failed, _ = jax.lax.while_loop(cond, body, carry)
+    if timeless:  # held at rest from the last standstill (or the start) to t1
+        held = stuck & (event != LOCKUP) & finished(result)
+        rest = held & (ts >= end)
+        saved = jax.tree.map(lambda old, z: jnp.where(_expand(rest, old), z, old), saved, y_end)
+        filled, end = filled | rest, jnp.where(held, t1, end)
     valid = filled  # the times reached; the rest repeat the last one reached
     last = jnp.maximum(jnp.sum(valid) - 1, 0)
     pick = lambda z: None if z is None else jnp.where(valid, z, z[last])  # noqa: E731
