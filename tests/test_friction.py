@@ -140,6 +140,24 @@ def test_breakaway_at_the_static_limit(write_scene):
     assert sol.omega[3] > 0.0 and sol.q[4] > scene.state["q0"] + 1e-3
 
 
+def test_breakaway_under_a_torque_given_as_a_function(write_scene):
+    """The same arm under the same torque k t given as a Python function: a function is never
+    assumed constant in time (the stick segment stays), so it breaks away at the same time."""
+    scene = aj.load_scene(write_scene(HANGING))
+    ramp = aj.Drive(lambda q, w, t: 0.5 * t)
+    loads = (ramp,) + tuple(load for load in scene.loads if not isinstance(load, aj.Drive))
+    assert ramp.may_depend_on_time() and not any(load.may_depend_on_time() for load in loads[1:])
+    t_star = 0.3 * 0.04 * 2.0 * 9.81 / 0.5
+    eps = 1e-6
+    sol = aj.simulate(scene, loads=loads, saveat=np.array([0.0, t_star - eps, t_star + eps, 0.9]), stop=None,
+                      rtol=1e-11, atol=1e-11)
+    assert np.all(sol.q[:2] == scene.state["q0"]) and np.all(sol.omega[:2] == 0.0)
+    assert sol.omega[2] > 0.0 and sol.q[3] > scene.state["q0"] + 1e-3
+    # with a constant torque below the limit it stays at rest to t1 (no stick segment in the program)
+    held = aj.simulate(scene, loads=(aj.Drive(0.5 * 0.9 * t_star),) + loads[1:], saveat=np.array([0.0, 0.5, 1.0]), stop=None)
+    assert np.all(held.q == scene.state["q0"]) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
+
+
 def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     """Along the rough motion the driving effort needed is zero (there is no drive), and
     the reactions put friction on every pair: the frictionless reactions differ."""
