@@ -561,14 +561,15 @@ def _stop(tree):
 
 
 # Continuation step control (see _continued_angles). A step is kept when every corrector
-# converged, every group's det dF/dz kept its sign, and the correction moved the predicted
-# angles by at most STEP_TRUST of the predicted move (plus STEP_SLACK rad). Otherwise the
-# step overshot a limit position or landed on another branch that passes close (near a
-# singular configuration, where the sign flips): it is retried at half the length, down to
-# 2**-MAX_HALVINGS of the longest step (then the branch ends before q). A step never
-# predicts a turn of more than LONGEST_MOVE: the relative test alone lets a long step
-# through where the angles turn fast.
-STEP_TRUST = 0.25
+# converged, every group's det dF/dz kept its sign, and the corrected angles fit the step:
+# the trapezoidal rule with the tangents at both ends (third-order accurate on a smooth
+# branch) predicts the change of the angles within STEP_TRUST of the predicted move (plus
+# STEP_SLACK rad). Otherwise the step overshot a limit position or landed on another branch
+# that passes close (near a singular configuration, where the sign flips): it is retried at
+# half the length, down to 2**-MAX_HALVINGS of the longest step (then the branch ends
+# before q). A step never predicts a turn of more than LONGEST_MOVE (the relative test
+# needs a move that is not huge where the angles turn fast, next to a limit position).
+STEP_TRUST = 0.1
 STEP_SLACK = 1e-4  # rad: branches closer than this are one branch to the continuation
 LONGEST_MOVE = 0.25  # rad
 MAX_HALVINGS = 12
@@ -633,8 +634,9 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
         h = jnp.where(last, 1.0 - s, h)
         move = t * h
         z_new, t_new, converged, signs = with_tangent(s + h, as_dict(z + move), False)
-        correction = jnp.max(jnp.abs(wrap_angle(z_new - (z + move))))
-        close = correction <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
+        # the trapezoidal rule with the tangents at both ends predicts the chord to third order
+        mismatch = jnp.max(jnp.abs(wrap_angle(z_new - z) - (t + t_new) * h / 2))
+        close = mismatch <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
         accept = jnp.all(converged) & close & jnp.all(signs == signs0)
         s = jnp.where(accept, jnp.where(last, 1.0, s + h), s)
         z, t = jnp.where(accept, z_new, z), jnp.where(accept, t_new, t)

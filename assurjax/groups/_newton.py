@@ -11,9 +11,10 @@ group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
    joints). The guess selects the assembly branch.
 2. **Continuation**: from the reference to the queried q in steps of q of at most
    1/``substeps`` of the way; each step predicts with the tangent dz/dq = -F_z^-1 F_q
-   and corrects with a loose Newton solve, and is halved unless the correction is
-   small and the sign of det F_z is kept (it flips on the other branch that passes
-   close near a singular configuration, and past a limit position). The earlier groups move with the
+   and corrects with a loose Newton solve, and is halved unless the corrected angles
+   fit the step (trapezoidal rule with the tangents at both ends) and the sign of
+   det F_z is kept (it flips on the other branch that passes close near a singular
+   configuration, and past a limit position). The earlier groups move with the
    mechanism at every intermediate q, so the path is the mechanism's own motion and
    the branch is the one reached continuously from the reference. For a crank the
    step q - guess_q is wrapped to (-pi, pi]. The position analysis does this for all
