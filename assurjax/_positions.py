@@ -561,13 +561,12 @@ def _stop(tree):
 
 
 # Continuation step control (see _continued_angles). A step is kept when every corrector
-# converged, every group's det dF/dz kept its sign, and the corrected angles fit the step:
-# the trapezoidal rule with the tangents at both ends (third-order accurate on a smooth
-# branch) predicts the change of the angles within STEP_TRUST of the predicted move (plus
-# STEP_SLACK rad). Otherwise the step overshot a limit position or landed on another branch
-# that passes close (near a singular configuration, where the sign flips): it is retried at
-# half the length, down to 2**-MAX_HALVINGS of the longest step (then the branch ends
-# before q). A step never predicts a turn of more than LONGEST_MOVE (the relative test
+# converged and the corrected angles fit the step: the trapezoidal rule with the tangents
+# at both ends (third-order accurate on a smooth branch) predicts the change of the angles
+# within STEP_TRUST of the predicted move (plus STEP_SLACK rad). Otherwise the step
+# overshot a limit position or landed on another branch that passes close (near a singular
+# configuration): it is retried at half the length, down to 2**-MAX_HALVINGS of the
+# longest step (then the branch ends before q). A step never predicts a turn of more than LONGEST_MOVE (the relative test
 # needs a move that is not huge where the angles turn fast, next to a limit position).
 STEP_TRUST = 0.1
 STEP_SLACK = 1e-4  # rad: branches closer than this are one branch to the continuation
@@ -600,7 +599,6 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
     if mechanism.driver.kind == "crank":
         delta = wrap_angle(delta)
     swept_set = frozenset(swept)
-    links, owner = mech.all_links(), dict(mech.owner)
     longest = 1.0 / first.substeps  # steps are fractions of the way from q_ref to q
 
     def corrected(s, z, from_guess):
@@ -608,18 +606,16 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
         start = near if from_guess else {**(near or {}), **z}
         table, oks = analysis(mech, q_ref + s * delta, needed, start, materialize=False,
                                from_guess=swept_set if from_guess else frozenset(), loose=swept_set, batched=batched)
-        placed = Placement(links, owner, table)
-        signs = jnp.stack([mech.groups[i].orientation(links, placed) for i in swept])
-        return jnp.stack([heading(table[k].rot) for k in unknown]), (jnp.stack([oks[i] for i in swept]), signs)
+        return jnp.stack([heading(table[k].rot) for k in unknown]), jnp.stack([oks[i] for i in swept])
 
     def with_tangent(s, z, from_guess):
-        """Corrected angles at s, their tangent d(angles)/ds, the flags and the orientations."""
-        z_new, t, (ok, signs) = jax.jvp(lambda ss: corrected(ss, z, from_guess), (s,), (jnp.ones_like(s),), has_aux=True)
-        return z_new, jnp.where(jnp.isfinite(t), t, 0.0), ok, signs  # singular: no tangent
+        """Corrected angles at s, their tangent d(angles)/ds and the flags."""
+        z_new, t, ok = jax.jvp(lambda ss: corrected(ss, z, from_guess), (s,), (jnp.ones_like(s),), has_aux=True)
+        return z_new, jnp.where(jnp.isfinite(t), t, 0.0), ok  # singular: no tangent
 
     as_dict = lambda z: dict(zip(unknown, z))  # noqa: E731
     zero = jnp.zeros((), dtype=q.dtype)
-    z0, t0, ok0, signs0 = with_tangent(zero, None, True)  # at the reference, from the guesses
+    z0, t0, ok0 = with_tangent(zero, None, True)  # at the reference, from the guesses
 
     budget = 4 * first.substeps + 4 * MAX_HALVINGS  # steps, accepted or not
 
@@ -633,17 +629,18 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
         last = h >= 1.0 - s
         h = jnp.where(last, 1.0 - s, h)
         move = t * h
-        z_new, t_new, converged, signs = with_tangent(s + h, as_dict(z + move), False)
+        z_new, t_new, converged = with_tangent(s + h, as_dict(z + move), False)
         # the trapezoidal rule with the tangents at both ends predicts the chord to third order
         mismatch = jnp.max(jnp.abs(wrap_angle(z_new - z) - (t + t_new) * h / 2))
         close = mismatch <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
-        accept = jnp.all(converged) & close & jnp.all(signs == signs0)
+        accept = jnp.all(converged) & close
         s = jnp.where(accept, jnp.where(last, 1.0, s + h), s)
         z, t = jnp.where(accept, z_new, z), jnp.where(accept, t_new, t)
         h = jnp.where(accept, jnp.minimum(2.0 * h, longest), h / 2.0)
         return s, z, t, h, converged, n + 1
 
-    start = (zero, z0, t0, jnp.asarray(longest, dtype=q.dtype), ok0, jnp.zeros((), dtype=int))
+    first_step = jnp.where(delta == 0, 1.0, longest)  # at the reference itself: one step, to q
+    start = (zero, z0, t0, first_step.astype(q.dtype), ok0, jnp.zeros((), dtype=int))
     s, z, _, _, converged, _ = jax.lax.while_loop(unfinished, step, start)
     reached = s >= 1.0
     ok = ok0 & (reached | (converged & ~jnp.all(converged)))

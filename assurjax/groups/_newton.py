@@ -12,9 +12,9 @@ group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
 2. **Continuation**: from the reference to the queried q in steps of q of at most
    1/``substeps`` of the way; each step predicts with the tangent dz/dq = -F_z^-1 F_q
    and corrects with a loose Newton solve, and is halved unless the corrected angles
-   fit the step (trapezoidal rule with the tangents at both ends) and the sign of
-   det F_z is kept (it flips on the other branch that passes close near a singular
-   configuration, and past a limit position). The earlier groups move with the
+   fit the step (trapezoidal rule with the tangents at both ends): a fixed step lands
+   on the other branch where it passes close (near a singular configuration) or
+   steps past a limit position. The earlier groups move with the
    mechanism at every intermediate q, so the path is the mechanism's own motion and
    the branch is the one reached continuously from the reference. For a crank the
    step q - guess_q is wrapped to (-pi, pi]. The position analysis does this for all
@@ -140,16 +140,6 @@ class IterativeGroup(AbstractGroup):
         z, ok = newton_solve(type(self).residual, jax.lax.stop_gradient(z0), (ext, geo), max_steps=self.max_steps,
                              loose=getattr(placed, "loose", False))
         return self.frames(z, ext, geo), ok
-
-    def orientation(self, links: dict[str, Link], placed: Placement) -> Array:
-        """Sign (+1 or -1; 0 exactly at a singular configuration) of det dF/dz at the
-        placed solution. It is constant along a branch between singular configurations
-        and opposite on the branch that passes close to it near such a configuration,
-        so the continuation uses it to see a step that landed on the other branch."""
-        geo = self.geometry(links)
-        ext = tuple(placed.point(p) for p in self.external_points())
-        z = jnp.stack([heading(placed.frames[k].rot) for k in self.unknown_links()])
-        return jnp.sign(jnp.linalg.det(jax.jacfwd(type(self).residual)(z, (ext, geo))))
 
     def predictor(self, placed: Placement, ext, geo) -> Array:
         """Starting angles for the solve (no gradient flows through them): the
