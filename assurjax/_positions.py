@@ -566,8 +566,9 @@ def _stop(tree):
 # within STEP_TRUST of the predicted move (plus STEP_SLACK rad). Otherwise the step
 # overshot a limit position or landed on another branch that passes close (near a singular
 # configuration): it is retried at half the length, down to 2**-MAX_HALVINGS of the
-# longest step (then the branch ends before q). A step never predicts a turn of more than LONGEST_MOVE (the relative test
-# needs a move that is not huge where the angles turn fast, next to a limit position).
+# longest step (then the branch ends before q). A step never predicts a turn of more than
+# LONGEST_MOVE (the relative test needs a move that is not huge where the angles turn fast,
+# next to a limit position).
 STEP_TRUST = 0.1
 STEP_SLACK = 1e-4  # rad: branches closer than this are one branch to the continuation
 LONGEST_MOVE = 0.25  # rad

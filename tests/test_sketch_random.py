@@ -372,23 +372,24 @@ def test_random_modes_against_loop_closure_newton(seed):
 # the groups it hangs from). The continuation from the drawing to q used fixed steps.
 
 # The branch passes close to another near a singular configuration of the triad (the
-# reference's Jacobian is nearest singular 0.012 m from the drawing); a fixed step of
-# 0.025 m landed on the other one, 0.12 m off at q = 0.15 and 0.2, and reported it.
+# reference's Jacobian is nearest singular 0.012 m from the drawing, smallest singular value
+# 1.4e-3); a fixed step of 0.025 m landed on the other one, 0.13 m off at q = 0.15 and 0.2.
 NEAR_SINGULAR = dict(
     joints={"p0": (0.3707, -0.6039), "p1": (-0.9069, -0.7008), "p2": (-0.2183, 0.3009), "p3": (0.5868, -0.4625),
             "p4": (0.2017, -0.3736), "p12": (-0.221, -0.1075), "p13": (0.3608, -0.3173), "p14": (0.193, -0.2643),
             "p15": (0.1843, -0.6735)},
     links={"l0": ["p3", "p4"], "l7": ["p12", "p13", "p14", "p15"], "l8": ["p2", "p12"], "l9": ["p0", "p13"], "l10": ["p4", "p14"]},
     slides=[("l0", "ground", (0.9999, -0.0166))])
-# The same structure drawn elsewhere: its branch ends at a limit position between q = 0.1
-# and 0.15; fixed steps went past it and reported another assembly there.
+# The same structure drawn elsewhere: its branch ends at a limit position at q = 0.118;
+# fixed steps went past it and reported another assembly at q = 0.2.
 LIMIT_POSITION = dict(
     joints={"p0": (0.7739, -0.0097), "p1": (0.6331, -0.6028), "p2": (0.593, 0.9042), "p3": (0.5326, -0.3045),
             "p4": (0.4015, -0.3319), "p12": (0.3854, 0.4884), "p13": (0.7386, 0.1658), "p14": (0.7004, -0.03),
             "p15": (1.0249, -0.3348)},
     links=NEAR_SINGULAR["links"], slides=[("l0", "ground", (0.9999, 0.0161))])
-# Drawn less than 0.05 m from a limit position, where the angles turn fast: fixed steps
-# landed on another branch (0.32 m off at q = 0.05 and 0.2) and went past the limit at -0.05.
+# Drawn 1e-5 m from a limit position (q slightly below 0), where the angles turn fast
+# (|dz/dq| = 870 at the drawing): fixed steps landed on another branch (0.32 m off at
+# q = 0.05 and 0.2) and reported an assembly past the limit at q = -0.05.
 FAST_TURN = dict(
     joints={"p0": (0.4144, 0.773), "p1": (0.2963, -0.3119), "p2": (-0.1352, -0.9345), "p3": (0.7516, -0.8173),
             "p4": (0.8349, -1.2206), "p5": (-0.4157, -1.353), "p6": (-0.6443, -1.1914), "p7": (-0.1766, -0.8769),
