@@ -602,15 +602,32 @@ def _stop(tree):
     return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
+# Continuation step control (see _continued_angles). A step is kept when every corrector
+# converged and the corrected angles fit the step: the trapezoidal rule with the tangents
+# at both ends (third-order accurate on a smooth branch) predicts the change of the angles
+# within STEP_TRUST of the predicted move (plus STEP_SLACK rad). Otherwise the step
+# overshot a limit position or landed on another branch that passes close (near a singular
+# configuration): it is retried at half the length, down to 2**-MAX_HALVINGS of the
+# longest step (then the branch ends before q). A step never predicts a turn of more than
+# LONGEST_MOVE (the relative test needs a move that is not huge where the angles turn fast,
+# next to a limit position).
+STEP_TRUST = 0.1
+STEP_SLACK = 1e-4  # rad: branches closer than this are one branch to the continuation
+LONGEST_MOVE = 0.25  # rad
+MAX_HALVINGS = 12
+
+
 def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched: bool):
     """Starting angles at q for the iterative groups ``pending`` that share the first
     one's reference (guess_q) and substeps: each is solved from its guess at guess_q,
-    then the mechanism is followed to q in ``substeps`` equal steps of q (for a crank
-    the step q - guess_q is wrapped to (-pi, pi]); each step corrects with a loose
-    Newton solve and predicts the next with the tangent d(angles)/dq (a jvp of the
-    analysis: the implicit function theorem through the solves). Returns the angles
-    predicted at q (uncorrected: the caller's final solve corrects them, and only it
-    is differentiated) and, per group, whether every correction converged."""
+    then the mechanism is followed to q (for a crank the step q - guess_q is wrapped to
+    (-pi, pi]) in steps of at most (q - guess_q) / substeps, halved where needed (see
+    STEP_TRUST); each step predicts along the tangent d(angles)/dq (a jvp of the
+    analysis: the implicit function theorem through the solves) and corrects with a
+    loose Newton solve. Returns the angles at q (loosely corrected: the caller's final
+    solve corrects them, and only it is differentiated) and, per group, whether the
+    continuation reached q (when it did not: the groups whose last corrector failed, or
+    all of them when the last step was rejected for another reason)."""
     first = mechanism.groups[pending[0]]
     if first.guess_q is None:
         raise MechanismError(f"{first.describe()}: guess_q is not set (the coordinate at which 'guess' places the internal joints)")
@@ -624,27 +641,50 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
     delta = q - q_ref
     if mechanism.driver.kind == "crank":
         delta = wrap_angle(delta)
-    dq = delta / first.substeps
     swept_set = frozenset(swept)
+    longest = 1.0 / first.substeps  # steps are fractions of the way from q_ref to q
 
-    def corrected(qk, z, from_guess):
-        """Angles of the unknown links at qk after a loose solve, and the swept groups' flags."""
+    def corrected(s, z, from_guess):
+        """Angles of the unknown links at q_ref + s delta after a loose solve, and each swept group's convergence flag."""
         start = near if from_guess else {**(near or {}), **z}
-        table, oks = analysis(mech, qk, needed, start, materialize=False,
+        table, oks = analysis(mech, q_ref + s * delta, needed, start, materialize=False,
                                from_guess=swept_set if from_guess else frozenset(), loose=swept_set, batched=batched)
-        return {k: heading(table[k].rot) for k in unknown}, jnp.stack([oks[i] for i in swept])
+        return jnp.stack([heading(table[k].rot) for k in unknown]), jnp.stack([oks[i] for i in swept])
 
-    def advance(qk, z, from_guess):
-        z_new, t, ok = jax.jvp(lambda qq: corrected(qq, z, from_guess), (qk,), (jnp.ones_like(qk),), has_aux=True)
-        t = jax.tree.map(lambda v: jnp.where(jnp.isfinite(v), v, 0.0), t)  # singular: no tangent
-        return jax.tree.map(lambda a, b: a + b * dq, z_new, t), ok
+    def with_tangent(s, z, from_guess):
+        """Corrected angles at s, their tangent d(angles)/ds and the flags."""
+        z_new, t, ok = jax.jvp(lambda ss: corrected(ss, z, from_guess), (s,), (jnp.ones_like(s),), has_aux=True)
+        return z_new, jnp.where(jnp.isfinite(t), t, 0.0), ok  # singular: no tangent
 
-    z, ok = advance(q_ref, None, True)  # step 0: from the guesses at the reference
+    as_dict = lambda z: dict(zip(unknown, z))  # noqa: E731
+    zero = jnp.zeros((), dtype=q.dtype)
+    z0, t0, ok0 = with_tangent(zero, None, True)  # at the reference, from the guesses
 
-    def step(k, carry):
-        z, ok = carry
-        z_next, ok_k = advance(q_ref + k * dq, z, False)
-        return z_next, ok & ok_k
+    budget = 4 * first.substeps + 4 * MAX_HALVINGS  # steps, accepted or not
 
-    z, ok = jax.lax.fori_loop(1, first.substeps, step, (z, ok))
-    return z, {i: ok[n] for n, i in enumerate(swept)}
+    def unfinished(state):
+        s, _, _, h, _, n = state
+        return (s < 1.0) & (h >= longest * 2.0**-MAX_HALVINGS) & (n < budget)
+
+    def step(state):
+        s, z, t, h, _, n = state
+        h = jnp.minimum(h, LONGEST_MOVE / jnp.maximum(jnp.max(jnp.abs(t)), 1e-30))  # where the angles turn fast
+        last = h >= 1.0 - s
+        h = jnp.where(last, 1.0 - s, h)
+        move = t * h
+        z_new, t_new, converged = with_tangent(s + h, as_dict(z + move), False)
+        # the trapezoidal rule with the tangents at both ends predicts the chord to third order
+        mismatch = jnp.max(jnp.abs(wrap_angle(z_new - z) - (t + t_new) * h / 2))
+        close = mismatch <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
+        accept = jnp.all(converged) & close
+        s = jnp.where(accept, jnp.where(last, 1.0, s + h), s)
+        z, t = jnp.where(accept, z_new, z), jnp.where(accept, t_new, t)
+        h = jnp.where(accept, jnp.minimum(2.0 * h, longest), h / 2.0)
+        return s, z, t, h, converged, n + 1
+
+    first_step = jnp.where(delta == 0, 1.0, longest)  # at the reference itself: one step, to q
+    start = (zero, z0, t0, first_step.astype(q.dtype), ok0, jnp.zeros((), dtype=int))
+    s, z, _, _, converged, _ = jax.lax.while_loop(unfinished, step, start)
+    reached = s >= 1.0
+    ok = ok0 & (reached | (converged & ~jnp.all(converged)))
+    return as_dict(z), {i: ok[n] for n, i in enumerate(swept)}

@@ -9,9 +9,12 @@ group here chooses two link angles ``z`` (rad) as unknowns and a smooth residual
    ``[state] q0`` unless the group gives ``guess_q``), Newton starts from the angles
    implied by the user's ``guess`` (approximate global positions of the internal
    joints). The guess selects the assembly branch.
-2. **Continuation**: from the reference to the queried q in ``substeps`` equal
-   sub-steps of q; each sub-step corrects with a loose Newton solve and predicts the
-   next with the tangent dz/dq = -F_z^-1 F_q. The earlier groups move with the
+2. **Continuation**: from the reference to the queried q in steps of q of at most
+   1/``substeps`` of the way; each step predicts with the tangent dz/dq = -F_z^-1 F_q
+   and corrects with a loose Newton solve, and is halved unless the corrected angles
+   fit the step (trapezoidal rule with the tangents at both ends): a fixed step lands
+   on the other branch where it passes close (near a singular configuration) or
+   steps past a limit position. The earlier groups move with the
    mechanism at every intermediate q, so the path is the mechanism's own motion and
    the branch is the one reached continuously from the reference. For a crank the
    step q - guess_q is wrapped to (-pi, pi]. The position analysis does this for all
