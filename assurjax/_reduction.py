@@ -175,18 +175,18 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     members = np.zeros((len(mechanism.groups), len(row)))
     for n, group in enumerate(mechanism.groups):
         members[n, [row[k] for k in group.links]] = 1.0
-    per_group = jnp.asarray(members) @ jnp.stack([j, dj, torque], axis=-1)
-    gj, gdj, gt = ({g.name: per_group[n, c] for n, g in enumerate(mechanism.groups)} for c in range(3))
+    per_group = jnp.einsum("gl,...lc->...gc", members, jnp.stack([j, dj, torque], axis=-1))
+    gj, gdj, gt = ({g.name: per_group[..., n, c] for n, g in enumerate(mechanism.groups)} for c in range(3))
     effort = driver_effort(mechanism, loads, coeffs.q, omega, t)
     work_force = None
     if work:  # the loads outside V: every load but gravity and springs
         outside = tuple(load for load in loads if not load.conservative)
         work_force = jnp.sum(_torque_terms(mechanism, coeffs, mass, jnp.zeros(2), outside, kin, t)) + effort
-    total = jnp.sum(per_group, axis=0)
+    total = jnp.sum(per_group, axis=-2)
     reduction = Reduction(
-        inertia=total[0],
-        dinertia=total[1],
-        torque=total[2],
+        inertia=total[..., 0],
+        dinertia=total[..., 1],
+        torque=total[..., 2],
         effort=effort,
         group_inertia=gj, group_dinertia=gdj, group_torque=gt,
         ok=coeffs.ok, angle_rates=coeffs.link_angles(1) if rates else None, work_force=work_force,
