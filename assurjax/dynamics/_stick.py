@@ -10,7 +10,10 @@ direction s whose a_s points that way, when a time-dependent load makes that cha
 The motion is integrated by diffrax in segments inside one ``lax.while_loop``: a slip
 segment ends where w returns to 0 (a diffrax.Event located by root finding), a stick
 segment (w = 0, q fixed) where the break-away margin max(a_+, -a_-) crosses 0 (another
-Event). Each segment saves the requested times that fall inside it. Forward-mode
+Event). Each segment starts by deciding its direction (sign(w), or at rest the break-away test),
+so the test is in the program once. Without loads that may vary in time a mechanism held at
+rest stays held: the stick segment is left out, and the rest is filled to t1. Each segment
+saves the requested times that fall inside it. Forward-mode
 derivatives go through the loop; reverse mode does not (JAX cannot reverse a
 while_loop): differentiate runs up to the first standstill, or use ``jax.jvp``.
 """
@@ -25,7 +28,7 @@ import optimistix as optx
 from .._errors import AssurjaxError
 from .._model import Model
 from ._events import assembles, stop_event
-from ._field import FieldArgs, State, near, directional_accelerations, rest_direction, start_direction, vector_field
+from ._field import FieldArgs, State, near, directional_accelerations, rest_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, finished
 from ._settings import Settings, adjoint_for, controller_for, solver_for
 from ._solution import Solution, outputs
@@ -58,8 +61,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
     def segment(start, y, direction, stuck):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=None, bridge=settings.bridge)
-        kwargs = dict(t0=start, t1=t1, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
-                      saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, t1), t1=True), max_steps=settings.max_steps,
+        # held for good (nothing varies in time): a segment of length zero ends the loop
+        stop = jnp.where(stuck, start, t1) if timeless else t1
+        kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
+                      saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, stop), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=controller_for(settings),  # noqa: E731
                                            event=stop_event(slip_settings), **kwargs)
@@ -68,7 +73,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return slip() if timeless else jax.lax.cond(stuck, hold, slip)
 
     def body(carry):
-        start, y, direction, stuck, saved, filled, k, steps, result, event, failed, _ = carry
+        start, y, previous, _, saved, filled, k, steps, result, event, failed, _ = carry
+        # which way does the segment go: sign(w), or at rest (the start, a standstill, a
+        # break-away) the direction the mechanism accelerates in, if any (else it sticks)
+        a_plus, a_minus = directional_accelerations(model, start, y._replace(omega=jnp.zeros_like(y.omega)))
+        go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(a_plus, a_minus))
+        direction, stuck = jnp.where(go != 0, go, previous), go == 0
         sol = segment(start, y, direction, stuck)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -79,25 +89,21 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         fired = jnp.asarray(False) if sol.event_mask is None else jnp.asarray(sol.event_mask)
         ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
         locked = ~stuck & fired & ~jnp.all(ok_end)
-        # at the end of a segment: at rest, which way (if any) does it go on?
-        a_plus, a_minus = directional_accelerations(model, end, y_end._replace(omega=jnp.zeros_like(y_end.omega)))
-        go = rest_direction(a_plus, a_minus)
         y_next = y_end._replace(omega=jnp.where(fired, jnp.zeros_like(y_end.omega), y_end.omega))
         segment_result = RESULTS.promote(sol.result)
-        done = ~fired | locked | (end >= t1) | ~finished(segment_result) | (timeless & (go == 0))
+        done = ~fired | locked | (end >= t1) | ~finished(segment_result)
         result = RESULTS.where(finished(result), segment_result, result)
         event = jnp.where(locked, LOCKUP, event)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed)
-        return (end, y_next, jnp.where(go != 0, go, direction), go == 0, saved, filled, k + 1,
-                steps + sol.stats["num_steps"], result, event, failed, done)
+        return (end, y_next, direction, stuck, saved, filled, k + 1, steps + sol.stats["num_steps"], result, event, failed,
+                done)
 
     def cond(carry):
         return ~carry[-1] & (carry[6] < MAX_SEGMENTS)
 
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
-    go0 = start_direction(model, t0, y0)
-    carry = (t0, y0, jnp.where(go0 != 0, go0, 1.0), go0 == 0, saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
-             jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), timeless & (go0 == 0))
+    carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
+             jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
     end, y_end, _, stuck, saved, filled, _, steps, result, event, failed, _ = jax.lax.while_loop(cond, body, carry)
     if timeless:  # held at rest from the last standstill (or the start) to t1
         held = stuck & (event != LOCKUP) & finished(result)
