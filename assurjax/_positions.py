@@ -85,13 +85,12 @@ def positions(
 @jit
 def _positions(mechanism: Mechanism, q, points, near, materialize: bool) -> Pose:
     if points is None:
-        wanted_groups = tuple(range(len(mechanism.groups)))
+        wanted_groups = _every_group(mechanism)
         wanted_points = mechanism.point_names
     else:
         wanted_points = tuple(points)
         wanted_groups = mechanism.groups_needed(wanted_points)
-    table, oks = analysis(mechanism, q, wanted_groups, near, materialize=materialize)
-    ok = jnp.stack([oks.get(i, jnp.array(True)) for i in range(len(mechanism.groups))])  # True where not solved
+    table, ok = _analysis_with_flags(mechanism, q, wanted_groups, near, materialize)
     if table.grouped:
         return _pose_stacked(mechanism, table, ok, wanted_points)
     return _pose_per_name(mechanism, table, ok, wanted_points)
@@ -105,7 +104,7 @@ def assembled(mechanism: Mechanism, q, near: Mapping | None = None):
 
 @jit
 def _assembled(mechanism: Mechanism, q, near):
-    return _analysis_of_all(mechanism, q, near, materialize=True)[1]
+    return _analysis_with_flags(mechanism, q, _every_group(mechanism), near, True)[1]
 
 
 def stacked_positions(mechanism: Mechanism, q, near: Mapping | None = None):
@@ -118,7 +117,7 @@ def stacked_positions(mechanism: Mechanism, q, near: Mapping | None = None):
 
 @jit
 def _stacked_positions(mechanism: Mechanism, q, near):
-    table, ok = _analysis_of_all(mechanism, q, near, materialize=True)
+    table, ok = _analysis_with_flags(mechanism, q, _every_group(mechanism), near, True)
     points = mechanism.point_names
     moving = tuple(name for name in table.links if name != GROUND)
     if table.grouped:
@@ -129,9 +128,14 @@ def _stacked_positions(mechanism: Mechanism, q, near):
     return stacked, ok, (points, moving)
 
 
-def _analysis_of_all(mechanism: Mechanism, q, near, materialize: bool):
-    table, oks = analysis(mechanism, q, tuple(range(len(mechanism.groups))), near, materialize=materialize)
-    return table, jnp.stack([oks[i] for i in range(len(mechanism.groups))])
+def _every_group(mechanism: Mechanism) -> tuple[int, ...]:
+    return tuple(range(len(mechanism.groups)))
+
+
+def _analysis_with_flags(mechanism: Mechanism, q, groups: tuple[int, ...], near, materialize: bool):
+    """:func:`analysis` of ``groups`` and one ok flag per group of the mechanism (True where not solved)."""
+    table, oks = analysis(mechanism, q, groups, near, materialize=materialize)
+    return table, jnp.stack([oks.get(i, jnp.array(True)) for i in range(len(mechanism.groups))])
 
 
 def _pose_per_name(mechanism: Mechanism, table: FrameTable, ok, wanted_points) -> Pose:
