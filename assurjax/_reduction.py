@@ -170,19 +170,17 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     mass, inertia = _link_parameters(mechanism, coeffs.names[1])
     j, dj = _inertia_terms(mass, inertia, coeffs)
     torque = _torque_terms(mechanism, coeffs, mass, gravity, loads, kin, t)
-    # each group reduces its own links: one sum matrix (groups x links) for all of them
+    terms = jnp.stack([j, dj, torque], axis=-1)  # (..., links, 3)
+    # each group reduces its own links (gathers that a caller reading only the totals never runs)
     row = {k: i for i, k in enumerate(coeffs.names[1])}
-    members = np.zeros((len(mechanism.groups), len(row)))
-    for n, group in enumerate(mechanism.groups):
-        members[n, [row[k] for k in group.links]] = 1.0
-    per_group = jnp.einsum("gl,...lc->...gc", members, jnp.stack([j, dj, torque], axis=-1))
-    gj, gdj, gt = ({g.name: per_group[..., n, c] for n, g in enumerate(mechanism.groups)} for c in range(3))
+    per_group = {g.name: jnp.sum(terms[..., np.asarray([row[k] for k in g.links]), :], axis=-2) for g in mechanism.groups}
+    gj, gdj, gt = ({name: v[..., c] for name, v in per_group.items()} for c in range(3))
     effort = driver_effort(mechanism, loads, coeffs.q, omega, t)
     work_force = None
     if work:  # the loads outside V: every load but gravity and springs
         outside = tuple(load for load in loads if not load.conservative)
         work_force = jnp.sum(_torque_terms(mechanism, coeffs, mass, jnp.zeros(2), outside, kin, t)) + effort
-    total = jnp.sum(per_group, axis=-2)
+    total = jnp.sum(terms, axis=-2)
     reduction = Reduction(
         inertia=total[..., 0],
         dinertia=total[..., 1],
