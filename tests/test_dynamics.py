@@ -198,6 +198,38 @@ def test_lockup_stops_with_a_clear_result():
     assert sol.t[-1] < 3.0
 
 
+LIMIT = np.arccos((0.3**2 + 0.5**2 - 0.6**2) / (2 * 0.3 * 0.5))  # the triple rocker's stretched dyad: |A - O4| = 0.6
+
+
+@pytest.mark.parametrize("dt", [None, 1e-3])
+def test_lockup_is_located_by_rejected_steps(dt):
+    """Steps that meet a configuration where the dyad cannot assemble are rejected and shrunk
+    (adaptive) or halved (constant steps) until the lock-up is located: the run stops at the
+    stretched dyad (closed form), never past it, without bouncing back."""
+    scene = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    sol = aj.simulate(scene, q0=0.9, omega0=-6.0, stop=None, t1=3.0, dt=dt)
+    assert sol.event == LOCKUP and sol.failed_group == "dyad"
+    assert abs(sol.q_final + LIMIT) < 1e-8
+    assert np.all(sol.q >= -LIMIT) and np.all(np.diff(sol.q) <= 0.0)
+
+
+def test_lockup_in_a_batch_stops_each_member_at_its_limit():
+    """Vmapped runs, each closing in on a lock-up of its own (both limits), as run alone (the
+    time of arrival is ill-conditioned: q approaches the limit quadratically in t)."""
+    import equinox as eqx
+
+    scene = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    settings = aj.SimulationSettings(samples=11)
+    run = aj.jit(eqx.filter_vmap(lambda w0: aj.simulate_core(scene.model, q0=0.9, omega0=w0, t1=3.0, settings=settings)))
+    omega0 = np.array([-6.0, 2.0, 8.0])
+    batch = run(jnp.asarray(omega0))
+    np.testing.assert_array_equal(np.asarray(batch.event), LOCKUP)
+    np.testing.assert_allclose(np.abs(np.asarray(batch.q_final)), LIMIT, atol=1e-8)
+    for k, w0 in enumerate(omega0):
+        alone = aj.simulate(scene, q0=0.9, omega0=w0, stop=None, t1=3.0, samples=11)
+        assert abs(float(batch.q_final[k]) - alone.q_final) < 1e-9 and abs(float(batch.t_final[k]) - alone.t_final) < 1e-6
+
+
 def test_unknown_point_in_a_load_is_a_clear_error(watt):
     with pytest.raises(aj.AssurjaxError, match="unknown point 'Z'"):
         aj.simulate(watt, loads=[aj.PointForce("Z", [1.0, 0.0])])

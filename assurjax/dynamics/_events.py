@@ -1,8 +1,9 @@
-"""Stop conditions of a simulation, as one diffrax.Event.
+"""Stop conditions of a simulation, as one diffrax.Event, and the assembly checks at its ends.
 
-Standstill (w crosses 0 against the direction of motion), a group that can no longer
-assemble, and user conditions ``cond(t, q, omega)`` (stop when they change sign); each
-is a margin that is positive until it fires.
+Standstill (w crosses 0 against the direction of motion) and user conditions
+``cond(t, q, omega)`` (stop when they change sign); each is a margin that is positive
+until it fires. A group that can no longer assemble needs no event: the vector field is
+NaN there and the step-size controller closes in on it (``_settings.lockup_controller``).
 """
 
 from __future__ import annotations
@@ -13,31 +14,24 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._positions import assembled
-from ._field import FieldArgs, State, near
-from ._results import LOCKUP, NO_EVENT, STANDSTILL, USER
+from ._field import FieldArgs, State
+from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER
 from ._settings import Settings
 
 _TINY = 1e-30
 
 
-def margins(settings: Settings, t, y: State, args: FieldArgs, lockup=None) -> list:
+def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     """One margin per enabled stop condition, positive until that condition fires.
 
     standstill: w times the direction of motion, the sign of w0, or from rest the
     displacement q - q0 (0 at the start, > 0 while moving, < 0 once w has reversed:
     no force evaluation at t0 is needed to know which way the mechanism starts);
-    assembly: +1 while every group assembles, -1 once one cannot; user events:
-    cond(t, q, w) times its sign at t0. ``lockup``: the assembly margin when already
-    known (then no position analysis here).
+    user events: cond(t, q, w) times its sign at t0.
     """
     out = []
     if settings.standstill:
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
-    if settings.check_assembly:
-        if lockup is None:
-            ok = assembled(args.model.mechanism, y.q, near=near(args.model, y))
-            lockup = jnp.where(jnp.all(ok), 1.0, -_TINY)
-        out.append(lockup)
     for k, cond in enumerate(settings.events):
         out.append(args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float))
     return out
@@ -45,41 +39,54 @@ def margins(settings: Settings, t, y: State, args: FieldArgs, lockup=None) -> li
 
 def event_codes(settings: Settings) -> tuple[int, ...]:
     codes = [STANDSTILL] if settings.standstill else []
-    codes += [LOCKUP] if settings.check_assembly else []
     return tuple(codes + [USER + k for k in range(len(settings.events))])
 
 
 def stop_event(settings: Settings):
     """One diffrax.Event on the smallest margin (down-crossing), located by bisection
-    on the dense output: the assembly margin is a step, and bisection needs no
-    right-hand-side evaluations. None when no condition is enabled."""
+    on the dense output (no right-hand-side evaluations). None when no condition is enabled."""
     if not event_codes(settings):
         return None
 
     def cond_fn(t, y, args, **kwargs):
         # Clipped at a tiny positive value: the bisection's |f| < atol test then holds
-        # on both sides of a step (the assembly margin), and the root is the first crossing.
+        # on both sides of the crossing, and the root is the first crossing.
         return jnp.minimum(jnp.min(jnp.stack(margins(settings, t, y, args))), _TINY)
 
     tol = min(1e-3 * settings.rtol, 1e-12)
     return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
 
 
-def which_event(sol, settings: Settings, args: FieldArgs, last, ok_final):
-    """The code of the stop condition that fired (the smallest margin at the stop), or -1.
-    The assembly condition is read at and just past the final state, since bisection
-    may leave that state on the assembled side."""
+def which_event(sol, settings: Settings, args: FieldArgs, last):
+    """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
     codes = event_codes(settings)
     if not codes:
         return jnp.asarray(NO_EVENT)
     y_final = jax.tree.map(lambda y: y[last], sol.ys)
-    lockup = jnp.where(jnp.all(ok_final), 1.0, -1.0) if settings.check_assembly else None
-    found = margins(settings, sol.ts[last], y_final, args, lockup)
+    found = margins(settings, sol.ts[last], y_final, args)
     return jnp.where(sol.event_mask, jnp.asarray(codes)[jnp.argmin(jnp.stack(found))], NO_EVENT)
+
+
+def lockup_found(event, result, ok_final):
+    """(event, result) of a run whose steps closed in on a configuration where some group
+    cannot assemble (``dt_min_reached`` from ``_settings.lockup_controller``, and a group
+    failing just past the final state): the lock-up event."""
+    locked = (result == RESULTS.dt_min_reached) & ~jnp.all(ok_final)
+    return jnp.where(locked, LOCKUP, event), RESULTS.where(locked, RESULTS.event_occurred, result)
 
 
 def assembles(mechanism, q_final, w_final, near=None):
     """Per group: assembled at the final state and just past it (in the direction of motion)."""
+    return assembles_at_start_and_end(mechanism, None, None, q_final, w_final, near)[1]
+
+
+def assembles_at_start_and_end(mechanism, q0, near0, q_final, w_final, near_final):
+    """Per group: (assembled at the start q0 or None when q0 is None, assembled at the
+    final state and just past it in the direction of motion), by one vmapped analysis."""
     nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
-    both = jax.vmap(lambda q: assembled(mechanism, q, near=near))(jnp.stack([q_final + nudge, q_final]))  # one copy
-    return both[0] & both[1]
+    qs, nears = [q_final + nudge, q_final], [near_final, near_final]
+    if q0 is not None:
+        qs, nears = qs + [q0], nears + [near0]
+    stacked_nears = jax.tree.map(lambda *v: jnp.stack(v), *nears)  # None (the fixed modes) stays None
+    ok = jax.vmap(lambda q, z: assembled(mechanism, q, near=z))(jnp.stack(qs), stacked_nears)
+    return (ok[2] if q0 is not None else None), ok[0] & ok[1]

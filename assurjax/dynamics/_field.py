@@ -56,6 +56,8 @@ class FieldArgs(eqx.Module):
     q0: Array
     user_signs: tuple | None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
+    # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
+    nan_unassembled: bool = eqx.field(static=True, default=False)
 
 
 def field_args(model: Model, table: ReducedTable | None = None, *, direction=1.0) -> FieldArgs:
@@ -82,13 +84,17 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     else:
         red, kin = _reduce(model, t, y, args.bridge)
         alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
-    return State(
+    rates = State(
         q=y.omega,
         omega=alpha,
         work=None if y.work is None else red.work_force * y.omega + friction_power,
         dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
         branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
     )
+    if not args.nan_unassembled:
+        return rates
+    assembles = jnp.all(red.ok)
+    return jax.tree.map(lambda v: jnp.where(assembles, v, jnp.nan), rates)
 
 
 def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):

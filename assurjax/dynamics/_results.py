@@ -33,6 +33,7 @@ _EVENT = int(RESULTS.event_occurred._value)
 FINISHED = (_SUCCESS, _EVENT)  # host-side codes of runs that ended as asked
 START_NOT_ASSEMBLED = int(RESULTS.start_not_assembled._value)
 _MAX_STEPS = int(RESULTS.max_steps_reached._value)
+_DT_MIN = int(RESULTS.dt_min_reached._value)
 
 
 def result_text(code: int, *, max_steps: int | None = None) -> str:
@@ -43,6 +44,10 @@ def result_text(code: int, *, max_steps: int | None = None) -> str:
         budget = "" if max_steps is None else f" (max_steps = {max_steps})"
         return (f"the step budget{budget} was used up before t1: raise max_steps, loosen rtol/atol, "
                 "or shorten the time span")
+    if code == _DT_MIN:  # from the lock-up controllers (dynamics._settings.lockup_controller)
+        return ("the steps met a configuration where some group cannot assemble, yet every group assembles just past "
+                "where they stopped: the motion there is not resolved (with dt= constant steps near a limit position: "
+                "use adaptive steps or a smaller dt; else tighten rtol/atol)")
     try:
         message = RESULTS[_item(code)]
     except Exception:  # a code this version does not know

@@ -10,7 +10,11 @@ from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import diffrax
+import jax
+import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
+from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._values import MAGNITUDE_LIMIT, concrete, value_problem
@@ -36,6 +40,7 @@ DEFAULT_ATOL = 1e-8
 # the Watt six-bar (Tsit5 1e-8, 64 starting angles): 113 instead of 117 steps, max error 3.2e-7
 # instead of 4.0e-7 rad.
 CONTROLLER_SAFETY = 0.8
+LOCKUP_RESOLUTION = 5e-10  # the steps closing in on a lock-up stop once they move q by less than this (1 + |q|)
 DEFAULT_SAMPLES = 201
 DEFAULT_MAX_STEPS = 4096
 DEFAULT_TABLE_NODES = 4096
@@ -297,10 +302,80 @@ def adjoint_for(settings: Settings) -> diffrax.AbstractAdjoint:
     return ADJOINTS[settings.adjoint]()
 
 
+def adaptive(settings: Settings) -> bool:
+    """True where the PID controller chooses the steps (False: constant steps)."""
+    return not (settings.fixed_step or settings.dt is not None)
+
+
 def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeController:
     """Constant steps, or the PID controller with the package's safety factor (every
     adaptive solve of the package, the sensitivities included, steps the same way)."""
-    if settings.fixed_step or settings.dt is not None:
+    if not adaptive(settings):
         return diffrax.ConstantStepSize()
     kwargs = {} if norm is None else {"norm": norm}
     return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, **kwargs)
+
+
+def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
+    """The step-size controller of :func:`controller_for` for a vector field that is NaN
+    where a group cannot assemble: it rejects the steps that meet such a configuration and
+    closes in on it (:class:`LockupController`, :class:`ConstantStepsUntilLockup`)."""
+    if not adaptive(settings):
+        return ConstantStepsUntilLockup()
+    return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, norm=_finite_norm)
+
+
+def _met_unassembled(y1_candidate, y_error):
+    """True where a step met NaN: at its end or in a stage (the error estimate holds
+    them all, the last one at the step's end included)."""
+    return ~(jnp.isfinite(y1_candidate.omega) & jnp.isfinite(y_error.omega))
+
+
+def _located(t0, t1, y0, met, shortest=0.0):
+    """diffrax's ``dt_min_reached`` where a step that met a configuration that cannot
+    assemble moves q by less than ``LOCKUP_RESOLUTION`` (1 + |q|) or is no longer than
+    ``shortest``: the lock-up is found (or, if no group fails just past it, the solver
+    could not get on)."""
+    small = (jnp.abs(y0.omega) * (t1 - t0) <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))) | (t1 - t0 <= shortest)
+    return diffrax.RESULTS.where(met & small, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
+
+
+class LockupController(diffrax.PIDController):
+    """A step whose stages met a configuration where some group cannot assemble (NaN) has
+    an infinite error: it is rejected and the next one shrunk (diffrax's ``factormin``), so
+    the steps close in on the lock-up, until one moves q by less than ``LOCKUP_RESOLUTION``
+    (1 + |q|): the run ends there with ``dt_min_reached`` -- the lock-up, found by the steps
+    the solver takes anyway, without a position analysis of its own."""
+
+    def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
+        keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
+            t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
+        return keep, next_t0, next_t1, jump, state, diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result)
+
+
+class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
+    """Constant steps dt0; a step that meets a configuration where some group cannot
+    assemble (NaN) is rejected and halved, then the steps go on to the next point of the
+    grid, closing in on the lock-up as :class:`LockupController` does. Without error
+    control the steps may find no sane motion near a limit position: halving ends 30
+    times below dt0."""
+
+    def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
+        _, _, grid_next, jump, grid_state, _ = super().adapt_step_size(
+            t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        met = _met_unassembled(y1_candidate, y_error)
+        completed, count, start, end = controller_state
+        grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
+        on_grid = t1 >= grid_here
+        # kept on the grid: on to the next grid point; kept short of it (after a halving): on to this one
+        next_t1 = jnp.where(met, t0 + 0.5 * (t1 - t0), jnp.where(on_grid, grid_next, grid_here))
+        state = jax.tree.map(lambda new, old: jnp.where(~met & on_grid, new, old), grid_state, controller_state)
+        shortest = 2.0**-30 * (end - start) / count
+        return ~met, jnp.where(met, t0, t1), next_t1, jump, state, _located(t0, t1, y0, met, shortest)
+
+
+def _finite_norm(y) -> Array:
+    """diffrax's RMS norm, infinite where the error is not finite (NaN stages: rejected)."""
+    n = optx.rms_norm(y)
+    return jnp.where(jnp.isfinite(n), n, jnp.inf)

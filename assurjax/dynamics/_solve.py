@@ -24,11 +24,11 @@ from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
-from ._events import assembles, stop_event, which_event
+from ._events import assembles_at_start_and_end, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
-                        state_problem, step_budget)
+                        lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import Solution, batch_summary, outputs, to_host, trim
 from ._stick import stick_slip
@@ -80,35 +80,44 @@ def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, 
 
 def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
-    sol = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
+    sol, ok_start = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
     if not settings.check_assembly or _tabulated(settings):
         return sol
-    # a start where some group cannot assemble is no motion at all: say so, whatever the solver did
-    ok = assembled(model.mechanism, q0)
-    bad = ~jnp.all(ok)
+    return _checked_start(sol, assembled(model.mechanism, q0) if ok_start is None else ok_start)
+
+
+def _checked_start(sol: Solution, ok_start) -> Solution:
+    """A start where some group cannot assemble (``ok_start``: per group) is no motion at
+    all: say so, whatever the solver did."""
+    bad = ~jnp.all(ok_start)
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(bad, RESULTS.start_not_assembled, sol.result),
-                        jnp.where(bad, jnp.argmin(ok), sol.failed_group_index)))
+                        jnp.where(bad, jnp.argmin(ok_start), sol.failed_group_index)))
 
 
-def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
+def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table):
+    """The solution and, where it was checked on the way, whether each group assembles at
+    the start (else None)."""
     if _tabulated(settings):
         settings = settings._replace(check_assembly=False)
         table = build_table_core(model.mechanism, model.gravity, model.loads, settings.table_nodes) if table is None else table
     else:
         table = None
     if settings.steps is not None:
-        return _steps_solve(model, q0, omega0, t0, t1, settings, table)
+        return _steps_solve(model, q0, omega0, t0, t1, settings, table), None
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
     frictional = bool(frictions_of(model.loads)) and table is None
     if frictional and not settings.standstill:
-        return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings)
+        return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # with friction, up to the first standstill: one segment with the Coulomb signs of the
     # start's direction; 0 when the friction holds it at rest (the field is then frozen)
     direction = start_direction(model, t0, y0) if frictional else jnp.sign(omega0)
-    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs, bridge=settings.bridge)
+    # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected
+    checked = settings.check_assembly and table is None
+    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs, bridge=settings.bridge,
+                     nan_unassembled=checked)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
         solver_for(settings),
@@ -118,14 +127,15 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
-        stepsize_controller=controller_for(settings),
+        stepsize_controller=lockup_controller(settings) if checked else controller_for(settings),
         event=stop_event(settings),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    sol = _package(model, sol, ts, args, settings)
-    return _held_at_start(sol, direction == 0, t0) if frictional else sol
+    sol, ok_start = _package(model, sol, ts, args, settings, y0)
+    return (_held_at_start(sol, direction == 0, t0) if frictional else sol), ok_start
+
 
 
 def _held_at_start(sol: Solution, held, t0) -> Solution:
@@ -223,7 +233,7 @@ def _tabulated(settings: Settings) -> bool:
     return settings.reduction == "table"
 
 
-def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings) -> Solution:
+def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: State):
     # diffrax writes the saved times reached (and, with save_steps, every accepted step's
     # end, in time order), then the final state (an event deletes the times past it), and
     # pads with inf.
@@ -242,18 +252,24 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings) -> Solu
     near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
     near_final = None if ys.branch is None else branch_mapping(model.mechanism, ys.branch[last])
     mechanism = model.mechanism
-    ok_final = assembles(mechanism, q_final, w_final, near_final) if settings.check_assembly else None
-    event = which_event(sol, settings, args, last, ok_final)
+    ok_start = ok_final = None
+    if settings.check_assembly:  # the start's check and the final one in one vmapped analysis
+        ok_start, ok_final = assembles_at_start_and_end(mechanism, y0.q, branch_mapping(mechanism, y0.branch), q_final, w_final,
+                                                       near_final)
+    event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
+    if args.nan_unassembled:
+        event, result = lockup_found(event, result, ok_final)
     values = outputs(model, t, q, w, settings, near)
     failed = jnp.asarray(-1) if ok_final is None else jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
-    return Solution(
+    solution = Solution(
         t=t, q=q, omega=w, **values,
         dissipated=None if ys.dissipated is None else along(ys.dissipated),
         work=None if ys.work is None else along(ys.work),
         valid=valid, t_final=t_final, q_final=q_final, omega_final=w_final,
         t_stop=jnp.where(event >= 0, t_final, jnp.inf), event=event, failed_group_index=failed,
-        result=RESULTS.promote(sol.result), num_steps=sol.stats["num_steps"],
+        result=result, num_steps=sol.stats["num_steps"],
     )
+    return solution, ok_start
 
 
 _core_jit = jit(_core)

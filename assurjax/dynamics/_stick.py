@@ -27,10 +27,10 @@ import optimistix as optx
 
 from .._errors import AssurjaxError
 from .._model import Model
-from ._events import assembles, stop_event
+from ._events import assembles, lockup_found, stop_event
 from ._field import FieldArgs, State, near, directional_accelerations, rest_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, finished
-from ._settings import Settings, adjoint_for, controller_for, solver_for
+from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, outputs
 
 MAX_SEGMENTS = 256  # stick and slip phases in one simulation
@@ -51,6 +51,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program
     timeless = not any(load.may_depend_on_time() for load in model.loads)
+    slip_controller = lockup_controller(settings) if settings.check_assembly else controller_for(settings)
 
     def breakaway_cond(t, y, args, **kwargs):
         a_plus, a_minus = directional_accelerations(args.model, t, y)
@@ -60,13 +61,14 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = diffrax.Event(breakaway_cond, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
 
     def segment(start, y, direction, stuck):
-        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=None, bridge=settings.bridge)
+        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=None, bridge=settings.bridge,
+                         nan_unassembled=settings.check_assembly)
         # held for good (nothing varies in time): a segment of length zero ends the loop
         stop = jnp.where(stuck, start, t1) if timeless else t1
         kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
                       saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, stop), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=controller_for(settings),  # noqa: E731
+        slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=slip_controller,  # noqa: E731
                                            event=stop_event(slip_settings), **kwargs)
         hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
@@ -87,14 +89,16 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
         filled = filled | inside
         fired = jnp.asarray(False) if sol.event_mask is None else jnp.asarray(sol.event_mask)
-        ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
-        locked = ~stuck & fired & ~jnp.all(ok_end)
+        segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
+        if settings.check_assembly:
+            ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
+            segment_event, segment_result = lockup_found(segment_event, segment_result, ok_end)
+        locked = ~stuck & (segment_event == LOCKUP)
+        failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
         y_next = y_end._replace(omega=jnp.where(fired, jnp.zeros_like(y_end.omega), y_end.omega))
-        segment_result = RESULTS.promote(sol.result)
         done = ~fired | locked | (end >= t1) | ~finished(segment_result)
         result = RESULTS.where(finished(result), segment_result, result)
         event = jnp.where(locked, LOCKUP, event)
-        failed = jnp.where(locked, jnp.argmin(ok_end), failed)
         return (end, y_next, direction, stuck, saved, filled, k + 1, steps + sol.stats["num_steps"], result, event, failed,
                 done)
 
