@@ -230,6 +230,28 @@ def test_lockup_in_a_batch_stops_each_member_at_its_limit():
         assert abs(float(batch.q_final[k]) - alone.q_final) < 1e-9 and abs(float(batch.t_final[k]) - alone.t_final) < 1e-6
 
 
+@pytest.mark.parametrize("steps", [None, 400])
+def test_gradient_through_a_run_that_locks_up(steps):
+    """Reverse mode through a run that ends at a lock-up, whose rejected (or, with fixed
+    steps, NaN) stages met configurations that cannot assemble: d(q + T)(0.2 s) / d q0 is
+    finite and agrees with central differences."""
+    import jax
+
+    scene = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    settings = aj.SimulationSettings(steps=steps, energies=steps is None, rtol=1e-10, atol=1e-10)
+    t1, ts = (3.0, jnp.array([0.0, 0.1, 0.2, 0.25])) if steps is None else (0.4, None)
+    at = 2 if steps is None else 200  # t = 0.2 s, before the lock-up at 0.287 s
+
+    def value(q0):
+        sol = aj.simulate_core(scene.model, q0=q0, omega0=-6.0, t1=t1, ts=ts, settings=settings)
+        assert sol.event == LOCKUP
+        return sol.q[at] + (0.0 if sol.kinetic is None else sol.kinetic[at])
+
+    grad = float(jax.grad(value)(jnp.asarray(0.9)))
+    fd = (float(value(jnp.asarray(0.9 + 1e-6))) - float(value(jnp.asarray(0.9 - 1e-6)))) / 2e-6
+    assert np.isfinite(grad) and abs(grad - fd) < 1e-5 * (1.0 + abs(fd))
+
+
 def test_unknown_point_in_a_load_is_a_clear_error(watt):
     with pytest.raises(aj.AssurjaxError, match="unknown point 'Z'"):
         aj.simulate(watt, loads=[aj.PointForce("Z", [1.0, 0.0])])

@@ -80,11 +80,23 @@ def assembles(mechanism, q_final, w_final, near=None):
     return assembles_at_start_and_end(mechanism, None, None, q_final, w_final, near)[1]
 
 
+def _just_past(q_final, w_final):
+    return q_final + 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
+
+
+def checked_states(t0, y0: State, t_final, q_final, w_final, branch_final):
+    """(t, q, w, stacked branch or None) of the states whose assembly a run checks: just
+    past the final state in the direction of motion, the final state, the start."""
+    stack = lambda *v: jnp.stack([jnp.asarray(x, dtype=float) for x in v])  # noqa: E731
+    branch = None if branch_final is None else stack(branch_final, branch_final, y0.branch)
+    return (stack(t_final, t_final, t0), stack(_just_past(q_final, w_final), q_final, y0.q), stack(w_final, w_final, y0.omega),
+            branch)
+
+
 def assembles_at_start_and_end(mechanism, q0, near0, q_final, w_final, near_final):
     """Per group: (assembled at the start q0 or None when q0 is None, assembled at the
     final state and just past it in the direction of motion), by one vmapped analysis."""
-    nudge = 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
-    qs, nears = [q_final + nudge, q_final], [near_final, near_final]
+    qs, nears = [_just_past(q_final, w_final), q_final], [near_final, near_final]
     if q0 is not None:
         qs, nears = qs + [q0], nears + [near0]
     stacked_nears = jax.tree.map(lambda *v: jnp.stack(v), *nears)  # None (the fixed modes) stays None

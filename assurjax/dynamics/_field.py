@@ -71,6 +71,18 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     """dy/dt of the reduced link (see the module docstring)."""
     if args.table is not None:
         return State(y.omega, args.table.acceleration(y.q, y.omega))
+    if not args.nan_unassembled:
+        return _rates(t, y, args)[0]
+    # A stage after one that met NaN is evaluated at a finite state and its NaN put back:
+    # reverse mode through a rejected step then meets no NaN derivative (0 * NaN).
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves(y)]))
+    rates, ok = _rates(t, jax.tree.map(lambda v: jnp.where(finite, v, 0.0), y), args)
+    assembles = finite & jnp.all(ok)
+    return jax.tree.map(lambda v: jnp.where(assembles, v, jnp.nan), rates)
+
+
+def _rates(t, y: State, args: FieldArgs):
+    """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table."""
     model = args.model
     if frictions_of(model.loads):
         # the Coulomb signs of the segment's direction of motion, frozen until w returns to 0
@@ -91,10 +103,7 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
         dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
         branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
     )
-    if not args.nan_unassembled:
-        return rates
-    assembles = jnp.all(red.ok)
-    return jax.tree.map(lambda v: jnp.where(assembles, v, jnp.nan), rates)
+    return rates, red.ok
 
 
 def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
@@ -174,15 +183,6 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     moving, a_plus, a_minus = a[0], jnp.where(consistent[1], a[1], 0.0), jnp.where(consistent[2], a[2], 0.0)
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest), red, kin
-
-
-def vector_field_or_nan(t, y: State, args: FieldArgs) -> State:
-    """:func:`vector_field` with dw/dt NaN where a group cannot assemble (fixed steps
-    read the NaN as the end of the valid samples; friction needs the adaptive solver)."""
-    if args.table is not None:
-        return vector_field(t, y, args)
-    red, _ = _reduce(args.model, t, y)
-    return State(y.omega, jnp.where(jnp.all(red.ok), red.acceleration(y.omega), jnp.nan))
 
 
 def near(model: Model, y: State) -> dict | None:

@@ -94,15 +94,22 @@ class Solution(eqx.Module):
         return bool(np.all(np.isin(result_code(self.result), FINISHED)))
 
 
-def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
+def any_outputs(settings: Settings) -> bool:
+    """True where the settings ask for anything computed at the saved times."""
+    return bool(settings.domega or settings.energies or settings.points or settings.angles or settings.coms)
+
+
+def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool = False) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).
     One vmapped evaluation per saved time: the reduction gives dw/dt and J_red
-    (T = J_red w^2 / 2), its position analysis gives points, angles and V."""
+    (T = J_red w^2 / 2), its position analysis gives points, angles and V.
+    ``flags``: also every group's ok flag at every time (``out["ok"]``, (times, groups);
+    then the full position analysis is made even where only some points are asked for)."""
     mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
     out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
     rates = settings.velocities or settings.accelerations
-    if not (settings.domega or settings.energies or settings.points or settings.angles or settings.coms):
+    if not any_outputs(settings):
         return out
 
     def sample(t, q, w, stacked):
@@ -120,13 +127,15 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None) -> dict:
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)
-        elif settings.angles or settings.coms:  # angles or centres of any link: the full position analysis
+        elif settings.angles or settings.coms or flags:  # angles or centres of any link: the full position analysis
             pose = positions(mechanism, q, near=z)
         else:  # only the groups the points need
             pose = positions(mechanism, q, points=settings.points, near=z)
         values["points"] = {p: pose.points[p] for p in settings.points}
         values["angles"] = {a: pose.angles[a] for a in settings.angles}
         values["coms"] = {c: pose.coms[c] for c in settings.coms} if settings.coms else {}
+        if flags:
+            values["ok"] = pose.ok
         if rates:
             alpha = values["domega"] if "domega" in values else None
             values.update(_rates(mechanism, q, w, alpha, z, settings))

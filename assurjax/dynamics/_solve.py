@@ -24,13 +24,13 @@ from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
-from ._events import assembles_at_start_and_end, lockup_found, stop_event, which_event
-from ._field import FieldArgs, State, start_direction, vector_field, vector_field_or_nan
+from ._events import assembles_at_start_and_end, checked_states, lockup_found, stop_event, which_event
+from ._field import FieldArgs, State, start_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import Solution, batch_summary, outputs, to_host, trim
+from ._solution import Solution, any_outputs, batch_summary, outputs, to_host, trim
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -133,7 +133,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    sol, ok_start = _package(model, sol, ts, args, settings, y0)
+    sol, ok_start = _package(model, sol, ts, args, settings, t0, y0)
     return (_held_at_start(sol, direction == 0, t0) if frictional else sol), ok_start
 
 
@@ -173,8 +173,9 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     unphysically."""
     check_steps(settings)
     tabulated = table is not None
-    term = diffrax.ODETerm(vector_field_or_nan if settings.check_assembly else vector_field)
-    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None)
+    term = diffrax.ODETerm(vector_field)
+    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None,
+                     nan_unassembled=settings.check_assembly and not tabulated)
     solver = solver_for(settings)
     h = (t1 - t0) / settings.steps
     y0 = State(q0, omega0)
@@ -233,7 +234,7 @@ def _tabulated(settings: Settings) -> bool:
     return settings.reduction == "table"
 
 
-def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: State):
+def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0: State):
     # diffrax writes the saved times reached (and, with save_steps, every accepted step's
     # end, in time order), then the final state (an event deletes the times past it), and
     # pads with inf.
@@ -253,13 +254,21 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: Sta
     near_final = None if ys.branch is None else branch_mapping(model.mechanism, ys.branch[last])
     mechanism = model.mechanism
     ok_start = ok_final = None
-    if settings.check_assembly:  # the start's check and the final one in one vmapped analysis
-        ok_start, ok_final = assembles_at_start_and_end(mechanism, y0.q, branch_mapping(mechanism, y0.branch), q_final, w_final,
-                                                       near_final)
+    if settings.check_assembly and any_outputs(settings):  # the outputs' analysis checks the ends as well
+        t_x, q_x, w_x, near_x = checked_states(t0, y0, t_final, q_final, w_final, None if ys.branch is None else ys.branch[last])
+        stack = lambda a, b: None if a is None else jnp.concatenate([a, b])  # noqa: E731
+        values = outputs(model, stack(t, t_x), stack(q, q_x), stack(w, w_x), settings, stack(near, near_x), flags=True)
+        ok = values.pop("ok")
+        values = jax.tree.map(lambda v: v[:-3], values)
+        ok_final, ok_start = ok[-3] & ok[-2], ok[-1]
+    else:
+        if settings.check_assembly:  # the start's check and the final one in one vmapped analysis
+            ok_start, ok_final = assembles_at_start_and_end(mechanism, y0.q, branch_mapping(mechanism, y0.branch), q_final,
+                                                           w_final, near_final)
+        values = outputs(model, t, q, w, settings, near)
     event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
     if args.nan_unassembled:
         event, result = lockup_found(event, result, ok_final)
-    values = outputs(model, t, q, w, settings, near)
     failed = jnp.asarray(-1) if ok_final is None else jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
     solution = Solution(
         t=t, q=q, omega=w, **values,
