@@ -50,7 +50,7 @@ def median_time(fn, repeats):
 
 
 FIRST_CALL = {
-    "scene defaults (standstill event, assembly event, 201 samples of points, angles, energies)": "sol = aj.simulate(s)",
+    "scene defaults (standstill event, assembly check, 201 samples of points, angles, energies)": "sol = aj.simulate(s)",
     "lean (no stop event, 21 samples, no outputs)": "sol = aj.simulate(s, stop=None, t1=2.0, samples=21, energies=False, points=(), angles=())",
 }
 

@@ -11,7 +11,7 @@ built inside the jitted core (rebuilt per call), and the warm time of 10 000 vma
 simulations (different starting angles, one table built outside the vmap).
 
 Minimal saving in every run (fair for both modes): samples=2 (t0 and t1), no dw/dt, energies or
-points, no assembly event (the table checks a full turn when built).
+points, no assembly check (the table checks a full turn when built).
 
 Saves benchmarks/results/table.json and prints a table. Run: python benchmarks/bench_table.py [--quick]
 """

@@ -45,9 +45,9 @@ def result_text(code: int, *, max_steps: int | None = None) -> str:
         return (f"the step budget{budget} was used up before t1: raise max_steps, loosen rtol/atol, "
                 "or shorten the time span")
     if code == _DT_MIN:  # from the lock-up controllers (dynamics._settings.lockup_controller)
-        return ("the steps met a configuration where some group cannot assemble, yet every group assembles just past "
-                "where they stopped: the motion there is not resolved (with dt= constant steps near a limit position: "
-                "use adaptive steps or a smaller dt; else tighten rtol/atol)")
+        return ("the right-hand side turned NaN ahead and the steps closing in on it got no further, yet every group "
+                "assembles just past where they stopped: a load or the joint friction (a jam) gave NaN there, or, with "
+                "dt= constant steps near a limit position, the motion was not resolved (use adaptive steps or a smaller dt)")
     try:
         message = RESULTS[_item(code)]
     except Exception:  # a code this version does not know
