@@ -85,6 +85,18 @@ def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
         aj.synthesis.standstill_time(loaded, adjoint="quadrature")
 
 
+def test_lockup_with_friction_stops_at_the_limit():
+    """A triple rocker with friction in its pivots thrown into its limit position: the
+    stick-slip loop stops there (the stretched dyad, closed form), naming the dyad."""
+    import test_dynamics
+
+    scene = test_dynamics.four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    loads = list(scene.loads) + [aj.JointFriction(j, 0.1, 0.01) for j in aj.joint_names(scene.mechanism)]
+    sol = aj.simulate(scene, loads=loads, q0=0.9, omega0=-6.0, stop=None, t1=3.0)
+    assert sol.event == aj.dynamics._results.LOCKUP and sol.failed_group == "dyad"
+    assert abs(sol.q_final + test_dynamics.LIMIT) < 1e-8 and np.all(sol.q >= -test_dynamics.LIMIT)
+
+
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
     """mu = 0 on every pair: with the same (fixed) steps up to the first standstill, the same
     motion as without friction to round-off; past it, the stick-slip segments (adaptive)
