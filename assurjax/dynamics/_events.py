@@ -77,7 +77,8 @@ def lockup_found(event, result, ok_final):
 
 def assembles(mechanism, q_final, w_final, near=None):
     """Per group: assembled at the final state and just past it (in the direction of motion)."""
-    return assembles_at_start_and_end(mechanism, None, None, q_final, w_final, near)[1]
+    both = jax.vmap(lambda q: assembled(mechanism, q, near=near))(jnp.stack([_just_past(q_final, w_final), q_final]))  # one copy
+    return both[0] & both[1]
 
 
 def _just_past(q_final, w_final):
@@ -91,14 +92,3 @@ def checked_states(t0, y0: State, t_final, q_final, w_final, branch_final):
     branch = None if branch_final is None else stack(branch_final, branch_final, y0.branch)
     return (stack(t_final, t_final, t0), stack(_just_past(q_final, w_final), q_final, y0.q), stack(w_final, w_final, y0.omega),
             branch)
-
-
-def assembles_at_start_and_end(mechanism, q0, near0, q_final, w_final, near_final):
-    """Per group: (assembled at the start q0 or None when q0 is None, assembled at the
-    final state and just past it in the direction of motion), by one vmapped analysis."""
-    qs, nears = [_just_past(q_final, w_final), q_final], [near_final, near_final]
-    if q0 is not None:
-        qs, nears = qs + [q0], nears + [near0]
-    stacked_nears = jax.tree.map(lambda *v: jnp.stack(v), *nears)  # None (the fixed modes) stays None
-    ok = jax.vmap(lambda q, z: assembled(mechanism, q, near=z))(jnp.stack(qs), stacked_nears)
-    return (ok[2] if q0 is not None else None), ok[0] & ok[1]

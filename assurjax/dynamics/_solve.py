@@ -24,7 +24,7 @@ from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
-from ._events import assembles_at_start_and_end, checked_states, lockup_found, stop_event, which_event
+from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
 from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
@@ -135,7 +135,6 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     )
     sol, ok_start = _package(model, sol, ts, args, settings, t0, y0)
     return (_held_at_start(sol, direction == 0, t0) if frictional else sol), ok_start
-
 
 
 def _held_at_start(sol: Solution, held, t0) -> Solution:
@@ -251,20 +250,12 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
     q, w = along(ys.q), along(ys.omega)
     t = jnp.where(reached, times, t_final)
     near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
-    near_final = None if ys.branch is None else branch_mapping(model.mechanism, ys.branch[last])
-    mechanism = model.mechanism
     ok_start = ok_final = None
-    if settings.check_assembly and any_outputs(settings):  # the outputs' analysis checks the ends as well
-        t_x, q_x, w_x, near_x = checked_states(t0, y0, t_final, q_final, w_final, None if ys.branch is None else ys.branch[last])
-        stack = lambda a, b: None if a is None else jnp.concatenate([a, b])  # noqa: E731
-        values = outputs(model, stack(t, t_x), stack(q, q_x), stack(w, w_x), settings, stack(near, near_x), flags=True)
-        ok = values.pop("ok")
-        values = jax.tree.map(lambda v: v[:-3], values)
-        ok_final, ok_start = ok[-3] & ok[-2], ok[-1]
+    if settings.check_assembly:  # just past the end, at the end, at the start
+        checked = checked_states(t0, y0, t_final, q_final, w_final, None if ys.branch is None else ys.branch[last])
+        values, ok = _outputs_and_flags(model, settings, (t, q, w, near), checked)
+        ok_final, ok_start = ok[0] & ok[1], ok[2]
     else:
-        if settings.check_assembly:  # the start's check and the final one in one vmapped analysis
-            ok_start, ok_final = assembles_at_start_and_end(mechanism, y0.q, branch_mapping(mechanism, y0.branch), q_final,
-                                                           w_final, near_final)
         values = outputs(model, t, q, w, settings, near)
     event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
     if args.nan_unassembled:
@@ -279,6 +270,22 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
         result=result, num_steps=sol.stats["num_steps"],
     )
     return solution, ok_start
+
+
+def _outputs_and_flags(model: Model, settings: Settings, saved, checked):
+    """The outputs at the ``saved`` (t, q, w, stacked branch or None) and every group's ok
+    flags at the ``checked`` states: rows of the outputs' own vmapped analysis, or one of
+    their own where no output is asked for."""
+    mechanism = model.mechanism
+    if not any_outputs(settings):
+        ok = jax.vmap(lambda q, b: assembled(mechanism, q, near=branch_mapping(mechanism, b)))(checked[1], checked[3])
+        t, q, w, near = saved
+        return outputs(model, t, q, w, settings, near), ok
+    t, q, w, near = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), saved, checked)  # None (fixed modes) stays None
+    values = outputs(model, t, q, w, settings, near, flags=True)
+    n = checked[0].shape[0]
+    ok = values.pop("ok")[-n:]
+    return jax.tree.map(lambda v: v[:-n], values), ok
 
 
 _core_jit = jit(_core)
