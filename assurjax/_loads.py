@@ -130,18 +130,13 @@ def _velocity_dependent(*values, flag: bool | None = None) -> bool:
     return False
 
 
-def _has_time_form(value) -> bool:
+def _has_time_form(value, *, functions: bool = False) -> bool:
+    """A form in t somewhere in ``value``; with ``functions``, a function too (it may read t)."""
     if isinstance(value, (Polynomial, Table)):
         return value.variable == "t"
     if isinstance(value, Vector):
-        return _has_time_form(value.x) or _has_time_form(value.y)
-    return False
-
-
-def _may_vary_in_time(value) -> bool:
-    if isinstance(value, Vector):
-        return _may_vary_in_time(value.x) or _may_vary_in_time(value.y)
-    return _has_time_form(value) if isinstance(value, (Polynomial, Table)) else callable(value)
+        return _has_time_form(value.x, functions=functions) or _has_time_form(value.y, functions=functions)
+    return functions and callable(value)
 
 
 def _as_value(v, where: str):
@@ -178,7 +173,7 @@ class AbstractLoad(eqx.Module):
 
     def may_depend_on_time(self) -> bool:
         """:meth:`time_dependent`, or some value is a function (not inspected: it may read t)."""
-        return any(_may_vary_in_time(v) for v in self._values())
+        return any(_has_time_form(v, functions=True) for v in self._values())
 
     def _values(self) -> tuple:
         """The load's value fields (numbers, forms or functions)."""

@@ -32,7 +32,7 @@ from jaxtyping import Array
 from ._jit import jit
 from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
 from ._loads import any_velocity_dependent, check_loads, driver_effort
-from ._mechanism import Mechanism, Pose
+from ._mechanism import Mechanism
 
 
 def reduced_acceleration(inertia, dinertia, force, omega):
@@ -128,14 +128,6 @@ def reduce_single(mechanism: Mechanism, gravity, loads, q, omega, t, *, velociti
     velocity-dependent part (None: only when some load depends on velocity).
     ``near``: link angles (rad) selecting the branch; then ``angle_rates`` is filled."""
     return reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near)[0]
-
-
-def reduce_with_pose(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None, near=None,
-                     bridge: float = 0.0) -> tuple[Reduction, Pose]:
-    """:func:`reduce_single` and the :class:`Pose` it was computed at (one position analysis for both)."""
-    reduction, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t, velocities=velocities, near=near,
-                                            bridge=bridge)
-    return reduction, Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
 
 
 def reduce_with_kinematics(mechanism: Mechanism, gravity, loads, q, omega, t, *, velocities: bool | None = None,

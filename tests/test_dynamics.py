@@ -252,6 +252,16 @@ def test_gradient_through_a_run_that_locks_up(steps):
     assert np.isfinite(grad) and abs(grad - fd) < 1e-5 * (1.0 + abs(fd))
 
 
+@pytest.mark.parametrize("check_assembly", [True, False])
+def test_a_load_turning_nan_stops_the_run_there_in_words(watt, check_assembly):
+    """A drive that turns NaN from t = 0.5 s (log of a negative number): the steps close in
+    on it and the run stops at 0.5 s, every saved value finite, the status saying why."""
+    drive = aj.Drive(lambda q, w, t: jnp.where(t > 0.3, jnp.log(0.5 - t), 0.0))
+    sol = aj.simulate(watt, loads=list(watt.loads) + [drive], stop=None, t1=1.0, check_assembly=check_assembly)
+    assert abs(sol.t_final - 0.5) < 1e-8 and "turned NaN" in sol.status and not sol.successful
+    assert all(np.all(np.isfinite(v)) for v in (sol.t, sol.q, sol.omega, sol.domega))
+
+
 def test_unknown_point_in_a_load_is_a_clear_error(watt):
     with pytest.raises(aj.AssurjaxError, match="unknown point 'Z'"):
         aj.simulate(watt, loads=[aj.PointForce("Z", [1.0, 0.0])])

@@ -317,9 +317,10 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
 
 
 def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
-    """The step-size controller of :func:`controller_for` for a vector field that is NaN
-    where a group cannot assemble: it rejects the steps that meet such a configuration and
-    closes in on it (:class:`LockupController`, :class:`ConstantStepsUntilLockup`)."""
+    """The step-size controller of :func:`controller_for` for the reduced link's state
+    when its vector field may turn NaN (where a group cannot assemble, a friction jam, a
+    load): it rejects the steps that meet NaN and closes in on where it starts
+    (:class:`LockupController`, :class:`ConstantStepsUntilLockup`)."""
     if not adaptive(settings):
         return ConstantStepsUntilLockup()
     return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, norm=_finite_norm)

@@ -15,8 +15,7 @@ from .._loads import potential_energy
 from .._tracking import branch_mapping
 from .._mechanism import Mechanism, Pose, positions
 from .._model import Model
-from .._reduction import reduce_with_pose
-from .._friction import frictions_of
+from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
 from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, status_text
@@ -116,14 +115,11 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
         z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
-            if settings.domega and frictions_of(loads):  # the friction's solve gives the reduction too
-                alpha, red, kin = acceleration_and_reduction(model, t, State(q, w, branch=stacked), settings.bridge)
-                pose = Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
-            else:
-                red, pose = reduce_with_pose(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
-                alpha = red.acceleration(w)
-            if settings.domega:
-                values["domega"] = alpha
+            if settings.domega:  # (with friction, its solve gives the reduction too)
+                values["domega"], red, kin = acceleration_and_reduction(model, t, State(q, w, branch=stacked), settings.bridge)
+            else:  # the energies alone need no friction solve
+                red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
+            pose = Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
             if settings.energies:
                 values["kinetic"] = 0.5 * red.inertia * w**2
                 values["potential"] = potential_energy(mechanism, gravity, loads, pose)

@@ -27,7 +27,7 @@ from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, start_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
-from ._settings import (BASELINES, Settings, adjoint_for, controller_for, fixed_step_from, settings_from, solver_for,
+from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import Solution, any_outputs, batch_summary, outputs, to_host, trim
@@ -127,7 +127,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
-        stepsize_controller=lockup_controller(settings) if checked else controller_for(settings),
+        stepsize_controller=lockup_controller(settings),
         event=stop_event(settings),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),

@@ -51,7 +51,6 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program
     timeless = not any(load.may_depend_on_time() for load in model.loads)
-    slip_controller = lockup_controller(settings) if settings.check_assembly else controller_for(settings)
 
     def breakaway_cond(t, y, args, **kwargs):
         a_plus, a_minus = directional_accelerations(args.model, t, y)
@@ -68,7 +67,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
                       saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, stop), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=slip_controller,  # noqa: E731
+        slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
                                            event=stop_event(slip_settings), **kwargs)
         hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
