@@ -208,16 +208,16 @@ def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:
     return out
 
 
-def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, direction, omega):
+def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
     """Friction values u with u = law(reactions(u)): Newton's method (optimistix) on the
     K values, the reactions being affine in u (linearized once: ``react(u)`` ->
     (forces, couples) costs one kinetostatic solve, its K tangents one more each).
     ``kin``: the positions the limits are read on; ``rates``: (K,) relative rates
-    per unit driving velocity; ``direction``: +1/-1, the sign of w or, at rest, the
-    direction of the motion tested. Returns (u, ok); ok is False where Newton fails or the
+    per unit driving velocity (for the viscous terms); ``signs``: (K,) the Coulomb signs,
+    those of the relative rates (rates times the sign of w or, at rest, the direction
+    of the motion tested). Returns (u, ok); ok is False where Newton fails or the
     solution is not consistent (Painleve: the friction would drive the motion it opposes)."""
     k = len(frictions)
-    signs = jnp.sign(rates) * direction
     (forces0, couples0), linear = jax.linearize(react, jnp.zeros(k))
     basis = jax.vmap(linear)(jnp.eye(k))
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega

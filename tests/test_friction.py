@@ -183,26 +183,44 @@ def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     assert np.max(np.abs(bare.driving)) > 1e-3  # without friction the same motion needs a drive
 
 
+def _with_friction(scene, mu):
+    return aj.Scene(mechanism=scene.mechanism, gravity=scene.gravity, loads=frictions(scene.mechanism, mu),
+                    state=scene.state, simulation=scene.simulation, outputs=scene.outputs, name=scene.name)
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known: the Coulomb sign of a joint switches inside a segment where its relative-rate "
-                          "coefficient d phi/dq changes sign; the derivative misses the switch's saltation term "
-                          "(measured 0.342 vs 0.329 by differences). Fix: end segments at those switches (events).",
-                   strict=True)
 def test_gradient_in_mu_against_differences(slider):
-    """d t_stop / d mu (standstill, reverse mode through the solve and the friction's Newton
-    solve by the implicit function theorem) against central differences."""
+    """d t_stop / d mu (standstill, reverse mode through the segments, their located
+    switches of the Coulomb signs and the friction's Newton solve by the implicit function
+    theorem) against central differences. The run crosses two switches (the slider's and
+    a pin's relative rate change sign) before it stops: without segments ending there the
+    derivative missed their saltation (0.342 against 0.329)."""
 
     def t_stop(mu):
-        scene = slider.replace_mechanism(slider.mechanism)
-        loaded = aj.Scene(mechanism=scene.mechanism, gravity=scene.gravity, loads=frictions(scene.mechanism, mu),
-                          state=scene.state, simulation=scene.simulation, outputs=scene.outputs, name=scene.name)
-        return aj.synthesis.standstill_time(loaded, rtol=1e-11, atol=1e-11)[0]
+        return aj.synthesis.standstill_time(_with_friction(slider, mu), rtol=1e-11, atol=1e-11)[0]
 
     grad = jax.grad(t_stop)(jnp.asarray(MU))
     h = 1e-5
     fd = (t_stop(jnp.asarray(MU + h)) - t_stop(jnp.asarray(MU - h))) / (2 * h)
     assert math.isfinite(float(grad))
     np.testing.assert_allclose(float(grad), float(fd), rtol=1e-4)
+
+
+@pytest.mark.slow
+def test_gradient_in_mu_through_a_standstill_and_reversal(slider):
+    """d q(0.8 s) / d mu past the first standstill (0.51 s), where the motion reverses and
+    crosses more Coulomb-sign switches: reverse mode (the checkpointed segment loop) and
+    forward mode (adjoint='forward') against central differences."""
+
+    def q_at(mu, adjoint):
+        return aj.synthesis.final_state(_with_friction(slider, mu), 0.8, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+
+    h = 1e-5
+    fd = (q_at(jnp.asarray(MU + h), "recursive") - q_at(jnp.asarray(MU - h), "recursive")) / (2 * h)
+    reverse = jax.grad(lambda mu: q_at(mu, "recursive"))(jnp.asarray(MU))
+    forward = jax.jacfwd(lambda mu: q_at(mu, "forward"))(jnp.asarray(MU))
+    np.testing.assert_allclose(float(reverse), float(fd), rtol=1e-5)
+    np.testing.assert_allclose(float(forward), float(fd), rtol=1e-5)
 
 
 # ---------------------------------------------------------------------------- against the joint-based reference

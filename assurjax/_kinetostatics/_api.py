@@ -171,7 +171,7 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         forces, couples, _, _ = from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
         return forces, couples
 
-    u, _ = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(omega), omega)
+    u, _ = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * jnp.sign(omega), omega)
     return from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
 
 

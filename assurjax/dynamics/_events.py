@@ -1,9 +1,11 @@
 """Stop conditions of a simulation, as one diffrax.Event, and the assembly checks at its ends.
 
-Standstill (w crosses 0 against the direction of motion) and user conditions
-``cond(t, q, omega)`` (stop when they change sign); each is a margin that is positive
-until it fires. A group that can no longer assemble needs no event: the vector field is
-NaN there and the step-size controller closes in on it (``_settings.lockup_controller``).
+Standstill (w crosses 0 against the direction of motion), user conditions
+``cond(t, q, omega)`` (stop when they change sign) and, with joint friction, a change of
+sign of some element's d phi_k/dq (its Coulomb sign switches: the segment ends there,
+``_stick``); each is a margin that is positive until it fires. A group that can no
+longer assemble needs no event: the vector field is NaN there and the step-size
+controller closes in on it (``_settings.lockup_controller``).
 """
 
 from __future__ import annotations
@@ -13,12 +15,13 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._friction import frictions_of
 from .._positions import assembled
 from ._field import FieldArgs, State
-from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER
+from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER
 from ._settings import Settings
 
-_TINY = 1e-30
+_SCALE = 1e-30  # see located_event
 
 
 def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
@@ -27,39 +30,55 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     standstill: w times the direction of motion, the sign of w0, or from rest the
     displacement q - q0 (0 at the start, > 0 while moving, < 0 once w has reversed:
     no force evaluation at t0 is needed to know which way the mechanism starts);
-    user events: cond(t, q, w) times its sign at t0.
+    user events: cond(t, q, w) times its sign at t0; rate switches (a state with
+    ``friction_rates``): the smallest d phi_k/dq times its sign frozen for the segment,
+    over the elements with a Coulomb coefficient (the others do not switch).
     """
     out = []
     if settings.standstill:
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
     for k, cond in enumerate(settings.events):
         out.append(args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float))
+    if y.friction_rates is not None:
+        out.append(jnp.min(rate_margins(args, y.friction_rates)))
     return out
 
 
-def event_codes(settings: Settings) -> tuple[int, ...]:
+def rate_margins(args: FieldArgs, friction_rates):
+    """Per friction element: d phi_k/dq times its sign frozen for the segment, positive
+    until it changes sign; inf for the elements that cannot switch (no Coulomb
+    coefficient, or a rate 0 with slope 0 at the segment's start)."""
+    coulomb = jnp.stack([f.coefficient for f in frictions_of(args.model.loads)]) > 0
+    return jnp.where(coulomb & (args.rate_signs != 0), args.rate_signs * friction_rates, jnp.inf)
+
+
+def event_codes(settings: Settings, switches: bool = False) -> tuple[int, ...]:
     codes = [STANDSTILL] if settings.standstill else []
-    return tuple(codes + [USER + k for k in range(len(settings.events))])
+    return tuple(codes + [USER + k for k in range(len(settings.events))] + ([RATE_SWITCH] if switches else []))
 
 
-def stop_event(settings: Settings):
-    """One diffrax.Event on the smallest margin (down-crossing), located by bisection
-    on the dense output (no right-hand-side evaluations). None when no condition is enabled."""
-    if not event_codes(settings):
+def stop_event(settings: Settings, switches: bool = False):
+    """One event on the smallest margin (:func:`located_event`). None when no condition is
+    enabled. ``switches``: the state carries ``friction_rates`` (their sign changes end the run)."""
+    if not event_codes(settings, switches):
         return None
+    return located_event(lambda t, y, args: jnp.min(jnp.stack(margins(settings, t, y, args))), settings)
 
-    def cond_fn(t, y, args, **kwargs):
-        # Clipped at a tiny positive value: the bisection's |f| < atol test then holds
-        # on both sides of the crossing, and the root is the first crossing.
-        return jnp.minimum(jnp.min(jnp.stack(margins(settings, t, y, args))), _TINY)
 
+def located_event(margin, settings: Settings) -> diffrax.Event:
+    """A diffrax.Event where ``margin(t, y, args)`` falls from > 0 to <= 0, located by
+    bisection on the dense output (no right-hand-side evaluations). The margin is scaled
+    far below the bisection's atol: the bisection stops on the interval's width alone,
+    whichever side of the crossing it ends on, and the located time keeps its derivative
+    (diffrax differentiates it implicitly, through the margin's slopes)."""
     tol = min(1e-3 * settings.rtol, 1e-12)
-    return diffrax.Event(cond_fn, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
+    return diffrax.Event(lambda t, y, args, **kwargs: _SCALE * margin(t, y, args),
+                         optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
 
 
 def which_event(sol, settings: Settings, args: FieldArgs, last):
     """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
-    codes = event_codes(settings)
+    codes = event_codes(settings, sol.ys.friction_rates is not None)
     if not codes:
         return jnp.asarray(NO_EVENT)
     y_final = jax.tree.map(lambda y: y[last], sol.ys)

@@ -35,26 +35,31 @@ from ._table import ReducedTable
 
 class State(NamedTuple):
     """The integrated state: ``q`` (rad or m), ``omega`` (rad/s or m/s), and optional
-    quadratures ``work`` (J, loads outside V), ``dissipated`` (J) and the tracked
-    ``branch`` angles (rad, stacked in ``tracked_links`` order). Absent parts are None."""
+    quadratures ``work`` (J, loads outside V), ``dissipated`` (J), the tracked
+    ``branch`` angles (rad, stacked in ``tracked_links`` order) and, with joint friction,
+    the ``friction_rates`` d phi_k/dq of its elements (integrated, d/dt = d2 phi_k/dq2 w,
+    so that a stop condition sees where one changes sign). Absent parts are None."""
 
     q: Array
     omega: Array
     work: Array | None = None
     dissipated: Array | None = None
     branch: Array | None = None
+    friction_rates: Array | None = None
 
 
 class FieldArgs(eqx.Module):
     """What the vector field and the events read besides the state: the ``model``, an
     optional ``table``, the start (``direction`` of motion, ``q0``) for the standstill
-    margin and the signs of the user events at t0."""
+    margin, the signs of the user events at t0 and, with joint friction, the signs of
+    the elements' d phi_k/dq frozen for the segment (None: read at each state)."""
 
     model: Model
     table: ReducedTable | None
     direction: Array
     q0: Array
     user_signs: tuple | None
+    rate_signs: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
     nan_unassembled: bool = eqx.field(static=True, default=False)
@@ -84,11 +89,14 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
 def _rates(t, y: State, args: FieldArgs):
     """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table."""
     model = args.model
+    slopes = None
     if frictions_of(model.loads):
-        # the Coulomb signs of the segment's direction of motion, frozen until w returns to 0
-        # (an event ends the segment there): the field stays smooth across the stop
-        red, kin, alpha, friction_power, consistent = frictional(model, t, y, args.direction, args.bridge)
-        # direction 0: held at rest by the friction from the start (the standstill path): nothing moves;
+        # the Coulomb signs of the segment (its direction of motion, the signs of the rates
+        # d phi_k/dq), frozen until w returns to 0 or a rate changes sign (events end the
+        # segment there): the field stays smooth inside a segment
+        red, kin, alpha, friction_power, consistent, _, slopes = frictional(model, t, y, args.direction, args.bridge,
+                                                                            args.rate_signs)
+        # direction 0: held at rest by the friction (a stick segment): nothing moves;
         # no consistent friction (a jam): NaN, so that the solver stops there instead of running away
         moving = args.direction != 0
         alpha = jnp.where(moving, jnp.where(consistent, alpha, jnp.nan), 0.0)
@@ -102,22 +110,44 @@ def _rates(t, y: State, args: FieldArgs):
         work=None if y.work is None else red.work_force * y.omega + friction_power,
         dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
         branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
+        friction_rates=None if y.friction_rates is None else slopes * y.omega,
     )
     return rates, red.ok
 
 
-def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
-    """The reduction, its kinematics, dw/dt and the friction power (W, <= 0) of a model
-    with friction in its joints: the reduced equation with the friction's generalized
-    force sum_k u_k dphi_k/dq, u from ``solve_friction`` (signs from ``direction``:
-    sign(w), or at rest the direction tested for break-away; an array of directions
-    gives one dw/dt and power per direction), and whether the friction has a consistent
-    solution with those signs (see ``solve_friction``)."""
+class Frictional(NamedTuple):
+    """What :func:`frictional` gives: the reduction and its kinematics, dw/dt, the
+    friction power (W, <= 0), whether the friction is consistent, and the elements'
+    rates d phi_k/dq and their slopes d2 phi_k/dq2 (K,)."""
+
+    red: object
+    kin: object
+    alpha: Array
+    power: Array
+    consistent: Array
+    rates: Array
+    slopes: Array
+
+
+def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None) -> Frictional:
+    """The reduction, its kinematics, dw/dt and the friction power of a model with
+    friction in its joints: the reduced equation with the friction's generalized force
+    sum_k u_k dphi_k/dq, u from ``solve_friction`` with the Coulomb signs
+    ``rate_signs`` (the signs of d phi_k/dq; None: read at the state) times
+    ``direction`` (sign(w), or at rest the direction tested for break-away; an array of
+    directions gives one dw/dt and power per direction), and whether the friction has a
+    consistent solution with those signs (see ``solve_friction``)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
-    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
+
+    def rates_at(x, dx):
+        return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
+
+    # d/dq of the rates: along q, x moves by dx and dx by d2x
+    rates, slopes = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+    signs = jnp.sign(rates) if rate_signs is None else rate_signs
 
     def alpha_of(u):
         return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.dot(rates, u), y.omega)
@@ -128,20 +158,26 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0):
         return forces, couples
 
     def solve(direction):
-        u, ok = solve_friction(mechanism, frictions, react, kin, rates, direction, y.omega)
+        u, ok = solve_friction(mechanism, frictions, react, kin, rates, signs * direction, y.omega)
         return alpha_of(u), jnp.dot(rates, u) * y.omega, ok
 
     # several directions (the break-away test): one vmapped solve on the same coefficients
     alpha, power, ok = solve(direction) if jnp.ndim(direction) == 0 else jax.vmap(solve)(direction)
-    return red, kin, alpha, power, ok
+    return Frictional(red, kin, alpha, power, ok, rates, slopes)
 
 
 def directional_accelerations(model: Model, t, y: State):
     """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction (0 where
     that friction has no consistent solution: it cannot start that way)."""
-    _, _, a, _, consistent = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
-    a = jnp.where(consistent, a, 0.0)  # a direction whose friction has no consistent solution stays jammed
-    return a[0], a[1]
+    return rest_analysis(model, t, y)[:2]
+
+
+def rest_analysis(model: Model, t, y: State):
+    """(a_+, a_- of :func:`directional_accelerations`, the elements' d phi_k/dq and
+    d2 phi_k/dq2) at the state's q, at rest: what a segment of stick and slip starts from."""
+    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
+    a = jnp.where(f.consistent, f.alpha, 0.0)  # a direction whose friction has no consistent solution stays jammed
+    return a[0], a[1], f.rates, f.slopes
 
 
 def rest_direction(a_plus, a_minus):
@@ -164,7 +200,7 @@ def arrival_acceleration(model: Model, t, q, omega, q0, omega0, t0):
     if not frictions_of(model.loads):
         return _reduce(model, t, y)[0].acceleration(omega)
     start = start_direction(model, t0, State(q0, omega0))
-    return frictional(model, t, y, jnp.where(start != 0, start, 1.0))[2]
+    return frictional(model, t, y, jnp.where(start != 0, start, 1.0)).alpha
 
 
 def acceleration_at(model: Model, t, y: State):
@@ -179,7 +215,7 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     if not frictions_of(model.loads):
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
-    red, kin, a, _, consistent = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]), bridge)
+    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]), bridge)
     moving, a_plus, a_minus = a[0], jnp.where(consistent[1], a[1], 0.0), jnp.where(consistent[2], a[2], 0.0)
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest), red, kin

@@ -7,6 +7,7 @@ import numpy as np
 
 # Event codes in Solution.event.
 NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
+RATE_SWITCH = -2  # internal: a friction element's d phi_k/dq changed sign (a segment ends, the run goes on)
 
 
 class RESULTS(diffrax.RESULTS):
@@ -15,6 +16,8 @@ class RESULTS(diffrax.RESULTS):
     is the message."""
 
     start_not_assembled = "The mechanism cannot assemble at the starting state."
+    max_segments_reached = ("The motion with joint friction needed more segments (rests, break-aways and changes of a "
+                            "joint's Coulomb sign) than a run allows before t1: shorten the time span.")
 
 
 def result_value(result):

@@ -25,8 +25,8 @@ from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
-from ._field import FieldArgs, State, start_direction, vector_field
-from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL
+from ._field import FieldArgs, State, vector_field
+from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
@@ -107,17 +107,13 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         return _steps_solve(model, q0, omega0, t0, t1, settings, table), None
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
-    frictional = bool(frictions_of(model.loads)) and table is None
-    if frictional and not settings.standstill:
+    if frictions_of(model.loads) and table is None:  # in segments of frozen Coulomb signs
         return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
-    # with friction, up to the first standstill: one segment with the Coulomb signs of the
-    # start's direction; 0 when the friction holds it at rest (the field is then frozen)
-    direction = start_direction(model, t0, y0) if frictional else jnp.sign(omega0)
     # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected
     checked = settings.check_assembly and table is None
-    args = FieldArgs(model=model, table=table, direction=direction, q0=q0, user_signs=user_signs, bridge=settings.bridge,
-                     nan_unassembled=checked)
+    args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs,
+                     bridge=settings.bridge, nan_unassembled=checked)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vector_field),
         solver_for(settings),
@@ -133,16 +129,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    sol, ok_start = _package(model, sol, ts, args, settings, t0, y0)
-    return (_held_at_start(sol, direction == 0, t0) if frictional else sol), ok_start
-
-
-def _held_at_start(sol: Solution, held, t0) -> Solution:
-    """A start held at rest by the friction: a standstill at t0 (every sample stayed at rest)."""
-    first = jnp.arange(sol.valid.shape[0]) == 0
-    return eqx.tree_at(lambda s: (s.event, s.t_final, s.t_stop, s.valid, s.t), sol,
-                       (jnp.where(held, STANDSTILL, sol.event), jnp.where(held, t0, sol.t_final),
-                        jnp.where(held, t0, sol.t_stop), jnp.where(held, first, sol.valid), jnp.where(held, t0, sol.t)))
+    return _package(model, sol, ts, args, settings, t0, y0)
 
 
 def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:
@@ -537,9 +524,9 @@ def _check_save_steps(settings: Settings, model: Model, batch) -> None:
         return
     if batch is not None:
         raise AssurjaxError("save_steps saves up to max_steps states per run: it is for single runs, not batches")
-    if frictions_of(model.loads) and not settings.standstill:
-        raise AssurjaxError("save_steps is not available with joint friction past standstill (the motion is "
-                            "integrated in stick and slip segments): use saveat or samples, or stop='standstill'")
+    if frictions_of(model.loads):
+        raise AssurjaxError("save_steps is not available with joint friction (the motion is integrated in segments "
+                            "between rests and changes of a joint's Coulomb sign): use saveat or samples")
 
 
 def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:

@@ -1,40 +1,46 @@
 """Stick and slip: a mechanism with Coulomb friction that comes to rest stays at rest
 while the friction can hold it, and breaks away when the loads overcome it.
 
-In a one-degree-of-freedom mechanism every relative rate is (d phi/dq) w, so at rest
-the question is one of direction: with the kinetic friction signs of a motion in
-direction s, the acceleration a_s (``dynamics._field.frictional``). The mechanism sticks
-when neither direction accelerates away (a_+ <= 0 <= a_-); it breaks away, in the
-direction s whose a_s points that way, when a time-dependent load makes that change.
+In a one-degree-of-freedom mechanism every relative rate is (d phi_k/dq) w, so the
+Coulomb sign of element k is sign(d phi_k/dq) sign(w). At rest the question is one of
+direction: with the kinetic friction signs of a motion in direction s, the acceleration
+a_s (``dynamics._field.frictional``). The mechanism sticks when neither direction
+accelerates away (a_+ <= 0 <= a_-); it breaks away, in the direction s whose a_s points
+that way, when a time-dependent load makes that change.
 
-The motion is integrated by diffrax in segments inside one ``lax.while_loop``: a slip
-segment ends where w returns to 0 (a diffrax.Event located by root finding), a stick
-segment (w = 0, q fixed) where the break-away margin max(a_+, -a_-) crosses 0 (another
-Event). Each segment starts by deciding its direction (sign(w), or at rest the break-away test),
-so the test is in the program once. Without loads that may vary in time a mechanism held at
-rest stays held: the stick segment is left out, and the rest is filled to t1. Each segment
-saves the requested times that fall inside it. Forward-mode
-derivatives go through the loop; reverse mode does not (JAX cannot reverse a
-while_loop): differentiate runs up to the first standstill, or use ``jax.jvp``.
+The motion is integrated by diffrax in segments inside one loop, each with its Coulomb
+signs frozen, so that the field is smooth inside a segment and a derivative sees every
+switch of the law (its saltation) through the located switch time: a slip segment ends
+where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
+value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
+each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
+the break-away margin max(a_+, -a_-) crosses 0 (another Event). Each segment starts by
+deciding its direction (sign(w), or at rest the break-away test), so the test is in the
+program once. Without loads that may vary in time a mechanism held at rest stays held:
+the stick segment is left out, and the rest is filled to t1. With ``stop='standstill'``
+the loop ends at the first rest. Each segment saves the requested times that fall inside
+it. The loop is equinox's checkpointed while loop (the one diffrax's own steps run in):
+reverse-mode derivatives go through it; with ``adjoint='forward'`` a plain while loop,
+for forward mode.
 """
 
 from __future__ import annotations
 
 import diffrax
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from .._errors import AssurjaxError
+from .._friction import frictions_of
 from .._model import Model
-from ._events import assembles, lockup_found, stop_event
-from ._field import FieldArgs, State, near, directional_accelerations, rest_direction, vector_field
-from ._results import LOCKUP, NO_EVENT, RESULTS, finished
+from ._events import assembles, located_event, lockup_found, rate_margins, stop_event, which_event
+from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
+from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, outputs
 
-MAX_SEGMENTS = 256  # stick and slip phases in one simulation
-_TINY = 1e-30
+MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 
 
 def _stuck_field(t, y, args):
@@ -42,84 +48,106 @@ def _stuck_field(t, y, args):
 
 
 def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings) -> Solution:
-    """The motion with stick and slip (see the module docstring); no user events."""
-    if settings.events:
+    """The motion with joint friction in segments (see the module docstring): to t1, or
+    with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0)."""
+    first_rest = settings.standstill
+    if settings.events and not first_rest:
         raise AssurjaxError("user events are not supported yet with joint friction when the motion runs on past "
                             "standstill; use stop='standstill' or no events")
-    solver, n = solver_for(settings), ts.shape[0]
+    solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     slip_settings = settings._replace(standstill=True)
+    slip_event = stop_event(slip_settings, switches=True)
+    user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program
-    timeless = not any(load.may_depend_on_time() for load in model.loads)
+    holds = not first_rest and any(load.may_depend_on_time() for load in model.loads)
 
-    def breakaway_cond(t, y, args, **kwargs):
+    def held(t, y, args):
         a_plus, a_minus = directional_accelerations(args.model, t, y)
-        return jnp.minimum(-jnp.maximum(a_plus, -a_minus), _TINY)  # > 0 while stuck
+        return -jnp.maximum(a_plus, -a_minus)  # > 0 while stuck
 
-    tol = min(1e-3 * settings.rtol, 1e-12)
-    breakaway = diffrax.Event(breakaway_cond, optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
+    breakaway = located_event(held, settings)
 
-    def segment(start, y, direction, stuck):
-        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=None, bridge=settings.bridge,
-                         nan_unassembled=settings.check_assembly)
-        # held for good (nothing varies in time): a segment of length zero ends the loop
-        stop = jnp.where(stuck, start, t1) if timeless else t1
+    def segment(start, y, direction, signs, stuck):
+        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
+                         bridge=settings.bridge, nan_unassembled=settings.check_assembly)
+        # held for good (nothing varies in time, or the run ends at the first rest): a segment of length zero
+        stop = t1 if holds else jnp.where(stuck, start, t1)
         kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
                       saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, stop), t1=True), max_steps=settings.max_steps,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
-                                           event=stop_event(slip_settings), **kwargs)
+                                           event=slip_event, **kwargs)
         hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
-        return slip() if timeless else jax.lax.cond(stuck, hold, slip)
+        return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
-        start, y, previous, _, saved, filled, k, steps, result, event, failed, _ = carry
+        start, y, previous, signs, switched, _, saved, filled, steps, result, event, failed, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the direction the mechanism accelerates in, if any (else it sticks)
-        a_plus, a_minus = directional_accelerations(model, start, y._replace(omega=jnp.zeros_like(y.omega)))
+        a_plus, a_minus, rates, slopes = rest_analysis(model, start, y)
         go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(a_plus, a_minus))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
-        sol = segment(start, y, direction, stuck)
+        # the signs of d phi_k/dq in the segment: the element whose rate just crossed 0 flips
+        # (its value there is 0 to round-off); the others as they are (exactly 0: as they go)
+        fresh = jnp.where(rates != 0, jnp.sign(rates), jnp.sign(slopes * direction))
+        signs = jnp.where(jnp.arange(k_elements) == switched, -signs, fresh)
+        # an element that has just crossed (round-off on the old side) starts just on the new one:
+        # the event watches the smallest margin, and one at or below 0 would hide every other crossing
+        start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
+        sol, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
         inside = (ts >= start) & (ts <= end) & ~filled
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
         filled = filled | inside
-        fired = jnp.asarray(False) if sol.event_mask is None else jnp.asarray(sol.event_mask)
+        fired = ~stuck & jnp.asarray(False if sol.event_mask is None else sol.event_mask)
+        code = jnp.where(fired, which_event(sol, slip_settings, args, last), NO_EVENT)
+        switched = jnp.where(code == RATE_SWITCH, jnp.argmin(rate_margins(args, y_end.friction_rates)), -1)
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if settings.check_assembly:
             ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
             segment_event, segment_result = lockup_found(segment_event, segment_result, ok_end)
         locked = ~stuck & (segment_event == LOCKUP)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
-        y_next = y_end._replace(omega=jnp.where(fired, jnp.zeros_like(y_end.omega), y_end.omega))
-        done = ~fired | locked | (end >= t1) | ~finished(segment_result)
+        rest = code == STANDSTILL
+        y_next = y_end._replace(omega=jnp.where(rest, jnp.zeros_like(y_end.omega), y_end.omega))
+        # the run's own end: a user event; with stop='standstill' the first rest (or a start held at rest)
+        ends = (code >= USER) | (first_rest & (rest | stuck))
+        event = jnp.where(locked, LOCKUP, jnp.where(ends, jnp.where(stuck, STANDSTILL, code), event))
+        done = ~(fired | (stuck & holds)) | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
-        event = jnp.where(locked, LOCKUP, event)
-        return (end, y_next, direction, stuck, saved, filled, k + 1, steps + sol.stats["num_steps"], result, event, failed,
-                done)
+        steps = steps + sol.stats["num_steps"]
+        return end, y_next, direction, signs, switched, stuck, saved, filled, steps, result, event, failed, done
 
     def cond(carry):
-        return ~carry[-1] & (carry[6] < MAX_SEGMENTS)
+        return ~carry[-1]
 
-    saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
-    carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
-             jnp.asarray(0), RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
-    end, y_end, _, stuck, saved, filled, _, steps, result, event, failed, _ = jax.lax.while_loop(cond, body, carry)
-    if timeless:  # held at rest from the last standstill (or the start) to t1
+    saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float),
+                          y0._replace(friction_rates=jnp.zeros(k_elements)))
+    carry = (t0, y0._replace(friction_rates=jnp.zeros(k_elements)), jnp.asarray(1.0), jnp.zeros(k_elements),
+             jnp.asarray(-1), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0), RESULTS.successful,
+             jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
+    kind = "lax" if settings.adjoint == "forward" else "checkpointed"
+    end, y_end, _, _, _, stuck, saved, filled, steps, result, event, failed, done = eqxi.while_loop(
+        cond, body, carry, max_steps=MAX_SEGMENTS, kind=kind)
+    result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
+    if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = stuck & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
         saved = jax.tree.map(lambda old, z: jnp.where(_expand(rest, old), z, old), saved, y_end)
         filled, end = filled | rest, jnp.where(held, t1, end)
-    valid = filled  # the times reached; the rest repeat the last one reached
-    last = jnp.maximum(jnp.sum(valid) - 1, 0)
-    pick = lambda z: None if z is None else jnp.where(valid, z, z[last])  # noqa: E731
-    t, q, w = jnp.where(valid, ts, end), pick(saved.q), pick(saved.omega)
-    values = outputs(model, t, q, w, settings)
+    # the times reached, then the final state where it lies past them; the rest repeat it
+    # (every output stays finite)
+    past = end > jnp.max(jnp.where(filled, ts, -jnp.inf))
+    valid = filled | ((jnp.arange(n) == jnp.sum(filled)) & past)
+    saved = jax.tree.map(lambda z, z_end: jnp.where(_expand(filled, z), z, z_end), saved, y_end)
+    t = jnp.where(filled, ts, end)
+    values = outputs(model, t, saved.q, saved.omega, settings, saved.branch)
     return Solution(
-        t=t, q=q, omega=w, **values, dissipated=pick(saved.dissipated), work=pick(saved.work), valid=valid,
+        t=t, q=saved.q, omega=saved.omega, **values, dissipated=saved.dissipated, work=saved.work, valid=valid,
         t_final=end, q_final=y_end.q, omega_final=y_end.omega,
         t_stop=jnp.where(event >= 0, end, jnp.inf), event=event, failed_group_index=failed,
         result=result, num_steps=steps,
@@ -128,4 +156,3 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
 def _expand(mask, like):
     return mask.reshape(mask.shape + (1,) * (jnp.ndim(like) - 1))
-
