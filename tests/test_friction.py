@@ -64,6 +64,19 @@ def test_energy_balance_closes_with_friction(rough):
     np.testing.assert_allclose(rough.work, -rough.dissipated, atol=1e-12 * scale)
 
 
+def test_user_events_past_a_rest_and_while_held(slider, rough):
+    """User events with friction past the first rest (0.52 s): t = 0.7 s, while it swings
+    back, and t = 1.7 s, while the friction holds it at rest (from ~0.95 s): each stops the
+    run there, in the state the run without events has at that time."""
+    for t_event, k in ((0.7, 28), (1.7, 68)):
+        assert TIMES[k] == pytest.approx(t_event)
+        sol = run(slider, MU, viscous=1e-3, events=(lambda t, q, w, t_event=t_event: t - t_event,))
+        assert sol.event == aj.dynamics._results.USER and abs(sol.t_stop - t_event) < 1e-9, sol.status
+        np.testing.assert_allclose([sol.q_final, sol.omega_final], [rough.q[k], rough.omega[k]], rtol=0, atol=1e-8)
+        np.testing.assert_array_equal(sol.q[:k], rough.q[:k])  # the same segments up to there
+    assert rough.omega[68] == 0.0 and rough.omega[28] != 0.0
+
+
 def test_self_locking_stays_at_rest(slider):
     """With friction larger than gravity's effort the mechanism never starts: exact rest."""
     locked = run(slider, 5.0)

@@ -37,11 +37,15 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     out = []
     if settings.standstill:
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
-    for k, cond in enumerate(settings.events):
-        out.append(args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float))
+    out += user_margins(settings, t, y, args)
     if y.friction_rates is not None:
         out.append(jnp.min(rate_margins(args, y.friction_rates)))
     return out
+
+
+def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
+    """Per user event: cond(t, q, w) times its sign at t0."""
+    return [args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float) for k, cond in enumerate(settings.events)]
 
 
 def rate_margins(args: FieldArgs, friction_rates):

@@ -358,8 +358,9 @@ def simulate(
     ``saveat``: an array of times (s). ``save_steps``: also save the state at the end of
     every accepted solver step, merged in time order with ``saveat`` (outputs then
     follow the solver where the motion changes fast; up to ``max_steps`` extra samples;
-    single runs only, not with joint friction past standstill). ``events``: functions ``cond(t, q, omega)``;
-    the motion stops where one changes sign. ``mechanism``, ``loads``, ``gravity``
+    single runs only, not with joint friction). ``events``: functions ``cond(t, q, omega)``;
+    the motion stops where one changes sign (with joint friction also past a rest, and
+    while the friction holds the mechanism at rest). ``mechanism``, ``loads``, ``gravity``
     replace the scene's. ``throw``: raise :class:`assurjax.AssurjaxError` with the
     status when the solver stops early (e.g. the step budget is used up) instead of
     returning a Solution that says so.

@@ -16,9 +16,10 @@ value, ``State.friction_rates``, crosses 0: the motion goes on with that sign fl
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
 the break-away margin max(a_+, -a_-) crosses 0 (another Event). Each segment starts by
 deciding its direction (sign(w), or at rest the break-away test), so the test is in the
-program once. Without loads that may vary in time a mechanism held at rest stays held:
-the stick segment is left out, and the rest is filled to t1. With ``stop='standstill'``
-the loop ends at the first rest. Each segment saves the requested times that fall inside
+program once. Without loads that may vary in time (and user events to watch) a mechanism
+held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
+user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
+ends at the first rest. Each segment saves the requested times that fall inside
 it. The loop is equinox's checkpointed while loop (the one diffrax's own steps run in):
 reverse-mode derivatives go through it; with ``adjoint='forward'`` a plain while loop,
 for forward mode.
@@ -31,10 +32,9 @@ import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 
-from .._errors import AssurjaxError
 from .._friction import frictions_of
 from .._model import Model
-from ._events import assembles, located_event, lockup_found, rate_margins, stop_event, which_event
+from ._events import assembles, located_event, lockup_found, rate_margins, stop_event, user_margins, which_event
 from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
 from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
@@ -51,22 +51,22 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     """The motion with joint friction in segments (see the module docstring): to t1, or
     with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0)."""
     first_rest = settings.standstill
-    if settings.events and not first_rest:
-        raise AssurjaxError("user events are not supported yet with joint friction when the motion runs on past "
-                            "standstill; use stop='standstill' or no events")
     solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     slip_settings = settings._replace(standstill=True)
     slip_event = stop_event(slip_settings, switches=True)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
-    # (and no break-away event, two copies of the friction solve) is needed in the program
-    holds = not first_rest and any(load.may_depend_on_time() for load in model.loads)
+    # (and no break-away event, two copies of the friction solve) is needed in the program,
+    # unless user events are to be watched while it rests
+    holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
 
-    def held(t, y, args):
+    def stuck_margins(t, y, args):
+        """The break-away margin (> 0 while stuck), then the user events' margins."""
         a_plus, a_minus = directional_accelerations(args.model, t, y)
-        return -jnp.maximum(a_plus, -a_minus)  # > 0 while stuck
+        return [-jnp.maximum(a_plus, -a_minus)] + user_margins(settings, t, y, args)
 
-    breakaway = located_event(held, settings)
+    breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
+    hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
     def segment(start, y, direction, signs, stuck):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
@@ -103,8 +103,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         inside = (ts >= start) & (ts <= end) & ~filled
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
         filled = filled | inside
-        fired = ~stuck & jnp.asarray(False if sol.event_mask is None else sol.event_mask)
-        code = jnp.where(fired, which_event(sol, slip_settings, args, last), NO_EVENT)
+        fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
+        # a stick segment stopped by a user event (its margins are read only where there are any)
+        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
+        code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
         switched = jnp.where(code == RATE_SWITCH, jnp.argmin(rate_margins(args, y_end.friction_rates)), -1)
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if settings.check_assembly:
@@ -115,9 +117,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         rest = code == STANDSTILL
         y_next = y_end._replace(omega=jnp.where(rest, jnp.zeros_like(y_end.omega), y_end.omega))
         # the run's own end: a user event; with stop='standstill' the first rest (or a start held at rest)
-        ends = (code >= USER) | (first_rest & (rest | stuck))
-        event = jnp.where(locked, LOCKUP, jnp.where(ends, jnp.where(stuck, STANDSTILL, code), event))
-        done = ~(fired | (stuck & holds)) | locked | (end >= t1) | ~finished(segment_result) | ends
+        held_start = first_rest & stuck
+        ends = (code >= USER) | (first_rest & rest) | held_start
+        event = jnp.where(locked, LOCKUP, jnp.where(ends, jnp.where(held_start, STANDSTILL, code), event))
+        done = ~fired | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
         steps = steps + sol.stats["num_steps"]
         return end, y_next, direction, signs, switched, stuck, saved, filled, steps, result, event, failed, done
