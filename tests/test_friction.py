@@ -98,6 +98,15 @@ def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
         aj.synthesis.standstill_time(loaded, adjoint="quadrature")
 
 
+def test_segment_budget_is_reported(slider, monkeypatch):
+    """A run that needs more segments than the budget stops there and says so (its own
+    max_steps makes it a program of its own, traced with the small budget)."""
+    monkeypatch.setattr(aj.dynamics._stick, "MAX_SEGMENTS", 2)
+    sol = run(slider, MU, viscous=1e-3, max_steps=4095)
+    assert sol.result == aj.RESULTS.max_segments_reached and sol.t_final < T1
+    assert "segments" in sol.status and "shorten the time span" in sol.status, sol.status
+
+
 def test_lockup_with_friction_stops_at_the_limit():
     """A triple rocker with friction in its pivots thrown into its limit position: the
     stick-slip loop stops there (the stretched dyad, closed form), naming the dyad."""

@@ -328,15 +328,18 @@ def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
 
 def _met_unassembled(y1_candidate, y_error):
     """True where a step met NaN: at its end or in a stage (the error estimate holds
-    them all, the last one at the step's end included)."""
-    return ~(jnp.isfinite(y1_candidate.omega) & jnp.isfinite(y_error.omega))
+    them all, the last one at the step's end included). Any state: the backward solve of
+    ``adjoint='backsolve'`` steps an augmented one with these controllers too."""
+    return ~jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves((y1_candidate, y_error))]))
 
 
 def _located(t0, t1, y0, met, shortest=0.0):
     """diffrax's ``dt_min_reached`` where a step that met a configuration that cannot
     assemble moves q by less than ``LOCKUP_RESOLUTION`` (1 + |q|) or is no longer than
     ``shortest``: the lock-up is found (or, if no group fails just past it, the solver
-    could not get on)."""
+    could not get on). Not in an augmented backward solve (no q, w there): its NaN steps are only rejected."""
+    if not hasattr(y0, "omega"):
+        return diffrax.RESULTS.successful
     small = (jnp.abs(y0.omega) * (t1 - t0) <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))) | (t1 - t0 <= shortest)
     return diffrax.RESULTS.where(met & small, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
 
