@@ -22,6 +22,7 @@ from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER
 from ._settings import Settings
 
 _SCALE = 1e-30  # see located_event
+_FLOOR = 1e-200  # see margins
 
 
 def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
@@ -35,8 +36,8 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     over the elements with a Coulomb coefficient (the others do not switch).
     """
     out = []
-    if settings.standstill:
-        out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0))
+    if settings.standstill:  # a hair above 0 at a start from rest, so that it hides no other crossing there
+        out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0) + _FLOOR)
     out += user_margins(settings, t, y, args)
     if y.friction_rates is not None:
         out.append(jnp.min(rate_margins(args, y.friction_rates)))

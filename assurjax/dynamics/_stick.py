@@ -34,13 +34,14 @@ import jax.numpy as jnp
 
 from .._friction import frictions_of
 from .._model import Model
-from ._events import assembles, located_event, lockup_found, rate_margins, stop_event, user_margins, which_event
+from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
-from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER, finished
+from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, outputs
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
+LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a segment reads the signs it starts with
 
 
 def _stuck_field(t, y, args):
@@ -83,18 +84,18 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
-        start, y, previous, signs, switched, _, saved, filled, steps, result, event, failed, _ = carry
+        start, y, previous, _, saved, filled, steps, result, event, failed, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the direction the mechanism accelerates in, if any (else it sticks)
         a_plus, a_minus, rates, slopes = rest_analysis(model, start, y)
         go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(a_plus, a_minus))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
-        # the signs of d phi_k/dq in the segment: the element whose rate just crossed 0 flips
-        # (its value there is 0 to round-off); the others as they are (exactly 0: as they go)
-        fresh = jnp.where(rates != 0, jnp.sign(rates), jnp.sign(slopes * direction))
-        signs = jnp.where(jnp.arange(k_elements) == switched, -signs, fresh)
-        # an element that has just crossed (round-off on the old side) starts just on the new one:
-        # the event watches the smallest margin, and one at or below 0 would hide every other crossing
+        # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
+        # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
+        # goes on with
+        signs = jnp.sign(rates + slopes * direction * LOOKAHEAD * (1.0 + jnp.abs(y.q)))
+        # such an element starts just on that side: the event watches the smallest margin, and
+        # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
         sol, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
@@ -107,7 +108,6 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a stick segment stopped by a user event (its margins are read only where there are any)
         hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
         code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
-        switched = jnp.where(code == RATE_SWITCH, jnp.argmin(rate_margins(args, y_end.friction_rates)), -1)
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if settings.check_assembly:
             ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
@@ -123,18 +123,17 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         done = ~fired | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
         steps = steps + sol.stats["num_steps"]
-        return end, y_next, direction, signs, switched, stuck, saved, filled, steps, result, event, failed, done
+        return end, y_next, direction, stuck, saved, filled, steps, result, event, failed, done
 
     def cond(carry):
         return ~carry[-1]
 
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float),
                           y0._replace(friction_rates=jnp.zeros(k_elements)))
-    carry = (t0, y0._replace(friction_rates=jnp.zeros(k_elements)), jnp.asarray(1.0), jnp.zeros(k_elements),
-             jnp.asarray(-1), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0), RESULTS.successful,
+    carry = (t0, y0._replace(friction_rates=jnp.zeros(k_elements)), jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0), RESULTS.successful,
              jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
-    end, y_end, _, _, _, stuck, saved, filled, steps, result, event, failed, done = eqxi.while_loop(
+    end, y_end, _, stuck, saved, filled, steps, result, event, failed, done = eqxi.while_loop(
         cond, body, carry, max_steps=MAX_SEGMENTS, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1

@@ -71,6 +71,17 @@ class Scene(eqx.Module):
     def replace_mechanism(self, mechanism: Mechanism) -> "Scene":
         return eqx.tree_at(lambda s: s.mechanism, self, mechanism)
 
+    def with_loads(self, loads) -> "Scene":
+        """A copy with these ``loads`` (a tuple of :class:`assurjax.AbstractLoad`), checked
+        against the mechanism. Built inside a traced function, its arrays may be traced:
+        ``jax.grad(lambda mu: synthesis.standstill_time(scene.with_loads(scene.loads +
+        (assurjax.JointFriction("A", mu, radius=0.01),)))[0])(0.1)``."""
+        from .._loads import check_loads
+
+        loads = tuple(loads)
+        check_loads(self.mechanism, loads)
+        return eqx.tree_at(lambda s: s.loads, self, loads)
+
     def with_settings(self, *, state: dict | None = None, simulation: dict | None = None, outputs: dict | None = None) -> "Scene":
         """A copy with some settings updated, e.g. ``scene.with_settings(state={"q0": 1.0})``."""
         new = {}
