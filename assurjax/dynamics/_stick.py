@@ -128,10 +128,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     def cond(carry):
         return ~carry[-1]
 
-    saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float),
-                          y0._replace(friction_rates=jnp.zeros(k_elements)))
-    carry = (t0, y0._replace(friction_rates=jnp.zeros(k_elements)), jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0), RESULTS.successful,
-             jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
+    y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
+    saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
+    carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
+             RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     end, y_end, _, stuck, saved, filled, steps, result, event, failed, done = eqxi.while_loop(
         cond, body, carry, max_steps=MAX_SEGMENTS, kind=kind)
