@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import threading
 
 import equinox as eqx
+import jax
+import numpy as np
 from jax._src import core as _jax_core
 
 COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
@@ -62,3 +65,77 @@ def checks_without_callbacks():
         yield
     finally:
         module.EQX_ON_ERROR = previous
+
+
+# Programs compiled two at a time (compile_side_by_side): each compiles its machine code on
+# one thread. XLA splits that work over threads by default, which on two cores only adds
+# overhead when two compiles already run (Watt six-bar's first simulate(): 1.95 -> 1.8 s;
+# run times the same; measured by benchmarks/bench_overhead.py).
+PAIRED_OPTIONS = {**COMPILER_OPTIONS, "xla_cpu_parallel_codegen_split_count": 1}
+
+
+def jit_arrays(fun, static_argnums=()):
+    """``jax.jit`` with :data:`PAIRED_OPTIONS`, for top-level entry points compiled in pairs
+    (:func:`compile_side_by_side`) whose arguments are pytrees of arrays (the mechanism's
+    parameters are arrays; names and modes sit in the tree's structure) plus hashable
+    static arguments: a call costs a flatten of the arguments, where ``equinox.filter_jit``
+    partitions each one (~0.1 ms for the Watt six-bar's model, ~0.7 ms for the strandbeest's)."""
+    return jax.jit(fun, static_argnums=static_argnums, compiler_options=PAIRED_OPTIONS)
+
+
+class Static:
+    """The leaves of a pytree that are not arrays (functions, Python numbers), with its
+    structure: a static argument of ``jax.jit``, equal for equal trees (by structure and
+    leaves), so that two mechanisms of one structure share their programs."""
+
+    def __init__(self, tree):
+        leaves, self.treedef = jax.tree.flatten(tree)
+        self.leaves = tuple(leaves)
+        self._hash = hash((self.treedef, self.leaves))
+
+    @property
+    def tree(self):
+        return jax.tree.unflatten(self.treedef, self.leaves)
+
+    def __hash__(self):
+        return self._hash
+
+    def __eq__(self, other):
+        return isinstance(other, Static) and self.treedef == other.treedef and self.leaves == other.leaves
+
+
+def split_arrays(tree) -> tuple:
+    """(the arrays of ``tree``, the rest as a :class:`Static`): ``combine(*parts)`` rebuilds it."""
+    arrays, rest = eqx.partition(tree, eqx.is_array)
+    return arrays, Static(rest)
+
+
+def combine(arrays, rest: Static):
+    return eqx.combine(arrays, rest.tree)
+
+
+def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:
+    """Compile two :func:`jit_arrays` programs that run one after the other (``second``
+    takes ``second_args(output of first)``): the first in a thread while the second is
+    traced and compiled. XLA compiles without holding Python's lock, so on two cores the
+    second program's trace and compile hide behind the first's compile. The programs land
+    in JAX's caches, where the calls that follow find them. ``first``'s outputs must not be
+    weakly typed (their stand-ins here are NumPy arrays)."""
+    lowered = first.lower(*first_args)  # traced here: tracing holds Python's lock
+    failure = []
+
+    def compile_first():
+        try:
+            lowered.compile()
+        except BaseException as error:  # raised again below, in the caller's thread
+            failure.append(error)
+
+    worker = threading.Thread(target=compile_first, name="assurjax-compile")
+    worker.start()
+    try:
+        stand_ins = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), lowered.out_info)
+        second.lower(*second_args(stand_ins)).compile()
+    finally:
+        worker.join()
+    if failure:
+        raise failure[0]

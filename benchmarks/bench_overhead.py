@@ -77,9 +77,19 @@ def _program_args(aj, scene, kw):
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0)
     if "max_steps" not in scene.simulation:
         settings = settings._replace(max_steps=step_budget(t0, t1))
+    if hasattr(_solve, "_integrate_jit"):  # simulate's programs never differentiate: diffrax's forward-mode loop
+        settings = settings._replace(adjoint="forward")
     settings, table = _solve._resolve_reduction(settings, kw.get("table"), model, None)
     step = fixed_step_from(scene, None)
     return (model, *(np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1)), None, step, settings, table)
+
+
+def _programs(solve, args):
+    """What simulate runs for one start: the integration, then the outputs (two programs
+    since the split), or the one program of earlier revisions."""
+    if hasattr(solve, "_integrate_jit"):
+        return solve._outputs_jit(args[0], *solve._integrate_jit(*args), args[7])
+    return solve._core_jit(*args)
 
 
 def _profile(fn, calls: int, top: int = 12) -> list[dict]:
@@ -112,7 +122,7 @@ def measure(quick: bool) -> dict:
     import assurjax as aj
     from _timing import best_time
     from assurjax._jit import checks_without_callbacks
-    from assurjax.dynamics._solve import _core_jit
+    from assurjax.dynamics import _solve
     from bench_dynamics import first_call_time
 
     repeats, budget = (100, 1.0) if quick else (400, 3.0)
@@ -128,12 +138,12 @@ def measure(quick: bool) -> dict:
         args = [(base[0], *(np.asarray(kw.get(k, scene.state.get(k, 0.0)), dtype=float) for k in ("q0", "omega0")),
                  *base[3:]) for kw in calls]
         counter_b = iter(range(10**9))
-        program = lambda: _core_jit(*args[next(counter_b) % len(args)])  # noqa: E731
+        program = lambda: _programs(_solve, args[next(counter_b) % len(args)])  # noqa: E731
         with checks_without_callbacks():  # as simulate calls it (the same compiled program)
             t_program = best_time(program, repeats, budget)
         t_whole = best_time(whole, repeats, budget)
         # the same result: the direct call is the program simulate runs
-        sol, direct = aj.simulate(scene, **calls[0]), jax.device_get(_core_jit(*args[0]))
+        sol, direct = aj.simulate(scene, **calls[0]), jax.device_get(_programs(_solve, args[0]))
         assert np.array_equal(sol.q, direct.q[: sol.q.shape[0]]), name
         out["shapes"][name] = dict(what=what, whole_us=1e6 * t_whole, program_us=1e6 * t_program,
                                    overhead_us=1e6 * (t_whole - t_program),

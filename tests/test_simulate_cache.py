@@ -4,6 +4,7 @@ a simulation of a freshly loaded scene carrying the change, run with the cache e
 with the unchanged result (it must differ, so that a stale entry would be caught)."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -105,3 +106,60 @@ def test_start_checks_of_python_numbers_agree_with_numpy_scalars(values):
     assert (plain is None) == (numpy is None)
     if plain is not None:
         assert plain[0] == numpy[0]
+
+
+class CompileCounter:
+    """XLA compiles per function name while active (JAX's own compile events)."""
+
+    def __init__(self):
+        self.counts, self.active = {}, False
+        jax.monitoring.register_event_duration_secs_listener(self.listen)
+
+    def listen(self, event, duration, **kwargs):
+        if self.active and event == "/jax/core/compile/backend_compile_duration":
+            name = kwargs.get("fun_name", "?")
+            self.counts[name] = self.counts.get(name, 0) + 1
+
+
+COMPILES = CompileCounter()
+
+
+def test_simulate_compiles_its_two_programs_once_side_by_side():
+    """The integration and the outputs are compiled on the first call of a signature (side
+    by side) and found in JAX's cache by that call and every later one: no second compile."""
+    scene = aj.load_scene("watt_sixbar")
+    options = dict(samples=23, t1=0.7)  # a signature no other test compiles
+    COMPILES.counts, COMPILES.active = {}, True
+    try:
+        first = aj.simulate(scene, **options)
+        after_first = dict(COMPILES.counts)
+        aj.simulate(scene, q0=0.4, **options)  # a new start: the same programs
+        aj.simulate(scene.with_settings(state={"q0": 0.2}), **options)  # a new scene of the same structure
+    finally:
+        COMPILES.active = False
+    ours = {k: v for k, v in COMPILES.counts.items() if k in ("jit(_integrate_split)", "jit(_finished_split)")}
+    assert ours == {"jit(_integrate_split)": 1, "jit(_finished_split)": 1}, COMPILES.counts
+    assert COMPILES.counts == after_first, "a later call compiled again"
+    assert first.points and first.kinetic is not None
+
+
+def test_simulate_agrees_with_the_single_program_of_simulate_core():
+    """simulate()'s two programs (with diffrax's forward-mode loop) give what the one
+    jitted program of simulate_core gives (the checkpointed loop, outputs in the same program)."""
+    from assurjax.dynamics._settings import settings_from
+
+    scene = aj.load_scene("watt_sixbar")
+    sol = aj.simulate(scene)
+    settings = settings_from(scene)._replace(reduction="exact", max_steps=8192)
+    core = aj.jit(lambda q0: aj.simulate_core(scene.model, None, (), q0, 0.0, 0.0, 2.0, settings=settings))(0.0)
+    n = sol.t.shape[0]
+    assert int(core.num_steps) == int(sol.num_steps)
+    assert abs(float(core.t_stop) - sol.t_stop) < 1e-12  # located by bisection to 1e-12
+    # the saved times before the stop to 1e-12; the stop itself (the last row) is located by
+    # bisection to 1e-12 s, so there values differ by up to their rate times that
+    for name in ("t", "q", "omega", "domega", "kinetic", "potential", "work"):
+        ours, theirs = getattr(sol, name), np.asarray(getattr(core, name))[:n]
+        np.testing.assert_allclose(ours[:-1], theirs[:-1], rtol=1e-13, atol=1e-12, err_msg=name)  # round-off of other fusions
+        np.testing.assert_allclose(ours[-1], theirs[-1], rtol=0, atol=1e-10, err_msg=name)
+    for point in sol.points:
+        np.testing.assert_allclose(sol.points[point], np.asarray(core.points[point])[:n], rtol=0, atol=1e-12)

@@ -98,6 +98,21 @@ def any_outputs(settings: Settings) -> bool:
     return bool(settings.domega or settings.energies or settings.points or settings.angles or settings.coms)
 
 
+def no_outputs() -> dict:
+    """The output fields of a Solution for which nothing is computed."""
+    return dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
+
+
+def with_outputs(model: Model, sol: Solution, branch, settings: Settings) -> Solution:
+    """``sol`` (its output fields empty) with the outputs the settings ask for, computed
+    at its saved states. ``branch``: the tracked branch's saved link angles, stacked
+    (None: the fixed modes). Kept apart from the integration so that :func:`simulate`
+    can compile the two as programs of their own, side by side."""
+    if not any_outputs(settings):
+        return sol
+    return replaced(sol, **outputs(model, sol.t, sol.q, sol.omega, settings, branch))
+
+
 def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool = False) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).
@@ -106,7 +121,7 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
     ``flags``: also every group's ok flag at every time (``out["ok"]``, (times, groups);
     then the full position analysis is made even where only some points are asked for)."""
     mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
-    out = dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
+    out = no_outputs()
     rates = settings.velocities or settings.accelerations
     if not any_outputs(settings):
         return out
@@ -182,7 +197,7 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
     status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
-    return _replaced(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+    return replaced(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
 
 
 def to_host(tree):
@@ -213,7 +228,7 @@ def _on_cpu() -> bool:
     return jax.default_backend() == "cpu"
 
 
-def _replaced(sol: Solution, **changes) -> Solution:
+def replaced(sol: Solution, **changes) -> Solution:
     """``dataclasses.replace(sol, **changes)`` without running the Module's __init__ again
     (~60 us: every field passes equinox's checks), as equinox itself rebuilds a Module
     when unflattening it: a new instance with its fields set. Every field is set."""

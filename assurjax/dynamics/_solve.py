@@ -19,7 +19,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of
-from .._jit import checks_without_callbacks, jit
+from .._jit import Static, checks_without_callbacks, combine, compile_side_by_side, jit, jit_arrays, split_arrays
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
@@ -30,7 +30,7 @@ from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import Solution, any_outputs, batch_summary, outputs, to_host, trim
+from ._solution import Solution, replaced, any_outputs, batch_summary, no_outputs, outputs, to_host, trim, with_outputs
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -79,11 +79,52 @@ def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, 
 
 
 def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -> Solution:
+    return _finished(model, *_integrate(model, q0, omega0, t0, t1, ts, dt, settings, table), settings)
+
+
+class EndChecks(eqx.Module):
+    """The states whose assembly decides how a run ended: just past the final state, the
+    final state, the start (rows of ``q`` and ``branch``, the tracked branch's stacked
+    link angles or None). :func:`_finished` checks them with the outputs' analysis."""
+
+    q: jax.Array
+    branch: jax.Array | None
+    lockup: bool = eqx.field(static=True)  # a run the lock-up controller may have ended at a lock-up
+
+
+def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table):
+    """(the Solution without its outputs, the tracked branch's saved link angles or None,
+    the EndChecks still to make or None): the motion and its stop. :func:`_finished` does the rest."""
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
-    sol, ok_start = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
-    if not settings.check_assembly or _tabulated(settings):
-        return sol
-    return _checked_start(sol, assembled(model.mechanism, q0) if ok_start is None else ok_start)
+    sol, branch, checks = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
+    if checks is None and settings.check_assembly and not _tabulated(settings):
+        sol = _checked_start(sol, assembled(model.mechanism, q0))
+    # no weakly typed values: the outputs' program is compiled ahead for these types (compile_side_by_side)
+    return jax.tree.map(lambda x: jnp.asarray(x, dtype=x.dtype), (sol, branch, checks))
+
+
+def _finished(model: Model, sol: Solution, branch, checks: EndChecks | None, settings: Settings) -> Solution:
+    """The Solution of :func:`_integrate` with its end checks made and its outputs: the
+    checked states ride as extra rows on the outputs' vmapped analysis."""
+    if checks is None:
+        return with_outputs(model, sol, branch, settings)
+    mechanism = model.mechanism
+    if any_outputs(settings):
+        n = checks.q.shape[0]  # the checked rows' t and w only feed outputs that are dropped
+        rows = (jnp.full(n, sol.t_final), checks.q, jnp.zeros(n), checks.branch)
+        t, q, w, near = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), (sol.t, sol.q, sol.omega, branch), rows)
+        values = outputs(model, t, q, w, settings, near, flags=True)
+        ok = values.pop("ok")[-n:]
+        values = jax.tree.map(lambda v: v[:-n], values)
+    else:
+        values = {}
+        ok = jax.vmap(lambda q, b: assembled(mechanism, q, near=branch_mapping(mechanism, b)))(checks.q, checks.branch)
+    ok_final = ok[0] & ok[1]
+    event, result = lockup_found(sol.event, sol.result, ok_final) if checks.lockup else (sol.event, sol.result)
+    failed = jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
+    ended = replaced(sol, **values, event=event, result=result, failed_group_index=failed,
+                      t_stop=jnp.where(event >= 0, sol.t_final, jnp.inf))
+    return _checked_start(ended, ok[2])
 
 
 def _checked_start(sol: Solution, ok_start) -> Solution:
@@ -96,19 +137,19 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
 
 
 def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table):
-    """The solution and, where it was checked on the way, whether each group assembles at
-    the start (else None)."""
+    """The solution without outputs, the tracked branch's saved link angles (or None) and
+    the EndChecks still to make (None: only the start is checked, by _integrate)."""
     if _tabulated(settings):
         settings = settings._replace(check_assembly=False)
         table = build_table_core(model.mechanism, model.gravity, model.loads, settings.table_nodes) if table is None else table
     else:
         table = None
     if settings.steps is not None:
-        return _steps_solve(model, q0, omega0, t0, t1, settings, table), None
+        return _steps_solve(model, q0, omega0, t0, t1, settings, table), None, None
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
     if frictions_of(model.loads) and table is None:  # in segments of frozen Coulomb signs
-        return stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
+        return *stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected
     checked = settings.check_assembly and table is None
@@ -187,9 +228,8 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
         t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
         ahead = assembled(mechanism, q[last] + h * w[last])  # the group failing one step on
         failed = jnp.where(locked & ~jnp.all(ahead), jnp.argmin(ahead), -1)
-    values = outputs(model, t, q, w, settings)
     return Solution(
-        t=t, q=q, omega=w, **values, dissipated=None, valid=valid,
+        t=t, q=q, omega=w, **no_outputs(), dissipated=None, valid=valid,
         t_final=t[last], q_final=q[last], omega_final=w[last],
         t_stop=jnp.where(locked, t[last], jnp.inf), event=jnp.where(locked, LOCKUP, NO_EVENT),
         failed_group_index=failed, result=RESULTS.successful, num_steps=jnp.asarray(n),
@@ -237,45 +277,35 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
     q, w = along(ys.q), along(ys.omega)
     t = jnp.where(reached, times, t_final)
     near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
-    ok_start = ok_final = None
+    checks = None
     if settings.check_assembly:  # just past the end, at the end, at the start
-        checked = checked_states(t0, y0, t_final, q_final, w_final, None if ys.branch is None else ys.branch[last])
-        values, ok = _outputs_and_flags(model, settings, (t, q, w, near), checked)
-        ok_final, ok_start = ok[0] & ok[1], ok[2]
-    else:
-        values = outputs(model, t, q, w, settings, near)
+        _, q_checked, _, branch_checked = checked_states(t0, y0, t_final, q_final, w_final,
+                                                         None if ys.branch is None else ys.branch[last])
+        checks = EndChecks(q_checked, branch_checked, lockup=args.nan_unassembled)
     event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
-    if args.nan_unassembled:
-        event, result = lockup_found(event, result, ok_final)
-    failed = jnp.asarray(-1) if ok_final is None else jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
     solution = Solution(
-        t=t, q=q, omega=w, **values,
+        t=t, q=q, omega=w, **no_outputs(),
         dissipated=None if ys.dissipated is None else along(ys.dissipated),
         work=None if ys.work is None else along(ys.work),
         valid=valid, t_final=t_final, q_final=q_final, omega_final=w_final,
-        t_stop=jnp.where(event >= 0, t_final, jnp.inf), event=event, failed_group_index=failed,
+        t_stop=jnp.where(event >= 0, t_final, jnp.inf), event=event, failed_group_index=jnp.asarray(-1),
         result=result, num_steps=sol.stats["num_steps"],
     )
-    return solution, ok_start
-
-
-def _outputs_and_flags(model: Model, settings: Settings, saved, checked):
-    """The outputs at the ``saved`` (t, q, w, stacked branch or None) and every group's ok
-    flags at the ``checked`` states: rows of the outputs' own vmapped analysis, or one of
-    their own where no output is asked for."""
-    mechanism = model.mechanism
-    if not any_outputs(settings):
-        ok = jax.vmap(lambda q, b: assembled(mechanism, q, near=branch_mapping(mechanism, b)))(checked[1], checked[3])
-        t, q, w, near = saved
-        return outputs(model, t, q, w, settings, near), ok
-    t, q, w, near = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), saved, checked)  # None (fixed modes) stays None
-    values = outputs(model, t, q, w, settings, near, flags=True)
-    n = checked[0].shape[0]
-    ok = values.pop("ok")[-n:]
-    return jax.tree.map(lambda v: v[:-n], values), ok
+    return solution, near, checks
 
 
 _core_jit = jit(_core)
+# simulate()'s two programs (see _Prepared.run), on the model split by split_arrays
+def _integrate_split(arrays, rest: Static, *args):
+    return _integrate(combine(arrays, rest), *args)
+
+
+def _finished_split(arrays, rest: Static, *args):
+    return _finished(combine(arrays, rest), *args)
+
+
+_integrate_jit = jit_arrays(_integrate_split, static_argnums=(1, 8))
+_outputs_jit = jit_arrays(_finished_split, static_argnums=(1, 5))
 
 
 # ---------------------------------------------------------------------------- user-facing
@@ -413,15 +443,17 @@ def simulate(
     max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
     step = None if step is None else np.asarray(step, dtype=float)
     settings, table = prepared.resolved(table, batch, max_steps)
-    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
-        if batch is None:
-            sol = trim(_core_jit(model, q0, omega0, t0, t1, saveat, step, settings, table), model.mechanism, settings)
-            if throw and not sol.successful:
-                raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
-            return sol
+    if batch is not None:
         q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
-        sols = _batch_jit(model, q0, omega0, t0, t1, saveat, step, settings, table)
-    sols = batch_summary(to_host(sols))
+    args = (q0, omega0, t0, t1, saveat, step, settings, table)
+    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
+        sol = prepared.run(args, batch)
+    if batch is None:
+        sol = trim(sol, model.mechanism, settings)
+        if throw and not sol.successful:
+            raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
+        return sol
+    sols = batch_summary(to_host(sol))
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
     return sols
@@ -437,14 +469,34 @@ class _Prepared:
     settings: Settings  # validated; max_steps and the reduction are resolved per call
     budget_per_span: bool  # max_steps from the time span (neither the keyword nor the scene sets it)
     _resolutions: dict = dataclasses.field(default_factory=dict)
+    _compiled: set = dataclasses.field(default_factory=set)  # signatures of the calls compiled (see run)
+    _model_parts: tuple | None = None  # split_arrays(model), made on the first run
 
     def resolved(self, table, batch, max_steps: int):
         """(settings with max_steps and the reduction resolved, the table or None): the
         table is built (and checked) once per prepared call, not per call."""
         key = (max_steps, batch is not None and batch[0] >= AUTO_TABLE_BATCH)  # all _resolve_reduction reads of batch
         if key not in self._resolutions:
-            self._resolutions[key] = _resolve_reduction(self.settings._replace(max_steps=max_steps), table, self.model, batch)
+            # simulate() returns host arrays, never differentiated: diffrax's plain while loop
+            # (forward mode) traces faster than the checkpointed one and computes the same
+            settings = self.settings._replace(max_steps=max_steps, adjoint="forward")
+            self._resolutions[key] = _resolve_reduction(settings, table, self.model, batch)
         return self._resolutions[key]
+
+    def run(self, args: tuple, batch):
+        """simulate_core's work for ``args`` (its arguments after the model) as two programs:
+        the integration, then the end checks and the outputs at the saved states, compiled
+        side by side on the first call of a signature (the Watt six-bar's first call 2.6 ->
+        1.8 s on two cores, against one program holding both)."""
+        integrate, finish = (_integrate_jit, _outputs_jit) if batch is None else (_batch_integrate_jit, _batch_outputs_jit)
+        if self._model_parts is None:
+            object.__setattr__(self, "_model_parts", split_arrays(self.model))  # once per prepared call
+        parts, settings = self._model_parts, args[6]
+        signature = (batch, None if args[4] is None else args[4].shape, args[5] is None, args[7] is None, settings)
+        if signature not in self._compiled:
+            compile_side_by_side(integrate, (*parts, *args), finish, lambda out: (*parts, *out, settings))
+            self._compiled.add(signature)
+        return finish(*parts, *integrate(*parts, *args), settings)
 
 
 def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
@@ -513,11 +565,18 @@ def _resolve_reduction(settings: Settings, table, model: Model, batch):
     return settings, None
 
 
-def _batch(model, q0, omega0, t0, t1, ts, dt, settings, table):
-    return jax.vmap(lambda q, w: _core(model, q, w, t0, t1, ts, dt, settings, table))(q0, omega0)
+def _batch_integrate(arrays, rest: Static, q0, omega0, t0, t1, ts, dt, settings, table):
+    model = combine(arrays, rest)
+    return jax.vmap(lambda q, w: _integrate(model, q, w, t0, t1, ts, dt, settings, table))(q0, omega0)
 
 
-_batch_jit = jit(_batch)
+def _batch_outputs(arrays, rest: Static, sols, branch, checks, settings):
+    model = combine(arrays, rest)
+    return jax.vmap(lambda sol, b, c: _finished(model, sol, b, c, settings))(sols, branch, checks)
+
+
+_batch_integrate_jit = jit_arrays(_batch_integrate, static_argnums=(1, 8))
+_batch_outputs_jit = jit_arrays(_batch_outputs, static_argnums=(1, 5))
 
 
 def _check_save_steps(settings: Settings, model: Model, batch) -> None:

@@ -38,7 +38,7 @@ from ._events import assembles, located_event, lockup_found, stop_event, user_ma
 from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
-from ._solution import Solution, outputs
+from ._solution import Solution, no_outputs
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a segment reads the signs it starts with
@@ -48,9 +48,10 @@ def _stuck_field(t, y, args):
     return jax.tree.map(jnp.zeros_like, y)
 
 
-def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings) -> Solution:
+def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings):
     """The motion with joint friction in segments (see the module docstring): to t1, or
-    with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0)."""
+    with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0).
+    Returns (the Solution without outputs, the tracked branch's saved link angles or None)."""
     first_rest = settings.standstill
     solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     slip_settings = settings._replace(standstill=True)
@@ -147,13 +148,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     valid = filled | ((jnp.arange(n) == jnp.sum(filled)) & past)
     saved = jax.tree.map(lambda z, z_end: jnp.where(_expand(filled, z), z, z_end), saved, y_end)
     t = jnp.where(filled, ts, end)
-    values = outputs(model, t, saved.q, saved.omega, settings, saved.branch)
-    return Solution(
-        t=t, q=saved.q, omega=saved.omega, **values, dissipated=saved.dissipated, work=saved.work, valid=valid,
+    sol = Solution(
+        t=t, q=saved.q, omega=saved.omega, **no_outputs(), dissipated=saved.dissipated, work=saved.work, valid=valid,
         t_final=end, q_final=y_end.q, omega_final=y_end.omega,
         t_stop=jnp.where(event >= 0, end, jnp.inf), event=event, failed_group_index=failed,
         result=result, num_steps=steps,
     )
+    return sol, saved.branch
 
 
 def _expand(mask, like):
