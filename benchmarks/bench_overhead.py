@@ -84,11 +84,18 @@ def _program_args(aj, scene, kw):
     return (model, *(np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1)), None, step, settings, table)
 
 
+_PARTS = {}  # id(model) -> the model split as simulate splits it, once (simulate keeps it per prepared call)
+
+
 def _programs(solve, args):
-    """What simulate runs for one start: the integration, then the outputs (two programs
-    since the split), or the one program of earlier revisions."""
+    """What simulate runs for one start: the integration, then the end checks and outputs
+    (two programs since they are compiled side by side), or the one program of earlier revisions."""
     if hasattr(solve, "_integrate_jit"):
-        return solve._outputs_jit(args[0], *solve._integrate_jit(*args), args[7])
+        from assurjax._jit import split_arrays
+
+        model, rest = args[0], args[1:]
+        parts = _PARTS.setdefault(id(model), split_arrays(model))
+        return solve._outputs_jit(*parts, *solve._integrate_jit(*parts, *rest), rest[6])
     return solve._core_jit(*args)
 
 
