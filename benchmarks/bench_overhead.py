@@ -95,7 +95,7 @@ def _programs(solve, args):
 
         model, rest = args[0], args[1:]
         parts = _PARTS.setdefault(id(model), split_arrays(model))
-        return solve._outputs_jit(*parts, *solve._integrate_jit(*parts, *rest), rest[6])
+        return solve._finished_jit(*parts, *solve._integrate_jit(*parts, *rest), rest[6])
     return solve._core_jit(*args)
 
 

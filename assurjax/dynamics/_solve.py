@@ -19,7 +19,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of
-from .._jit import Static, checks_without_callbacks, combine, compile_side_by_side, jit, jit_arrays, split_arrays
+from .._jit import Static, checks_without_callbacks, combine, compile_side_by_side, jit_arrays, split_arrays
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
@@ -30,7 +30,7 @@ from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import Solution, replaced, any_outputs, batch_summary, no_outputs, outputs, to_host, trim, with_outputs
+from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim, with_outputs
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -294,7 +294,6 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
     return solution, near, checks
 
 
-_core_jit = jit(_core)
 # simulate()'s two programs (see _Prepared.run), on the model split by split_arrays
 def _integrate_split(arrays, rest: Static, *args):
     return _integrate(combine(arrays, rest), *args)
@@ -305,7 +304,7 @@ def _finished_split(arrays, rest: Static, *args):
 
 
 _integrate_jit = jit_arrays(_integrate_split, static_argnums=(1, 8))
-_outputs_jit = jit_arrays(_finished_split, static_argnums=(1, 5))
+_finished_jit = jit_arrays(_finished_split, static_argnums=(1, 5))
 
 
 # ---------------------------------------------------------------------------- user-facing
@@ -488,7 +487,7 @@ class _Prepared:
         the integration, then the end checks and the outputs at the saved states, compiled
         side by side on the first call of a signature (the Watt six-bar's first call 2.6 ->
         1.8 s on two cores, against one program holding both)."""
-        integrate, finish = (_integrate_jit, _outputs_jit) if batch is None else (_batch_integrate_jit, _batch_outputs_jit)
+        integrate, finish = (_integrate_jit, _finished_jit) if batch is None else (_batch_integrate_jit, _batch_finished_jit)
         if self._model_parts is None:
             object.__setattr__(self, "_model_parts", split_arrays(self.model))  # once per prepared call
         parts, settings = self._model_parts, args[6]
@@ -570,13 +569,13 @@ def _batch_integrate(arrays, rest: Static, q0, omega0, t0, t1, ts, dt, settings,
     return jax.vmap(lambda q, w: _integrate(model, q, w, t0, t1, ts, dt, settings, table))(q0, omega0)
 
 
-def _batch_outputs(arrays, rest: Static, sols, branch, checks, settings):
+def _batch_finished(arrays, rest: Static, sols, branch, checks, settings):
     model = combine(arrays, rest)
     return jax.vmap(lambda sol, b, c: _finished(model, sol, b, c, settings))(sols, branch, checks)
 
 
 _batch_integrate_jit = jit_arrays(_batch_integrate, static_argnums=(1, 8))
-_batch_outputs_jit = jit_arrays(_batch_outputs, static_argnums=(1, 5))
+_batch_finished_jit = jit_arrays(_batch_finished, static_argnums=(1, 5))
 
 
 def _check_save_steps(settings: Settings, model: Model, batch) -> None:
