@@ -3,11 +3,18 @@ both reject a bad value with the same words (the caller adds where the value is)
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 # No quantity of a planar linkage in SI units comes near this; beyond it float64 arithmetic
 # on the values (squared lengths, energies, Newton residuals) stops meaning anything.
 MAGNITUDE_LIMIT = 1e12
+
+
+def all_finite(tree) -> jax.Array:
+    """True where every value in the pytree is finite (traced: for use inside jit)."""
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves(tree)]))
 
 
 def concrete(x) -> np.ndarray | None:

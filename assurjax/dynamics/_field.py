@@ -30,6 +30,7 @@ from .._loads import dissipated_power
 from .._model import Model
 from .._reduction import reduce_coefficients, reduce_with_kinematics, reduced_acceleration
 from .._tracking import branch_mapping, branch_rates, stacked_branch
+from .._values import all_finite
 from ._table import ReducedTable
 
 
@@ -80,7 +81,7 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
         return _rates(t, y, args)[0]
     # A stage after one that met NaN is evaluated at a finite state and its NaN put back:
     # reverse mode through a rejected step then meets no NaN derivative (0 * NaN).
-    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves(y)]))
+    finite = all_finite(y)
     rates, ok = _rates(t, jax.tree.map(lambda v: jnp.where(finite, v, 0.0), y), args)
     assembles = finite & jnp.all(ok)
     return jax.tree.map(lambda v: jnp.where(assembles, v, jnp.nan), rates)

@@ -17,7 +17,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
-from .._values import MAGNITUDE_LIMIT, concrete, value_problem
+from .._values import MAGNITUDE_LIMIT, all_finite, concrete, value_problem
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -330,7 +330,7 @@ def _met_unassembled(y1_candidate, y_error):
     """True where a step met NaN: at its end or in a stage (the error estimate holds
     them all, the last one at the step's end included). Any state: the backward solve of
     ``adjoint='backsolve'`` steps an augmented one with these controllers too."""
-    return ~jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree.leaves((y1_candidate, y_error))]))
+    return ~all_finite((y1_candidate, y_error))
 
 
 def _located(t0, t1, y0, met, shortest=0.0):

@@ -103,16 +103,6 @@ def no_outputs() -> dict:
     return dict(domega=None, kinetic=None, potential=None, total=None, points={}, angles={})
 
 
-def with_outputs(model: Model, sol: Solution, branch, settings: Settings) -> Solution:
-    """``sol`` (its output fields empty) with the outputs the settings ask for, computed
-    at its saved states. ``branch``: the tracked branch's saved link angles, stacked
-    (None: the fixed modes). Kept apart from the integration so that :func:`simulate`
-    can compile the two as programs of their own, side by side."""
-    if not any_outputs(settings):
-        return sol
-    return replaced(sol, **outputs(model, sol.t, sol.q, sol.omega, settings, branch))
-
-
 def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool = False) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import diffrax
 import equinox as eqx
@@ -30,7 +31,7 @@ from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim, with_outputs
+from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim
 from ._stick import stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -82,14 +83,14 @@ def _core(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table) -
     return _finished(model, *_integrate(model, q0, omega0, t0, t1, ts, dt, settings, table), settings)
 
 
-class EndChecks(eqx.Module):
-    """The states whose assembly decides how a run ended: just past the final state, the
-    final state, the start (rows of ``q`` and ``branch``, the tracked branch's stacked
-    link angles or None). :func:`_finished` checks them with the outputs' analysis."""
+class EndChecks(NamedTuple):
+    """The states whose assembly decides how a run of the lock-up controller ended: just
+    past the final state, the final state, the start (rows of ``q`` and ``branch``, the
+    tracked branch's stacked link angles or None). :func:`_finished` checks them with the
+    outputs' analysis."""
 
     q: jax.Array
     branch: jax.Array | None
-    lockup: bool = eqx.field(static=True)  # a run the lock-up controller may have ended at a lock-up
 
 
 def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table):
@@ -107,7 +108,7 @@ def _finished(model: Model, sol: Solution, branch, checks: EndChecks | None, set
     """The Solution of :func:`_integrate` with its end checks made and its outputs: the
     checked states ride as extra rows on the outputs' vmapped analysis."""
     if checks is None:
-        return with_outputs(model, sol, branch, settings)
+        return replaced(sol, **outputs(model, sol.t, sol.q, sol.omega, settings, branch)) if any_outputs(settings) else sol
     mechanism = model.mechanism
     if any_outputs(settings):
         n = checks.q.shape[0]  # the checked rows' t and w only feed outputs that are dropped
@@ -120,7 +121,7 @@ def _finished(model: Model, sol: Solution, branch, checks: EndChecks | None, set
         values = {}
         ok = jax.vmap(lambda q, b: assembled(mechanism, q, near=branch_mapping(mechanism, b)))(checks.q, checks.branch)
     ok_final = ok[0] & ok[1]
-    event, result = lockup_found(sol.event, sol.result, ok_final) if checks.lockup else (sol.event, sol.result)
+    event, result = lockup_found(sol.event, sol.result, ok_final)
     failed = jnp.where((event == LOCKUP) & ~jnp.all(ok_final), jnp.argmin(ok_final), -1)
     ended = replaced(sol, **values, event=event, result=result, failed_group_index=failed,
                       t_stop=jnp.where(event >= 0, sol.t_final, jnp.inf))
@@ -281,7 +282,7 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
     if settings.check_assembly:  # just past the end, at the end, at the start
         _, q_checked, _, branch_checked = checked_states(t0, y0, t_final, q_final, w_final,
                                                          None if ys.branch is None else ys.branch[last])
-        checks = EndChecks(q_checked, branch_checked, lockup=args.nan_unassembled)
+        checks = EndChecks(q_checked, branch_checked)  # checked assembly: the lock-up controller steps (args.nan_unassembled)
     event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
     solution = Solution(
         t=t, q=q, omega=w, **no_outputs(),
@@ -467,9 +468,9 @@ class _Prepared:
     scene: object | None  # the Scene (its [state] is read per call), or None for a Model or Mechanism
     settings: Settings  # validated; max_steps and the reduction are resolved per call
     budget_per_span: bool  # max_steps from the time span (neither the keyword nor the scene sets it)
+    model_parts: tuple  # split_arrays(model): the programs' first two arguments
     _resolutions: dict = dataclasses.field(default_factory=dict)
-    _compiled: set = dataclasses.field(default_factory=set)  # signatures of the calls compiled (see run)
-    _model_parts: tuple | None = None  # split_arrays(model), made on the first run
+    _compiled: set = dataclasses.field(default_factory=set)  # signatures compiled side by side (see run)
 
     def resolved(self, table, batch, max_steps: int):
         """(settings with max_steps and the reduction resolved, the table or None): the
@@ -488,9 +489,9 @@ class _Prepared:
         side by side on the first call of a signature (the Watt six-bar's first call 2.6 ->
         1.8 s on two cores, against one program holding both)."""
         integrate, finish = (_integrate_jit, _finished_jit) if batch is None else (_batch_integrate_jit, _batch_finished_jit)
-        if self._model_parts is None:
-            object.__setattr__(self, "_model_parts", split_arrays(self.model))  # once per prepared call
-        parts, settings = self._model_parts, args[6]
+        parts, settings = self.model_parts, args[6]
+        # what shapes the programs besides the prepared model (a signature missed here is not
+        # wrong, only compiled one program after the other by the calls themselves)
         signature = (batch, None if args[4] is None else args[4].shape, args[5] is None, args[7] is None, settings)
         if signature not in self._compiled:
             compile_side_by_side(integrate, (*parts, *args), finish, lambda out: (*parts, *out, settings))
@@ -505,7 +506,7 @@ def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
                                                "check_assembly": bool(options["check_assembly"])})
     _check_outputs(model.mechanism, settings)
     budget_per_span = options["max_steps"] is None and "max_steps" not in simulation_table(scene_or_none)
-    return _Prepared(model, scene_or_none, settings, budget_per_span)
+    return _Prepared(model, scene_or_none, settings, budget_per_span, split_arrays(model))
 
 
 _PREPARED = CallCache()

@@ -22,6 +22,7 @@ import optax
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import jit
 from .._structure import by_structure
+from .._values import all_finite
 from ._design import Design
 
 STATUSES = ("steps", "target", "converged", "infeasible")
@@ -144,7 +145,7 @@ class _Problem(eqx.Module):
     def evaluate(self, z, params):
         """Loss, gradient (w.r.t. z), acceptability and aux at z (a non-finite gradient is not acceptable)."""
         (loss, (ok, aux)), grad = jax.value_and_grad(self.loss_and_aux, has_aux=True)(z, params)
-        ok = ok & _all_finite(grad)
+        ok = ok & all_finite(grad)
         grad = jax.tree.map(lambda g: jnp.where(ok, g, 0.0), grad)
         return jnp.where(ok, loss, jnp.inf), grad, ok, aux
 
@@ -176,10 +177,6 @@ def _finite_cotangent_bwd(_, g):
 
 
 _finite_cotangent.defvjp(_finite_cotangent_fwd, _finite_cotangent_bwd)
-
-
-def _all_finite(tree) -> jax.Array:
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
 
 
 def _norm(tree) -> jax.Array:
