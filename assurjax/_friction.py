@@ -208,6 +208,13 @@ def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:
     return out
 
 
+def _combination(u, basis):
+    """sum_k u_k basis[k] as a chain of products and sums (K is small): XLA fuses it with its
+    neighbours, where a dot this small is a call of its own (~0.3 us on a CPU, one per pair
+    at each Newton step), and vmapped it stays elementwise."""
+    return sum(u[k] * basis[k] for k in range(u.shape[0]))
+
+
 def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
     """Friction values u with u = law(reactions(u)): Newton's method (optimistix) on the
     K values, the reactions being affine in u (linearized once: ``react(u)`` ->
@@ -223,8 +230,8 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
 
     def law(u):
-        forces = jax.tree.map(lambda f0, b: f0 + jnp.tensordot(u, b, axes=1), forces0, basis[0])
-        couples = jax.tree.map(lambda c0, b: c0 + jnp.tensordot(u, b, axes=1), couples0, basis[1])
+        forces = jax.tree.map(lambda f0, b: f0 + _combination(u, b), forces0, basis[0])
+        couples = jax.tree.map(lambda c0, b: c0 + _combination(u, b), couples0, basis[1])
         limits = jnp.stack([f.limit(mechanism, kin, forces, couples) for f in frictions])
         return -limits * signs - viscous
 
