@@ -3,8 +3,11 @@
 With friction every right-hand side linearizes the kinetostatics once and solves the
 friction values by Newton's method (see assurjax/_friction.py); the target is at most
 2x the cost of a frictionless step. Measured per right-hand-side evaluation (the
-vector field alone, jitted, vmapped over 256 states so that dispatch does not count),
-and per simulation (the user's call ``assurjax.simulate``: steps, time, time per step).
+vector field alone, jitted): vmapped over 256 states (a batch, as in a sweep), and one
+state after another inside one program (as a simulation's steps call it: there every
+small operation is a call of its own, and a while loop's iterations cost more than their
+arithmetic); and per simulation (the user's call ``assurjax.simulate``: steps, time,
+time per step).
 
     python benchmarks/bench_friction.py            # writes results/friction.json
 """
@@ -46,6 +49,20 @@ def per_evaluation(scene, loads, n=256) -> float:
     return best_time(lambda: field(q, w)) / n
 
 
+def per_serial_evaluation(scene, loads, n=1000) -> float:
+    """Seconds per right-hand-side evaluation, n evaluations one after another in one program
+    (each state depends on the last result, as the stages of a step do)."""
+    args = field_args(assurjax.Model(scene.mechanism, scene.gravity, loads))
+    args = args.__class__(model=args.model, table=None, direction=jnp.asarray(1.0), q0=args.q0, user_signs=())
+
+    def run(q):
+        body = lambda i, acc: acc + vector_field(0.0, State(q + 2e-3 * i, 1.5 + 1e-9 * acc), args).omega  # noqa: E731
+        return jax.lax.fori_loop(0, n, body, jnp.zeros(()))
+
+    loop, q = jax.jit(run), jnp.asarray(0.3)
+    return best_time(lambda: loop(q)) / n
+
+
 def per_simulation(scene, loads, q0, t1) -> dict:
     kwargs = dict(loads=loads, q0=q0, stop=None, t1=t1, rtol=1e-8, atol=1e-8)
     start = time.perf_counter()
@@ -65,8 +82,11 @@ def main():
         scene = assurjax.load_scene(name)
         rough = scene.loads + frictions(scene.mechanism)
         case = dict(rhs_us=1e6 * per_evaluation(scene, scene.loads), rhs_friction_us=1e6 * per_evaluation(scene, rough),
+                    rhs_serial_us=1e6 * per_serial_evaluation(scene, scene.loads),
+                    rhs_friction_serial_us=1e6 * per_serial_evaluation(scene, rough),
                     simulate=per_simulation(scene, scene.loads, q0, t1), simulate_friction=per_simulation(scene, rough, q0, t1))
         case["rhs_ratio"] = case["rhs_friction_us"] / case["rhs_us"]
+        case["rhs_serial_ratio"] = case["rhs_friction_serial_us"] / case["rhs_serial_us"]
         case["step_ratio"] = case["simulate_friction"]["us_per_step"] / case["simulate"]["us_per_step"]
         out["cases"][name] = case
         print(name, json.dumps(case, indent=1))

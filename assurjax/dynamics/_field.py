@@ -216,8 +216,10 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     if not frictions_of(model.loads):
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
-    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.stack([jnp.sign(y.omega), 1.0, -1.0]), bridge)
-    moving, a_plus, a_minus = a[0], jnp.where(consistent[1], a[1], 0.0), jnp.where(consistent[2], a[2], 0.0)
+    # moving, the friction of its direction; at rest, of the direction it breaks away in
+    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.array([1.0, -1.0]), bridge)
+    moving = jnp.where(y.omega > 0, a[0], a[1])
+    a_plus, a_minus = jnp.where(consistent[0], a[0], 0.0), jnp.where(consistent[1], a[1], 0.0)
     at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
     return jnp.where(y.omega != 0, moving, at_rest), red, kin
 
