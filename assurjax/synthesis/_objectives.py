@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
@@ -156,7 +157,8 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
     targets = center + jnp.linspace(-0.5, 0.5, samples) * stroke
     guess, bracketed = _bracket_on_branch(mechanism, point, q0, targets, *search)
     frozen, fixed_targets = jax.lax.stop_gradient((mechanism, targets))
-    x_of = lambda q, t: positions(frozen, q, points=(point,)).points[point][0] - t  # noqa: E731
+    # one point wanted: fused loops that re-derive the groups compile to fewer kernels (materialize=False)
+    x_of = lambda q, t: positions(frozen, q, points=(point,), materialize=False).points[point][0] - t  # noqa: E731
     solver = optx.Newton(rtol=1e-12, atol=1e-13)
     sol = jax.vmap(lambda g, t: optx.root_find(x_of, solver, g, args=t, max_steps=32, throw=False))(guess, fixed_targets)
     root = jax.lax.stop_gradient(sol.value)
@@ -165,11 +167,17 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
     # theorem, dq = -(dx/dtheta) / (dx/dq)), with no checked linear solve (no host callback) in the
     # differentiated program. The point and its slope dP/dq at the root come from one jvp; the
     # point at the stepped q is P(root) + dP/dq (q - root), exact to first order in the ~1e-13 step.
-    def at_root(r):
-        pose, dpose = jax.jvp(lambda s: positions(mechanism, s, points=(point,)), (r,), (jnp.ones_like(r),))
+    # The mechanism's parameters go in as one flat vector per sample: the gradient then sums them
+    # over the samples in one reduction, not one per scalar parameter (each a few compiled kernels).
+    params, rest = eqx.partition(mechanism, eqx.is_inexact_array)
+    flat, unravel = ravel_pytree(params)
+
+    def at_root(f, r):
+        at = lambda s: positions(eqx.combine(unravel(f), rest), s, points=(point,), materialize=False)  # noqa: E731
+        pose, dpose = jax.jvp(at, (r,), (jnp.ones_like(r),))
         return pose.points[point], jax.lax.stop_gradient(dpose.points[point]), jnp.all(pose.ok)
 
-    p_root, slope, assembled = jax.vmap(at_root)(root)
+    p_root, slope, assembled = jax.vmap(at_root)(jnp.broadcast_to(flat, (samples, flat.size)), root)
     miss = p_root[:, 0] - targets
     dx = jnp.where(slope[:, 0] == 0, 1.0, slope[:, 0])
     step = -miss / dx
