@@ -222,9 +222,11 @@ def _bracket_on_branch(mechanism, point, q0, targets, half_width, n):
     direction = jnp.sign(dx[i0])
     good = ok[:-1] & ok[1:] & (dx * direction > 0)
     idx = jnp.arange(n - 1)
-    right = jnp.cumprod(jnp.where(idx >= i0, good, True))
-    left = jnp.cumprod(jnp.where(idx <= i0, good, True)[::-1])[::-1]
-    on_branch = jnp.where(idx >= i0, right, left).astype(bool)
+    # the stretch between the nearest bad intervals on either side of i0 (two reductions: a
+    # cumulative product compiles to several times more kernels)
+    first_bad = jnp.min(jnp.where(~good & (idx >= i0), idx, n - 1))
+    last_bad = jnp.max(jnp.where(~good & (idx <= i0), idx, -1))
+    on_branch = (idx > last_bad) & (idx < first_bad)
 
     def one(target):
         lo, hi = jnp.minimum(xs[:-1], xs[1:]), jnp.maximum(xs[:-1], xs[1:])
