@@ -165,19 +165,9 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
 
     # The root is found without gradients; one Newton step from it carries them (implicit function
     # theorem, dq = -(dx/dtheta) / (dx/dq)), with no checked linear solve (no host callback) in the
-    # differentiated program. The point and its slope dP/dq at the root come from one jvp; the
-    # point at the stepped q is P(root) + dP/dq (q - root), exact to first order in the ~1e-13 step.
-    # The mechanism's parameters go in as one flat vector per sample: the gradient then sums them
-    # over the samples in one reduction, not one per scalar parameter (each a few compiled kernels).
-    params, rest = eqx.partition(mechanism, eqx.is_inexact_array)
-    flat, unravel = ravel_pytree(params)
-
-    def at_root(f, r):
-        at = lambda s: positions(eqx.combine(unravel(f), rest), s, points=(point,), materialize=False)  # noqa: E731
-        pose, dpose = jax.jvp(at, (r,), (jnp.ones_like(r),))
-        return pose.points[point], jax.lax.stop_gradient(dpose.points[point]), jnp.all(pose.ok)
-
-    p_root, slope, assembled = jax.vmap(at_root)(jnp.broadcast_to(flat, (samples, flat.size)), root)
+    # differentiated program. The point and its slope dP/dq at the root come from one jvp (_at_roots);
+    # the point at the stepped q is P(root) + dP/dq (q - root), exact to first order in the ~1e-13 step.
+    p_root, slope, assembled = _at_roots(mechanism, point, root)
     miss = p_root[:, 0] - targets
     dx = jnp.where(slope[:, 0] == 0, 1.0, slope[:, 0])
     step = -miss / dx
@@ -185,6 +175,44 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
     pts = p_root + slope * step[:, None]
     converged = (sol.result == optx.RESULTS.successful) & (jnp.abs(jax.lax.stop_gradient(miss)) < 1e-9) & (slope[:, 0] != 0)
     return q, pts, jnp.all(bracketed & converged & assembled)
+
+
+def _at_roots(mechanism, point, roots):
+    """The point, its slope dP/dq (no gradient) and whether it assembles at each root (no gradient).
+
+    The gradient of the point with respect to the mechanism's parameters is taken in forward mode
+    (one vectorised jvp per parameter, with the slope) and applied in the custom vjp: the same
+    derivatives, but a reverse pass through the position analysis compiles to several times more
+    kernels (seconds in a program that holds the objective's gradient several times)."""
+    params, rest = eqx.partition(mechanism, eqx.is_inexact_array)
+    flat, unravel = ravel_pytree(params)
+
+    def at(f, s):
+        pose = positions(eqx.combine(unravel(f), rest), s, points=(point,), materialize=False)
+        return pose.points[point], jnp.all(pose.ok)
+
+    def primal(f, r):
+        (p, ok), (dp, _) = jax.jvp(lambda s: at(f, s), (r,), (jnp.ones_like(r),))
+        return p, dp, ok
+
+    @jax.custom_vjp
+    def at_roots(f, r):
+        return jax.vmap(primal, in_axes=(None, 0))(f, r)
+
+    def at_roots_fwd(f, r):
+        def with_value(f, s):
+            p, ok = at(f, s)
+            return p, (p, ok)
+
+        (jac, slope), (p, ok) = jax.vmap(jax.jacfwd(with_value, argnums=(0, 1), has_aux=True), in_axes=(None, 0))(f, r)
+        return (p, slope, ok), jac
+
+    def at_roots_bwd(jac, cotangents):
+        return jnp.einsum("si,sin->n", cotangents[0], jac), jnp.zeros(jac.shape[0], jac.dtype)
+
+    at_roots.defvjp(at_roots_fwd, at_roots_bwd)
+    p, slope, ok = at_roots(flat, jax.lax.stop_gradient(roots))
+    return p, jax.lax.stop_gradient(slope), ok
 
 
 def _line_residuals(x, y):
