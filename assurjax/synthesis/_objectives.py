@@ -143,9 +143,10 @@ def straight_line_deviation(
         extremes = jnp.concatenate([r, -r])[None]
     # the scale is differentiated too (no stop_gradient), so the gradient of `smooth` is the
     # derivative of its value (a stopped scale is off by up to ~log(samples)/p, a few per cent)
-    sharpness = p / (jnp.max(jnp.abs(r)) + 1e-300)
+    highest = jnp.max(extremes, axis=1)  # max r and max -r (given line: max |r|); max |r| is their max
+    sharpness = p / (jnp.max(highest) + 1e-300)
     smooth = jnp.mean(jax.vmap(lambda e: smooth_max(e, sharpness))(extremes))
-    deviation = jnp.mean(jnp.max(extremes, axis=1))
+    deviation = jnp.mean(highest)
     return StraightLine(deviation=deviation, smooth=smooth, x=x, y=y, q=q, residuals=r, ok=ok)
 
 
@@ -217,9 +218,11 @@ def _at_roots(mechanism, point, roots):
 
 def _line_residuals(x, y):
     """Signed perpendicular distances from the least-squares line y = a + b x."""
-    xm, ym = jnp.mean(x), jnp.mean(y)
-    b = jnp.sum((x - xm) * (y - ym)) / jnp.sum((x - xm) ** 2)
-    return ((y - ym) - b * (x - xm)) / jnp.sqrt(1.0 + b**2)
+    # sums side by side: each reduction over the samples compiles to a few kernels
+    d = jnp.stack([x, y], axis=1) - jnp.mean(jnp.stack([x, y], axis=1), axis=0)
+    sxx, sxy = jnp.sum(d[:, :1] * d, axis=0)
+    b = sxy / sxx
+    return (d[:, 1] - b * d[:, 0]) / jnp.sqrt(1.0 + b**2)
 
 
 def _given_line_residuals(x, y, line):
