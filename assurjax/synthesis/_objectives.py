@@ -156,8 +156,10 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
     if center is None:
         center = positions(mechanism, q0, points=(point,)).points[point][0]
     targets = center + jnp.linspace(-0.5, 0.5, samples) * stroke
-    guess, bracketed = _bracket_on_branch(mechanism, point, q0, targets, *search)
+    # no gradient into the search: the root carries none (below), and a guess with a tangent would
+    # make JAX trace optimistix's implicit derivative only to discard it
     frozen, fixed_targets = jax.lax.stop_gradient((mechanism, targets))
+    guess, bracketed = _bracket_on_branch(frozen, point, q0, fixed_targets, *search)
     # one point wanted: fused loops that re-derive the groups compile to fewer kernels (materialize=False)
     x_of = lambda q, t: positions(frozen, q, points=(point,), materialize=False).points[point][0] - t  # noqa: E731
     solver = optx.Newton(rtol=1e-12, atol=1e-13)
