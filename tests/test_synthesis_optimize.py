@@ -125,6 +125,8 @@ def test_straight_line_gradients_match_differences(case):
     grad = np.asarray(jax.jit(jax.grad(f))(jnp.asarray(v0)))
     fd = _central(jax.jit(f), v0, 1e-6)
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-9)
+    if case == "best line by x":  # forward mode too (the coupler point at the roots has a rule of its own)
+        np.testing.assert_allclose(np.asarray(jax.jit(jax.jacfwd(f))(jnp.asarray(v0))), fd, rtol=1e-5, atol=1e-9)
 
 
 def test_other_objective_gradients_match_differences():

@@ -181,12 +181,13 @@ def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):
 
 
 def _at_roots(mechanism, point, roots):
-    """The point, its slope dP/dq (no gradient) and whether it assembles at each root (no gradient).
+    """The point, its slope dP/dq (no derivative) and whether it assembles, at each root (no derivative).
 
-    The gradient of the point with respect to the mechanism's parameters is taken in forward mode
-    (one vectorised jvp per parameter, with the slope) and applied in the custom vjp: the same
-    derivatives, but a reverse pass through the position analysis compiles to several times more
-    kernels (seconds in a program that holds the objective's gradient several times)."""
+    The point's derivative with respect to the mechanism's parameters is taken in forward mode
+    (one vectorised jacfwd over the flat parameters, with the slope) in a custom jvp: reverse mode
+    transposes only its final product, where a reverse pass through the position analysis
+    compiles to several times more kernels (seconds in a program that holds the objective's
+    gradient several times); forward mode keeps working."""
     params, rest = eqx.partition(mechanism, eqx.is_inexact_array)
     flat, unravel = ravel_pytree(params)
 
@@ -194,26 +195,26 @@ def _at_roots(mechanism, point, roots):
         pose = positions(eqx.combine(unravel(f), rest), s, points=(point,), materialize=False)
         return pose.points[point], jnp.all(pose.ok)
 
-    def primal(f, r):
-        (p, ok), (dp, _) = jax.jvp(lambda s: at(f, s), (r,), (jnp.ones_like(r),))
+    def one(f, s):
+        (p, ok), (dp, _) = jax.jvp(lambda s: at(f, s), (s,), (jnp.ones_like(s),))
         return p, dp, ok
 
-    @jax.custom_vjp
+    @jax.custom_jvp
     def at_roots(f, r):
-        return jax.vmap(primal, in_axes=(None, 0))(f, r)
+        return jax.vmap(one, in_axes=(None, 0))(f, r)
 
-    def at_roots_fwd(f, r):
+    @at_roots.defjvp
+    def at_roots_jvp(primals, tangents):
+        (f, r), (df, dr) = primals, tangents
+
         def with_value(f, s):
             p, ok = at(f, s)
             return p, (p, ok)
 
         (jac, slope), (p, ok) = jax.vmap(jax.jacfwd(with_value, argnums=(0, 1), has_aux=True), in_axes=(None, 0))(f, r)
-        return (p, slope, ok), jac
+        dp = jnp.einsum("sin,n->si", jac, df) + slope * dr[:, None]
+        return (p, slope, ok), (dp, jnp.zeros_like(slope), np.zeros(ok.shape, dtype=jax.dtypes.float0))
 
-    def at_roots_bwd(jac, cotangents):
-        return jnp.einsum("si,sin->n", cotangents[0], jac), jnp.zeros(jac.shape[0], jac.dtype)
-
-    at_roots.defvjp(at_roots_fwd, at_roots_bwd)
     p, slope, ok = at_roots(flat, jax.lax.stop_gradient(roots))
     return p, jax.lax.stop_gradient(slope), ok
 
