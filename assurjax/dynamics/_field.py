@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._jit import jit
 from .._friction import friction_wrenches, frictions_of, solve_friction
+from .._jit import jit
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
