@@ -252,11 +252,11 @@ def _simulate(scene, samples: int):
 
 
 def _with_solver_steps(scene) -> bool:
-    """Outputs at the solver's own steps as well as the grid (not for stick-slip motions,
-    integrated in segments)."""
+    """Outputs at the solver's own steps as well as the grid (not with joint friction: its
+    motion is integrated in segments, to t1 or to the first rest alike)."""
     from ._friction import frictions_of
 
-    return not frictions_of(scene.loads) or scene.simulation.get("stop") == "standstill"
+    return not frictions_of(scene.loads)
 
 
 def _reactions_along(scene, sol, joints):

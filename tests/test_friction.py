@@ -192,6 +192,42 @@ def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     assert np.all(held.q == scene.state["q0"]) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
 
 
+def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band(write_scene):
+    """The hanging arm held at rest at angle theta (omega = alpha = 0): gravity's moment about
+    the pivot is -m g l_G cos(theta), the pin carries m g, and any drive within the friction
+    limit mu r m g of balancing it keeps the arm at rest: the least drive is 0 inside that band,
+    the excess beyond it outside (closed form). At the start of a motion (omega = 0,
+    alpha != 0) the friction is that of the motion that starts."""
+    scene = aj.load_scene(write_scene(HANGING))
+    model = aj.Model(scene.mechanism, scene.gravity, tuple(load for load in scene.loads if not isinstance(load, aj.Drive)))
+    m, g, l_g, limit = 2.0, 9.81, 0.15, 0.3 * 0.04 * 2.0 * 9.81
+    theta = np.array([-math.pi / 2 + 0.05, -math.pi / 2 - 0.07, -math.pi / 2 + 0.3, 0.3, math.pi - 0.3, -0.2])
+    r = aj.reactions(model, (theta, np.zeros_like(theta), np.zeros_like(theta)))
+    gravity = -m * g * l_g * np.cos(theta)
+    expected = -np.sign(gravity) * np.maximum(np.abs(gravity) - limit, 0.0)
+    assert np.count_nonzero(expected == 0.0) == 2
+    np.testing.assert_allclose(r.driving, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r["O"], np.broadcast_to([0.0, m * g], (theta.size, 2)), rtol=0, atol=1e-12)
+    # breaking away (alpha > 0 from rest at theta = -pi/2 + 0.3): kinetic friction against the start
+    alpha, inertia = 2.0, 0.015 + m * l_g**2
+    start = aj.reactions(model, (theta[2:3], np.zeros(1), np.full(1, alpha)))
+    pin = np.hypot(m * l_g * alpha * np.sin(theta[2]), m * g + m * l_g * alpha * np.cos(theta[2]))  # |m (a_G - g)|
+    np.testing.assert_allclose(start.driving, inertia * alpha - gravity[2] + 0.3 * 0.04 * pin, rtol=1e-12)
+
+
+def test_a_mechanism_held_by_friction_needs_no_drive(slider, rough):
+    """Where the rough slider-crank has come to rest and the friction holds it (the forward
+    dynamics' stiction test), the inverse dynamics at those states needs no drive either."""
+    scene = slider.model
+    model = aj.Model(scene.mechanism, scene.gravity, frictions(scene.mechanism, MU, 1e-3))
+    held = (rough.omega == 0.0) & (rough.t > 0.5)
+    assert np.count_nonzero(held) > 10
+    r = aj.reactions(model, (rough.q[held], rough.omega[held], rough.domega[held]))
+    np.testing.assert_allclose(r.driving, 0.0, atol=1e-12)
+    bare = aj.reactions(aj.Model(scene.mechanism, scene.gravity, ()), (rough.q[held], rough.omega[held], rough.domega[held]))
+    assert np.min(np.abs(bare.driving)) > 1e-3  # without friction it would take a drive to stay there
+
+
 def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     """Along the rough motion the driving effort needed is zero (there is no drive), and
     the reactions put friction on every pair: the frictionless reactions differ."""

@@ -157,9 +157,12 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     """Reactions at one state from the kinematic coefficients (order 2) the dynamics
     already computed: (forces, couples, driving effort, ok per group). Affine in the
     driving acceleration ``alpha`` (d'Alembert forces are linear in it) and in the
-    friction values, which are solved for first when the model has joint friction
-    (their signs follow omega; at rest they are zero: static friction is not
-    determined by the motion)."""
+    friction values, which are solved for first when the model has joint friction:
+    their signs follow omega, at rest those of the motion that starts (sign(alpha): the
+    right limit the dynamics integrates). Held at rest (omega = alpha = 0), any drive
+    between the two break-away limits keeps the mechanism there: the one nearest 0 is
+    reported, with the friction values between those of the two limits in proportion
+    (how static friction shares out between the pairs is not determined by statics)."""
     kin = coeffs.kinematics(omega, alpha)
     frictions = frictions_of(model.loads)
     if not frictions:
@@ -171,7 +174,18 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         forces, couples, _, _ = from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
         return forces, couples
 
-    u, _ = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * jnp.sign(omega), omega)
+    def effort(u):
+        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[2]
+
+    # the friction of a motion each way (one vmapped solve); the effort is affine in u
+    u_plus, u_minus = jax.vmap(lambda d: solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega)[0])(
+        jnp.array([1.0, -1.0]))
+    tau_plus, tau_minus = effort(u_plus), effort(u_minus)
+    width = tau_minus - tau_plus  # <= 0: the band [tau_minus, tau_plus] holds it
+    share = jnp.clip(tau_minus / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
+    held = share * u_plus + (1.0 - share) * u_minus
+    direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
+    u = jnp.where(direction > 0, u_plus, jnp.where(direction < 0, u_minus, held))
     return from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
 
 
