@@ -6,6 +6,7 @@ checked against closed forms, the energy balance and the independent joint-based
 reference (tests/joint_reference.py)."""
 
 import csv
+import math
 import os
 import re
 import shutil
@@ -250,3 +251,51 @@ def test_installed_script_smoke(tmp_path):
     bad.write_text("[scene\n")
     done = subprocess.run([exe, "validate", str(bad)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "Traceback" not in done.stderr and "bad.toml" in done.stderr
+
+
+ROUGH_ARM = """
+[scene]
+name = "rough_arm"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+[links.arm]
+points = { O = [0.0, 0.0], A = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 2.0
+inertia = 0.015
+[[formation]]
+group = "crank"
+name = "arm"
+link = "arm"
+pivot = "O"
+[state]
+q0 = 0.0
+t1 = 3.0
+[simulation]
+stop = "standstill"
+[outputs]
+reactions = ["O"]
+energies = true
+[[loads]]
+type = "joint_friction"
+joint = "O"
+coefficient = 0.3
+radius = 0.04
+"""
+
+
+def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path):
+    """`assurjax run` on a scene with joint friction that stops at the first rest: the arm
+    released level swings down and up the other side; the balance closes with the friction's
+    work and the undriven motion needs no drive, its start (from rest) included."""
+    import json
+
+    out = tmp_path / "out"
+    assert main(["run", str(write_scene(ROUGH_ARM)), "--out", str(out), "--frames", "2", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    cols = read_csv(out / "solution.csv")
+    assert summary["t_stop"] == pytest.approx(cols["t"][-1]) and cols["q"][-1] < -math.pi / 2  # past the bottom
+    assert summary["energy_drift_J"] < 1e-6 * np.max(cols["T"])
+    assert np.min(cols["W"]) < -0.01  # the friction took energy
+    np.testing.assert_allclose(cols["driving"], 0.0, atol=1e-9)
