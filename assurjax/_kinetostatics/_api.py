@@ -170,17 +170,14 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     mechanism = model.mechanism
     rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
 
-    def react(u):
-        forces, couples, _, _ = from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
-        return forces, couples
-
-    def effort(u):
-        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[2]
+    def analysis(u):
+        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
 
     # the friction of a motion each way (one vmapped solve); the effort is affine in u
+    react = lambda u: analysis(u)[:2]  # noqa: E731
     u_plus, u_minus = jax.vmap(lambda d: solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega)[0])(
         jnp.array([1.0, -1.0]))
-    tau_plus, tau_minus = effort(u_plus), effort(u_minus)
+    tau_plus, tau_minus = analysis(u_plus)[2], analysis(u_minus)[2]
     width = tau_minus - tau_plus  # <= 0: the band [tau_minus, tau_plus] holds it
     share = jnp.clip(tau_minus / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     held = share * u_plus + (1.0 - share) * u_minus
