@@ -57,3 +57,25 @@ type = "rotary_damper"
 joint = "O4"
 coefficient = 2.0
 """
+
+# an arm (2 kg, 0.3 m, its COM 0.15 m out) on a rough pivot O (mu 0.3, pin radius 0.04 m);
+# a scene adds its [scene] header, [state] and any other loads
+ROUGH_ARM = """
+[ground]
+O = [0.0, 0.0]
+[links.arm]
+points = { O = [0.0, 0.0], A = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 2.0
+inertia = 0.015
+[[formation]]
+group = "crank"
+name = "arm"
+link = "arm"
+pivot = "O"
+[[loads]]
+type = "joint_friction"
+joint = "O"
+coefficient = 0.3
+radius = 0.04
+"""

@@ -22,6 +22,7 @@ from assurjax.cli import DEFAULT_SCENE, build_parser, main
 
 sys.path.insert(0, os.path.dirname(__file__))
 import joint_reference as jr  # noqa: E402
+from scene_texts import ROUGH_ARM  # noqa: E402
 
 
 def read_csv(path):
@@ -253,22 +254,10 @@ def test_installed_script_smoke(tmp_path):
     assert done.returncode == 2 and "Traceback" not in done.stderr and "bad.toml" in done.stderr
 
 
-ROUGH_ARM = """
+ROUGH_ARM_RUN = """
 [scene]
 name = "rough_arm"
 gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-[links.arm]
-points = { O = [0.0, 0.0], A = [0.3, 0.0] }
-com = [0.15, 0.0]
-mass = 2.0
-inertia = 0.015
-[[formation]]
-group = "crank"
-name = "arm"
-link = "arm"
-pivot = "O"
 [state]
 q0 = 0.0
 t1 = 3.0
@@ -277,12 +266,7 @@ stop = "standstill"
 [outputs]
 reactions = ["O"]
 energies = true
-[[loads]]
-type = "joint_friction"
-joint = "O"
-coefficient = 0.3
-radius = 0.04
-"""
+""" + ROUGH_ARM
 
 
 def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path):
@@ -292,7 +276,7 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path):
     import json
 
     out = tmp_path / "out"
-    assert main(["run", str(write_scene(ROUGH_ARM)), "--out", str(out), "--frames", "2", "--quiet"]) == 0
+    assert main(["run", str(write_scene(ROUGH_ARM_RUN)), "--out", str(out), "--frames", "2", "--quiet"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     cols = read_csv(out / "solution.csv")
     assert summary["t_stop"] == pytest.approx(cols["t"][-1]) and cols["q"][-1] < -math.pi / 2  # past the bottom

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import assurjax as aj
+from scene_texts import ROUGH_ARM
 
 MU, RADIUS, BLOCK = 0.2, 0.02, 0.05
 T1 = 2.0
@@ -136,30 +137,13 @@ HANGING = """
 [scene]
 name = "rough_pendulum"
 gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-[links.arm]
-points = { O = [0.0, 0.0], A = [0.3, 0.0] }
-com = [0.15, 0.0]
-mass = 2.0
-inertia = 0.015
-[[formation]]
-group = "crank"
-name = "arm"
-link = "arm"
-pivot = "O"
 [state]
 q0 = -1.5707963267948966
 t1 = 1.0
 [[loads]]
 type = "drive"
 value = { polynomial = [0.0, 0.5], variable = "t" }
-[[loads]]
-type = "joint_friction"
-joint = "O"
-coefficient = 0.3
-radius = 0.04
-"""
+""" + ROUGH_ARM
 
 
 def test_breakaway_at_the_static_limit(write_scene):
