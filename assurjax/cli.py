@@ -252,11 +252,10 @@ def _simulate(scene, samples: int):
 
 
 def _with_solver_steps(scene) -> bool:
-    """Outputs at the solver's own steps as well as the grid (not with joint friction: its
-    motion is integrated in segments, to t1 or to the first rest alike)."""
-    from ._friction import frictions_of
+    """Outputs at the solver's own steps as well as the grid, where simulate offers them."""
+    from .dynamics._solve import saves_solver_steps
 
-    return not frictions_of(scene.loads)
+    return saves_solver_steps(scene.loads)
 
 
 def _reactions_along(scene, sol, joints):
@@ -447,8 +446,6 @@ def _standstill_line(scene, sol) -> str:
 
 
 def cmd_run(args) -> int:
-    import numpy as np
-
     t0 = time.perf_counter()
     scene = _load(args.scene)
     load_time = time.perf_counter() - t0

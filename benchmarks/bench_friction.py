@@ -40,10 +40,14 @@ def frictions(mechanism, mu=0.2):
         assurjax.SlideFriction(j, mu, 0.05, viscous=1e-3) for j in names if "/" in j)
 
 
+def moving_args(scene, loads):
+    """The vector field's arguments for a motion in the + direction (no stop events)."""
+    return field_args(assurjax.Model(scene.mechanism, scene.gravity, loads), direction=1.0)
+
+
 def per_evaluation(scene, loads, n=256) -> float:
     """Seconds per right-hand-side evaluation (vmapped over n states)."""
-    args = field_args(assurjax.Model(scene.mechanism, scene.gravity, loads))
-    args = args.__class__(model=args.model, table=None, direction=jnp.asarray(1.0), q0=args.q0, user_signs=())
+    args = moving_args(scene, loads)
     field = assurjax.jit(jax.vmap(lambda q, w: vector_field(0.0, State(q, w), args).omega))
     q, w = jnp.linspace(0.3, 2.5, n), jnp.full(n, 1.5)
     return best_time(lambda: field(q, w)) / n
@@ -52,8 +56,7 @@ def per_evaluation(scene, loads, n=256) -> float:
 def per_serial_evaluation(scene, loads, n=1000) -> float:
     """Seconds per right-hand-side evaluation, n evaluations one after another in one program
     (each state depends on the last result, as the stages of a step do)."""
-    args = field_args(assurjax.Model(scene.mechanism, scene.gravity, loads))
-    args = args.__class__(model=args.model, table=None, direction=jnp.asarray(1.0), q0=args.q0, user_signs=())
+    args = moving_args(scene, loads)
 
     def run(q):
         body = lambda i, acc: acc + vector_field(0.0, State(q + 2e-3 * i, 1.5 + 1e-9 * acc), args).omega  # noqa: E731

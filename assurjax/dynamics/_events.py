@@ -109,10 +109,9 @@ def _just_past(q_final, w_final):
     return q_final + 1e-9 * (1.0 + jnp.abs(q_final)) * jnp.sign(w_final)
 
 
-def checked_states(t0, y0: State, t_final, q_final, w_final, branch_final):
-    """(t, q, w, stacked branch or None) of the states whose assembly a run checks: just
-    past the final state in the direction of motion, the final state, the start."""
+def checked_states(y0: State, q_final, w_final, branch_final):
+    """(q, stacked branch or None) of the states whose assembly a run checks: just past the
+    final state in the direction of motion, the final state, the start."""
     stack = lambda *v: jnp.stack([jnp.asarray(x, dtype=float) for x in v])  # noqa: E731
     branch = None if branch_final is None else stack(branch_final, branch_final, y0.branch)
-    return (stack(t_final, t_final, t0), stack(_just_past(q_final, w_final), q_final, y0.q), stack(w_final, w_final, y0.omega),
-            branch)
+    return stack(_just_past(q_final, w_final), q_final, y0.q), branch

@@ -171,7 +171,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    return _package(model, sol, ts, args, settings, t0, y0)
+    return _package(model, sol, ts, args, settings, y0)
 
 
 def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:
@@ -261,7 +261,7 @@ def _tabulated(settings: Settings) -> bool:
     return settings.reduction == "table"
 
 
-def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0: State):
+def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: State):
     # diffrax writes the saved times reached (and, with save_steps, every accepted step's
     # end, in time order), then the final state (an event deletes the times past it), and
     # pads with inf.
@@ -280,9 +280,8 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, t0, y0:
     near = None if ys.branch is None else along(ys.branch)  # saved link angles (tracked branch), stacked
     checks = None
     if settings.check_assembly:  # just past the end, at the end, at the start
-        _, q_checked, _, branch_checked = checked_states(t0, y0, t_final, q_final, w_final,
-                                                         None if ys.branch is None else ys.branch[last])
-        checks = EndChecks(q_checked, branch_checked)  # checked assembly: the lock-up controller steps (args.nan_unassembled)
+        # checked assembly: the lock-up controller steps (args.nan_unassembled)
+        checks = EndChecks(*checked_states(y0, q_final, w_final, None if ys.branch is None else ys.branch[last]))
     event, result = which_event(sol, settings, args, last), RESULTS.promote(sol.result)
     solution = Solution(
         t=t, q=q, omega=w, **no_outputs(),
@@ -579,12 +578,18 @@ _batch_integrate_jit = jit_arrays(_batch_integrate, static_argnums=(1, 8))
 _batch_finished_jit = jit_arrays(_batch_finished, static_argnums=(1, 5))
 
 
+def saves_solver_steps(loads) -> bool:
+    """Whether a single run with these loads can save the solver's own steps (``save_steps``):
+    not with joint friction, whose motion is integrated in segments."""
+    return not frictions_of(loads)
+
+
 def _check_save_steps(settings: Settings, model: Model, batch) -> None:
     if not settings.save_steps:
         return
     if batch is not None:
         raise AssurjaxError("save_steps saves up to max_steps states per run: it is for single runs, not batches")
-    if frictions_of(model.loads):
+    if not saves_solver_steps(model.loads):
         raise AssurjaxError("save_steps is not available with joint friction (the motion is integrated in segments "
                             "between rests and changes of a joint's Coulomb sign): use saveat or samples")
 
