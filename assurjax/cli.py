@@ -23,6 +23,7 @@ import json
 import os
 import sys
 import time
+from typing import NamedTuple
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -258,15 +259,50 @@ def _with_solver_steps(scene) -> bool:
     return saves_solver_steps(scene.loads)
 
 
-def _reactions_along(scene, sol, joints):
+class _Along(NamedTuple):
+    """Reactions along a simulated motion, as numpy arrays: forces (N) per joint, the
+    driving effort, whether every group solved, the friction value and friction power (W)
+    per element (empty without friction), and the seconds they took."""
+
+    forces: dict
+    driving: object
+    ok: object
+    friction: dict
+    friction_power: dict
+    seconds: float
+
+
+def _reactions_along(scene, sol, joints) -> _Along:
     import numpy as np
 
     import assurjax
 
     t0 = time.perf_counter()
     r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
-    forces = {k: np.asarray(v) for k, v in r.forces.items()}
-    return forces, np.asarray(r.driving), np.asarray(r.ok).all(axis=-1), time.perf_counter() - t0
+    arrays = lambda d: {k: np.asarray(v) for k, v in d.items()}  # noqa: E731
+    return _Along(arrays(r.forces), np.asarray(r.driving), np.asarray(r.ok).all(axis=-1), arrays(r.friction),
+                  arrays(r.friction_power), time.perf_counter() - t0)
+
+
+def _friction_unit(pair: str) -> str:
+    """A prismatic pair ("<slider>/<guide link>") carries a friction force, a revolute a couple."""
+    return "N" if "/" in pair else "N m"
+
+
+def _friction_lines(t, along: _Along) -> list[str]:
+    """The friction's energy loss over the motion per element (trapezoidal rule on the
+    samples) and its largest value, for the summary; none without friction."""
+    import numpy as np
+
+    if not along.friction:
+        return []
+    lost = {k: -float(np.trapezoid(p, np.asarray(t))) for k, p in along.friction_power.items()}
+    total = sum(lost.values())
+    shares = ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(lost.items(), key=lambda kv: -kv[1])) if total > 0 else ""
+    lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
+    peaks = ", ".join(f"{k} {np.max(np.abs(v)):.4g} {_friction_unit(k)}" for k, v in along.friction.items())
+    lines.append(f"  peak |friction| (at the samples): {peaks}")
+    return lines
 
 
 def _peaks(scene, sol, joints, forces: dict, driving) -> dict:
@@ -304,7 +340,7 @@ def _size(mechanism) -> float:
     return float(np.max(np.ptp(pts, axis=0))) or 1.0
 
 
-def _solution_columns(scene, sol, forces, driving) -> dict:
+def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) -> dict:
     import numpy as np
 
     cols = {"t": sol.t, "q": sol.q, "omega": sol.omega}
@@ -322,6 +358,8 @@ def _solution_columns(scene, sol, forces, driving) -> dict:
         cols |= {f"Fx_{joint}": f[:, 0], f"Fy_{joint}": f[:, 1], f"F_{joint}": np.hypot(f[:, 0], f[:, 1])}
     if driving is not None:
         cols["driving"] = driving
+    for name, u in (along.friction if along else {}).items():
+        cols |= {f"friction_{name}": u, f"friction_power_{name}": along.friction_power[name]}
     return cols
 
 
@@ -458,12 +496,13 @@ def cmd_run(args) -> int:
         sol, first, second = _simulate(scene, samples)
         bar.update(1)
         joints = scene.outputs["reactions"]
-        forces, driving, rx_time, peaks = {}, None, None, None
+        forces, driving, rx_time, peaks, along = {}, None, None, None, None
         if joints:
-            forces, driving, _, rx_time = _reactions_along(scene, sol, joints)
+            along = _reactions_along(scene, sol, joints)
+            forces, driving, rx_time = along.forces, along.driving, along.seconds
             peaks = _peaks(scene, sol, joints, forces, driving)
         bar.update(1)
-        files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving))]
+        files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene), out / "reduced.png"))
@@ -499,6 +538,8 @@ def cmd_run(args) -> int:
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps")
     if peaks:
         _print_peaks(peaks, units, scene)
+    for line in _friction_lines(sol.t, along) if along else ():
+        print(line)
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)
@@ -528,30 +569,41 @@ def cmd_reactions(args) -> int:
     samples = _samples(args, scene)
     # once: this command reports no simulation timings
     sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
-    forces, driving, ok, elapsed = _reactions_along(scene, sol, joints)
+    along = _reactions_along(scene, sol, joints)
+    forces, driving, elapsed = along.forces, along.driving, along.seconds
     peaks = _peaks(scene, sol, joints, forces, driving)
-    files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": ok}
-                        | {k: v for k, v in _solution_columns(scene, sol, forces, driving).items() if k.startswith(("F", "driving"))})]
+    columns = _solution_columns(scene, sol, forces, driving, along)
+    files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
+                        | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))})]
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    panels = 3 if along.friction else 2
+    fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), layout="constrained")
     viz.plot_reactions(sol.t, forces, ax=axes[0])
     viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
+    if along.friction:
+        viz.plot_time_histories(sol.t, {f"at {k}": -p for k, p in along.friction_power.items()}, ylabel="power lost (W)",
+                                ax=axes[2], title="power lost to friction")
     files.append(_savefig(fig, out / "reactions.png"))
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
     print(f"  at t = {float(sol.t[0]):.4g} s:")
-    _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units)
+    _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
+                          {k: float(v[0]) for k, v in along.friction.items()})
     _print_peaks(peaks, units, scene)
+    for line in _friction_lines(sol.t, along):
+        print(line)
     _print_files(files)
     return 0
 
 
-def _print_reaction_table(forces: dict, driving: float, units: dict):
+def _print_reaction_table(forces: dict, driving: float, units: dict, friction: dict | None = None):
     import numpy as np
 
     for k, f in forces.items():
-        print(f"    {k:12s} Fx = {f[0]:+.6g} N, Fy = {f[1]:+.6g} N, |F| = {np.hypot(*f):.6g} N")
-    print(f"    driving effort = {driving:+.6g} {units['driving']}")
+        print(f"    {k:12s} Fx = {f[0] + 0.0:+.6g} N, Fy = {f[1] + 0.0:+.6g} N, |F| = {np.hypot(*f):.6g} N")
+    for k, u in (friction or {}).items():
+        print(f"    friction at {k}: {u + 0.0:+.6g} {_friction_unit(k)}")
+    print(f"    driving effort = {driving + 0.0:+.6g} {units['driving']}")
 
 
 def _print_files(files):

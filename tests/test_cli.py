@@ -269,7 +269,7 @@ energies = true
 """ + ROUGH_ARM
 
 
-def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path):
+def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     """`assurjax run` on a scene with joint friction that stops at the first rest: the arm
     released level swings down and up the other side; the balance closes with the friction's
     work and the undriven motion needs no drive, its start (from rest) included."""
@@ -283,3 +283,12 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path):
     assert summary["energy_drift_J"] < 1e-6 * np.max(cols["T"])
     assert np.min(cols["W"]) < -0.01  # the friction took energy
     np.testing.assert_allclose(cols["driving"], 0.0, atol=1e-9)
+    # the pivot's friction: mu r |F| against the motion, and its power integrates to the work W
+    # the solver integrated along the motion (trapezoidal rule on the samples)
+    moving = cols["omega"] != 0.0
+    np.testing.assert_allclose(np.abs(cols["friction_O"][moving]), 0.3 * 0.04 * cols["F_O"][moving], rtol=1e-12)
+    assert np.all(cols["friction_O"][moving] * cols["omega"][moving] < 0)
+    lost = -np.trapezoid(cols["friction_power_O"], cols["t"])
+    assert lost == pytest.approx(-cols["W"][-1], rel=1e-4)
+    printed = capsys.readouterr().out
+    assert f"friction: {lost:.5g} J lost over the motion (O 100 %)" in printed

@@ -317,7 +317,8 @@ def test_agrees_with_the_joint_based_reference(case):
 def test_inverse_dynamics_of_a_prescribed_motion_with_friction():
     """assurjax.inverse_dynamics along q(t) = 0.5 + 3 t + 0.2 sin 5t (a JAX function: w and
     dw/dt by jvp) of the slider-crank with friction in every joint: the driving torque and
-    the pin reactions against the joint-based reference's inverse dynamics."""
+    the pin reactions, every element's friction and its power against the joint-based
+    reference's inverse dynamics."""
     import joint_reference_friction as jrf
 
     scene = aj.load_scene("slider_crank")
@@ -331,6 +332,11 @@ def test_inverse_dynamics_of_a_prescribed_motion_with_friction():
         assert abs(float(r.driving[k]) - expected["tau"]) < 1e-9 * (1 + abs(expected["tau"]))
         for joint in ("O", "A", "B"):  # the reference reports the force on its body_i, the earlier link
             np.testing.assert_allclose(r[joint][k], -expected["reactions"][joint], atol=1e-9)
+        for name, ref_name in (("O", "O"), ("A", "A"), ("B", "B"), ("slider/ground", "P")):
+            friction = expected["friction"][ref_name] + expected["damping"][ref_name]  # on the earlier link, as above
+            assert abs(float(r.friction[name][k]) + friction) < 1e-9 * (1 + abs(friction)), name
+            power = friction * expected["rates"][ref_name]
+            assert abs(float(r.friction_power[name][k]) - power) < 1e-9 * (1 + abs(power)), name
 
 
 @pytest.mark.slow

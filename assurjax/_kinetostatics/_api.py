@@ -60,6 +60,13 @@ class Reactions(eqx.Module):
     conjugate to q. ``ok``: (..., n_groups), False where a group cannot assemble
     or its equilibrium equations are singular (values are then 0, not NaN).
     ``pairs``: who acts on whom, for every name.
+
+    With joint friction, ``friction[name]`` (N m, or N for a prismatic pair) is the
+    friction of the pair's element (Coulomb and viscous together): the couple on the
+    later link of a revolute (the opposite acts on the earlier one), the force along the
+    guide on the slider of a prismatic pair (at its sliding point; not part of
+    ``forces``, which is normal to the guide); ``friction_power[name]`` (W, <= 0) the
+    power it takes out of the motion. Both are empty without friction; at rest the power is 0.
     """
 
     forces: dict[str, Array]
@@ -67,6 +74,8 @@ class Reactions(eqx.Module):
     driving: Array
     ok: Array
     pairs: tuple[Pair, ...] = eqx.field(static=True)
+    friction: dict[str, Array] = eqx.field(default_factory=dict)
+    friction_power: dict[str, Array] = eqx.field(default_factory=dict)
 
     def __getitem__(self, name: str) -> Array:
         if name not in self.forces:
@@ -148,12 +157,22 @@ def _static_kinematics(mechanism, q):
 
 
 def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool):
+    """(forces, couples, driving, ok, friction, friction power) at one state."""
     if static:
-        return from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups)
-    return reactions_at(model, coefficients(model.mechanism, q, order=2), omega, alpha, t, method=method, groups=groups)
+        return from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups) + ({}, {})
+    coeffs = coefficients(model.mechanism, q, order=2)
+    if not frictions_of(model.loads):
+        return reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups) + ({}, {})
+    *reaction, u, rates = reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups, friction=True)
+    friction, power = {}, {}
+    for k, element in enumerate(frictions_of(model.loads)):  # two elements on one pair add up
+        friction[element.pair] = friction.get(element.pair, 0.0) + u[k]
+        power[element.pair] = power.get(element.pair, 0.0) + u[k] * rates[k] * omega
+    return tuple(reaction) + (friction, power)
 
 
-def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method: str = "modular", groups=None):
+def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method: str = "modular", groups=None,
+                 friction: bool = False):
     """Reactions at one state from the kinematic coefficients (order 2) the dynamics
     already computed: (forces, couples, driving effort, ok per group). Affine in the
     driving acceleration ``alpha`` (d'Alembert forces are linear in it) and in the
@@ -162,7 +181,9 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     right limit the dynamics integrates). Held at rest (omega = alpha = 0), any drive
     between the two break-away limits keeps the mechanism there: the one nearest 0 is
     reported, with the friction values between those of the two limits in proportion
-    (how static friction shares out between the pairs is not determined by statics)."""
+    (how static friction shares out between the pairs is not determined by statics).
+    ``friction=True`` (a model with friction): also the friction values u and the
+    elements' relative rates per unit driving velocity (K,)."""
     kin = coeffs.kinematics(omega, alpha)
     frictions = frictions_of(model.loads)
     if not frictions:
@@ -183,7 +204,8 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     held = share * u_plus + (1.0 - share) * u_minus
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
     u = jnp.where(direction > 0, u_plus, jnp.where(direction < 0, u_minus, held))
-    return from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+    found = from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+    return found + (u, rates) if friction else found
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None):
@@ -329,7 +351,9 @@ def _derivatives(motion, t):
 def static_torque(scene, q, *, t=0.0, check: bool = True) -> Array:
     """The driving torque (N m; N for a slider) that holds the mechanism at rest at
     ``q`` (w = dw/dt = 0) against gravity and the scene's loads: the balancing
-    torque of gravity-balancing studies. Any shape of ``q``."""
+    torque of gravity-balancing studies. Any shape of ``q``. Joint friction is left out:
+    with it, any drive within the friction's break-away band holds the mechanism, and
+    ``reactions(scene, (q, 0.0, 0.0))`` gives the one nearest 0 (with the friction values)."""
     return static_reactions(scene, q, t=t, check=check).driving
 
 
@@ -347,13 +371,14 @@ def _run(scene, state, joints, method, check, *, static):
     q = jnp.asarray(state[0], dtype=float)
     shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
-    forces, couples, driving, ok = _batch(model, q, omega, alpha, t, method, groups, static)
+    forces, couples, driving, ok, friction, friction_power = _batch(model, q, omega, alpha, t, method, groups, static)
     if joints is not None:
         names = (joints,) if isinstance(joints, str) else tuple(joints)
         forces = {k: forces[k] for k in names}
         couples = {k: v for k, v in couples.items() if k in names}
     pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
-    result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs)
+    result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs, friction=friction,
+                       friction_power=friction_power)
     if check:
         raise_if_singular(mechanism, ok, q)
     return result
