@@ -79,8 +79,9 @@ class AbstractFriction(AbstractLoad):
         """(link, force, moment about its COM) of a unit value u = 1."""
 
     @abc.abstractmethod
-    def limit(self, mechanism: Mechanism, kin, forces: dict, couples: dict) -> Array:
-        """The Coulomb magnitude from the pair's reaction (N m or N, >= 0)."""
+    def limit(self, mechanism: Mechanism, kin, force: Array, couple: Array) -> Array:
+        """The Coulomb magnitude (N m or N, >= 0) from the pair's reaction: its force (2,)
+        and couple (0 for a revolute)."""
 
 
 class JointFriction(AbstractFriction):
@@ -115,9 +116,8 @@ class JointFriction(AbstractFriction):
         zero = jnp.zeros(2)
         return [(link, zero, jnp.asarray(s)) for link, s in ((p.on, 1.0), (p.by, -1.0)) if link != GROUND]
 
-    def limit(self, mechanism, kin, forces, couples):
-        f = forces[self.pair]
-        return self.coefficient * self.radius * jnp.sqrt(dot(f, f) + 1e-300)
+    def limit(self, mechanism, kin, force, couple):
+        return self.coefficient * self.radius * jnp.sqrt(dot(force, force) + 1e-300)
 
 
 class SlideFriction(AbstractFriction):
@@ -162,10 +162,10 @@ class SlideFriction(AbstractFriction):
                 out.append((link, s * e, cross(at - kin.coms[link], s * e)))
         return out
 
-    def limit(self, mechanism, kin, forces, couples):
+    def limit(self, mechanism, kin, force, couple):
         p = pairs_by_name(mechanism)[self.pair]
-        normal = dot(forces[self.pair], perp(self._direction(kin, p)))
-        half, end = 0.5 * normal, couples[self.pair] / self.length
+        normal = dot(force, perp(self._direction(kin, p)))
+        half, end = 0.5 * normal, couple / self.length
         return self.coefficient * (jnp.abs(half - end) + jnp.abs(half + end))
 
 
@@ -208,11 +208,39 @@ def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:
     return out
 
 
-def _combination(u, basis):
-    """sum_k u_k basis[k] as a chain of products and sums (K is small): XLA fuses it with its
-    neighbours, where a dot this small is a call of its own (~0.3 us on a CPU, one per pair
-    at each Newton step), and vmapped it stays elementwise."""
-    return sum(u[k] * basis[k] for k in range(u.shape[0]))
+SUMMED_TERMS = 8  # up to this many elements, u . basis as products and sums; beyond, one dot
+
+
+def _pair_reactions(frictions, reactions0, basis):
+    """u -> each element's pair reaction (force (2,), couple; 0 for a revolute), affine in
+    u: ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents).
+
+    For a few elements, per pair as a chain of products and sums: XLA fuses it with its
+    neighbours, where a dot this small is a call of its own (~0.3 us on a CPU, at each
+    Newton step; stacking the pairs first costs as much). For many, the elements' pairs
+    stacked and one dot: the chain grows with K per pair, and so would the program (the
+    strandbeest with friction in its 73 joints: 330 s to compile with chains over every
+    pair, 33 s this way)."""
+    (forces0, couples0), (forces_b, couples_b) = reactions0, basis
+    k, zero = len(frictions), jnp.zeros(())
+    if k <= SUMMED_TERMS:
+        def combined(value, tangents, u):
+            return value + sum(u[j] * tangents[j] for j in range(k))
+
+        return lambda u: [(combined(forces0[f.pair], forces_b[f.pair], u),
+                           combined(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else zero) for f in frictions]
+
+    def stacked(values: dict, default, axis):
+        return jnp.stack([values.get(f.pair, default) for f in frictions], axis=axis)
+
+    force0, force_b = stacked(forces0, None, 0), stacked(forces_b, None, 1)
+    couple0, couple_b = stacked(couples0, zero, 0), stacked(couples_b, jnp.zeros(k), 1)
+
+    def at(u):
+        force, couple = force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1)
+        return [(force[i], couple[i]) for i in range(k)]
+
+    return at
 
 
 def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
@@ -225,14 +253,12 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     of the motion tested). Returns (u, ok); ok is False where Newton fails or the
     solution is not consistent (Painleve: the friction would drive the motion it opposes)."""
     k = len(frictions)
-    (forces0, couples0), linear = jax.linearize(react, jnp.zeros(k))
-    basis = jax.vmap(linear)(jnp.eye(k))
+    reactions0, linear = jax.linearize(react, jnp.zeros(k))
+    reactions = _pair_reactions(frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
 
     def law(u):
-        forces = jax.tree.map(lambda f0, b: f0 + _combination(u, b), forces0, basis[0])
-        couples = jax.tree.map(lambda c0, b: c0 + _combination(u, b), couples0, basis[1])
-        limits = jnp.stack([f.limit(mechanism, kin, forces, couples) for f in frictions])
+        limits = jnp.stack([f.limit(mechanism, kin, force, couple) for f, (force, couple) in zip(frictions, reactions(u))])
         return -limits * signs - viscous
 
     def residual(u, _):

@@ -93,6 +93,15 @@ def main():
         case["step_ratio"] = case["simulate_friction"]["us_per_step"] / case["simulate"]["us_per_step"]
         out["cases"][name] = case
         print(name, json.dumps(case, indent=1))
+    # a large mechanism with friction in every joint (73 elements): what a first call costs
+    # as K grows (the friction law's stacked path, _friction.SUMMED_TERMS)
+    scene = assurjax.load_scene("strandbeest")
+    q0, rough = float(scene.state["q0"]), scene.loads + frictions(scene.mechanism)
+    case = dict(elements=len(frictions(scene.mechanism)), simulate=per_simulation(scene, scene.loads, q0, 0.2),
+                simulate_friction=per_simulation(scene, rough, q0, 0.2))
+    case["step_ratio"] = case["simulate_friction"]["us_per_step"] / case["simulate"]["us_per_step"]
+    out["cases"]["strandbeest"] = case
+    print("strandbeest", json.dumps(case, indent=1))
     with open(args.out, "w") as f:
         json.dump(out, f, indent=1)
 

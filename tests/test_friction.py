@@ -277,31 +277,41 @@ def test_gradient_in_mu_through_a_standstill_and_reversal(slider):
 # ---------------------------------------------------------------------------- against the joint-based reference
 
 
-def _package_frictions(mechanism, table: dict):
-    """The reference's friction table (tests/joint_reference_friction.py) as package loads."""
+def _package_frictions(mechanism, table: dict, parts: int = 1):
+    """The reference's friction table (tests/joint_reference_friction.py) as package loads;
+    ``parts`` > 1 puts that many elements on every pair, sharing its mu and damping."""
     out = []
     for name in aj.joint_names(mechanism):
         ref = table["P" if "/" in name else name]
-        if "/" in name:
-            out.append(aj.SlideFriction(name, ref.mu, ref.length, viscous=ref.damping))
-        else:
-            out.append(aj.JointFriction(name, ref.mu, ref.radius, viscous=ref.damping))
+        mu, damping = ref.mu / parts, ref.damping / parts
+        for _ in range(parts):
+            if "/" in name:
+                out.append(aj.SlideFriction(name, mu, ref.length, viscous=damping))
+            else:
+                out.append(aj.JointFriction(name, mu, ref.radius, viscous=damping))
     return tuple(out)
 
 
-@pytest.mark.parametrize("case", ["slider_crank", pytest.param("watt_sixbar", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("case", ["slider_crank", "slider_crank_split", pytest.param("watt_sixbar", marks=pytest.mark.slow)])
 def test_agrees_with_the_joint_based_reference(case):
     """Friction in every joint (viscous terms too), 2 s of motion through rests, sticking
-    and sign reversals of the relative rates: q within 1e-8 rad of the reference."""
+    and sign reversals of the relative rates: q within 1e-8 rad of the reference. Split:
+    the slider-crank's friction shared by three elements per pair (K = 12, past
+    SUMMED_TERMS: the friction law takes its stacked path)."""
     import joint_reference_friction as jrf
 
+    from assurjax._friction import SUMMED_TERMS
+
+    parts = 3 if case.endswith("_split") else 1
+    case = case.removesuffix("_split")
+    assert parts == 1 or 4 * parts > SUMMED_TERMS
     scene = aj.load_scene(case)
     if case == "slider_crank":
         q0, w0, table, ref = 0.5, 0.0, jrf.SLIDER_CRANK_FRICTION, jrf.slider_crank(0.5, 0.0)
     else:
         q0, w0, table, ref = 0.3, 1.0, jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
     expected = ref.simulate(T1, t_eval=TIMES)
-    sol = aj.simulate(scene, loads=_package_frictions(scene.mechanism, table), q0=q0, omega0=w0, stop=None, t1=T1,
+    sol = aj.simulate(scene, loads=_package_frictions(scene.mechanism, table, parts), q0=q0, omega0=w0, stop=None, t1=T1,
                       saveat=TIMES, energies=True, rtol=1e-10, atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
     np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
@@ -309,7 +319,7 @@ def test_agrees_with_the_joint_based_reference(case):
     np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
     # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is 0
     moving = ~expected.stuck & (expected.w != 0.0)  # at rest the static friction is not set by the motion
-    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, _package_frictions(scene.mechanism, table)),
+    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, _package_frictions(scene.mechanism, table, parts)),
                      (expected.q[moving], expected.w[moving], expected.wdot[moving]))
     np.testing.assert_allclose(r.driving, 0.0, atol=1e-7)
 
