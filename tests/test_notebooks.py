@@ -47,5 +47,6 @@ def test_runtime_notebook_runs_without_benchmark_results(tmp_path):
 def test_every_notebook_is_tested():
     names = {p.name for p in NOTEBOOKS.glob("*.ipynb")}
     expected = {"01_roberts_straight_line", "02_watt_sixbar_dynamics", "03_class4_kinetostatics",
-                "04_synthesis_and_sensitivities", "05_vmapped_sweeps", "06_runtime_vs_error"}
+                "04_synthesis_and_sensitivities", "05_vmapped_sweeps", "06_runtime_vs_error", "07_jansen_leg",
+                "08_joint_friction"}
     assert {n + ".ipynb" for n in expected} <= names
