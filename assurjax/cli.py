@@ -599,7 +599,7 @@ def cmd_reactions(args) -> int:
 def _print_reaction_table(forces: dict, driving: float, units: dict, friction: dict | None = None):
     import numpy as np
 
-    for k, f in forces.items():
+    for k, f in forces.items():  # + 0.0 turns -0.0 into 0.0: no "-0 N" printed
         print(f"    {k:12s} Fx = {f[0] + 0.0:+.6g} N, Fy = {f[1] + 0.0:+.6g} N, |F| = {np.hypot(*f):.6g} N")
     for k, u in (friction or {}).items():
         print(f"    friction at {k}: {u + 0.0:+.6g} {_friction_unit(k)}")
