@@ -365,6 +365,7 @@ def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) 
 
 def _history_figure(scene, sol, forces, units):
     import matplotlib.pyplot as plt
+    import numpy as np
 
     from . import viz
 
@@ -372,7 +373,9 @@ def _history_figure(scene, sol, forces, units):
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
     viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
     if getattr(sol, "kinetic", None) is not None:
-        viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=sol.work)
+        lost = getattr(sol, "dissipated", None)
+        lost = lost if lost is not None and np.max(np.abs(lost)) > 0 else None  # no flat zero line
+        viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=sol.work, dissipated=lost)
     else:
         axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
         axes[1, 0].axis("off")

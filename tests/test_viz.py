@@ -107,6 +107,11 @@ def test_line_plots_carry_units_and_legends(watt_frames):
     assert "kg m^2" in axes[0].get_ylabel() and "N m" in axes[1].get_ylabel()
     # |F| = hypot(Fx, Fy)
     np.testing.assert_allclose(checks[3][0].lines[0].get_ydata(), np.sqrt(2.0))
+    # with the work W and the dissipated energy D: T + V - W and D drawn as given
+    ax = viz.plot_energies(t, t**2, 1 - t**2, work=-0.5 * t, dissipated=0.5 * t)
+    assert [line.get_label() for line in ax.lines][2:] == ["T + V - W", "dissipated (friction, dampers)"]
+    np.testing.assert_allclose(ax.lines[2].get_ydata(), 1 + 0.5 * t)
+    np.testing.assert_allclose(ax.lines[3].get_ydata(), 0.5 * t)
 
 
 def test_velocity_polygon_closes(roberts_scene):

@@ -99,14 +99,17 @@ def plot_time_histories(t, series: Mapping[str, np.ndarray], *, ylabel: str, ax=
     return plot_against(t, series, xlabel="time t (s)", ylabel=ylabel, ax=ax, title=title)
 
 
-def plot_energies(t, kinetic, potential, *, ax=None, work=None):
+def plot_energies(t, kinetic, potential, *, ax=None, work=None, dissipated=None):
     """Kinetic T, potential V and total E = T + V (J) against time (Durango et al. 2014, Fig. 7a);
     with ``work`` (J, the work of the loads outside V since t0, e.g. ``Solution.work``) the
-    conserved T + V - W instead of E."""
+    conserved T + V - W instead of E; with ``dissipated`` (J, e.g. ``Solution.dissipated``:
+    what friction and dampers took since t0) that too."""
     kinetic, potential = np.asarray(kinetic), np.asarray(potential)
     series = {"T (kinetic)": kinetic, "V (potential)": potential}
     total = kinetic + potential - (0 if work is None else np.asarray(work))
     series["E = T + V" if work is None else "T + V - W"] = total
+    if dissipated is not None:
+        series["dissipated (friction, dampers)"] = np.asarray(dissipated)
     return plot_time_histories(t, series, ylabel="energy (J)", ax=ax, title="energies")
 
 
