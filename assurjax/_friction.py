@@ -79,9 +79,10 @@ class AbstractFriction(AbstractLoad):
         """(link, force, moment about its COM) of a unit value u = 1."""
 
     @abc.abstractmethod
-    def limit(self, mechanism: Mechanism, kin, force: Array, couple: Array) -> Array:
-        """The Coulomb magnitude (N m or N, >= 0) from the pair's reaction: its force (2,)
-        and couple (0 for a revolute)."""
+    def limit_terms(self, mechanism: Mechanism, kin) -> tuple:
+        """(a, b, n, 1/L) of the Coulomb magnitude (N m or N, >= 0) from the pair's
+        reaction force F (2,) and couple M, one formula for every kind (see :func:`limits`):
+        a |F| + b (|N/2 - M/L| + |N/2 + M/L|), N = F . n; None for a term it lacks."""
 
 
 class JointFriction(AbstractFriction):
@@ -116,8 +117,8 @@ class JointFriction(AbstractFriction):
         zero = jnp.zeros(2)
         return [(link, zero, jnp.asarray(s)) for link, s in ((p.on, 1.0), (p.by, -1.0)) if link != GROUND]
 
-    def limit(self, mechanism, kin, force, couple):
-        return self.coefficient * self.radius * jnp.sqrt(dot(force, force) + 1e-300)
+    def limit_terms(self, mechanism, kin):
+        return self.coefficient * self.radius, None, None, None
 
 
 class SlideFriction(AbstractFriction):
@@ -162,11 +163,9 @@ class SlideFriction(AbstractFriction):
                 out.append((link, s * e, cross(at - kin.coms[link], s * e)))
         return out
 
-    def limit(self, mechanism, kin, force, couple):
+    def limit_terms(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
-        normal = dot(force, perp(self._direction(kin, p)))
-        half, end = 0.5 * normal, couple / self.length
-        return self.coefficient * (jnp.abs(half - end) + jnp.abs(half + end))
+        return None, self.coefficient, perp(self._direction(kin, p)), 1.0 / self.length
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -208,39 +207,67 @@ def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:
     return out
 
 
-SUMMED_TERMS = 8  # up to this many elements, u . basis as products and sums; beyond, one dot
+SUMMED_TERMS = 8  # up to this many elements, the law element by element; beyond, stacked
 
 
-def _pair_reactions(frictions, reactions0, basis):
-    """u -> each element's pair reaction (force (2,), couple; 0 for a revolute), affine in
-    u: ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents).
+def limits(terms, force, couple):
+    """Coulomb magnitudes from the pairs' forces (..., 2) and couples (...):
+    a |F| + b (|N/2 - M/L| + |N/2 + M/L|) with N = F . n, ``terms`` = (a, b, n, 1/L) of
+    :meth:`AbstractFriction.limit_terms` (one element's, or stacked): mu r |F| on a
+    revolute (no b term), the block's two ends on a prismatic pair (no a term)."""
+    a, b, normal, inverse_length = terms
+    out = 0.0 if a is None else a * jnp.sqrt(jnp.sum(force * force, axis=-1) + 1e-300)
+    if b is None:
+        return out
+    half, end = 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+    return out + b * (jnp.abs(half - end) + jnp.abs(half + end))
 
-    For a few elements, per pair as a chain of products and sums: XLA fuses it with its
-    neighbours, where a dot this small is a call of its own (~0.3 us on a CPU, at each
-    Newton step; stacking the pairs first costs as much). For many, the elements' pairs
-    stacked and one dot: the chain grows with K per pair, and so would the program (the
-    strandbeest with friction in its 73 joints: 330 s to compile with chains over every
-    pair, 33 s this way)."""
+
+def _stacked_terms(mechanism: Mechanism, kin, frictions) -> tuple:
+    """The elements' (a, b, n, 1/L) stacked ((K,), (K,), (K, 2), (K,)), 0 where an element lacks a term."""
+    parts = [f.limit_terms(mechanism, kin) for f in frictions]
+
+    def stacked(i, zero):
+        found = [p[i] for p in parts]
+        return None if all(v is None for v in found) else jnp.stack([zero if v is None else v for v in found])
+
+    return stacked(0, 0.0), stacked(1, 0.0), stacked(2, jnp.zeros(2)), stacked(3, 0.0)
+
+
+def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
+    """u -> the elements' Coulomb magnitudes (K,), from the reactions affine in u:
+    ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents); only the
+    elements' own pairs are read.
+
+    For a few elements, element by element with u . basis as a chain of products and sums:
+    XLA fuses it with its neighbours, where a dot this small is a call of its own (~0.3 us
+    on a CPU, at each Newton step), and stacked arrays cost more per step (Watt six-bar
+    +12-14 %). For many, stacked, one dot and one vectorised formula: element by element
+    the program grows with K (the strandbeest with friction in its 73 joints: 333 s to a
+    first simulate() with chains over every pair, 35 s element by element, 22 s stacked)."""
     (forces0, couples0), (forces_b, couples_b) = reactions0, basis
-    k, zero = len(frictions), jnp.zeros(())
+    k = len(frictions)
     if k <= SUMMED_TERMS:
+        terms = [f.limit_terms(mechanism, kin) for f in frictions]
+
         def combined(value, tangents, u):
             return value + sum(u[j] * tangents[j] for j in range(k))
 
-        return lambda u: [(combined(forces0[f.pair], forces_b[f.pair], u),
-                           combined(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else zero) for f in frictions]
+        def coulomb(u):
+            return jnp.stack([limits(t, combined(forces0[f.pair], forces_b[f.pair], u),
+                                     combined(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
+                              for f, t in zip(frictions, terms)])
 
-    def stacked(values: dict, default, axis):
-        return jnp.stack([values.get(f.pair, default) for f in frictions], axis=axis)
+        return coulomb
 
-    force0, force_b = stacked(forces0, None, 0), stacked(forces_b, None, 1)
-    couple0, couple_b = stacked(couples0, zero, 0), stacked(couples_b, jnp.zeros(k), 1)
+    def at_elements(forces: dict, couples: dict):
+        force = jnp.stack([forces[f.pair] for f in frictions], axis=-2)
+        zero = jnp.zeros(force.shape[:-2])
+        return force, jnp.stack([couples.get(f.pair, zero) for f in frictions], axis=-1)
 
-    def at(u):
-        force, couple = force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1)
-        return [(force[i], couple[i]) for i in range(k)]
-
-    return at
+    (force0, couple0), (force_b, couple_b) = at_elements(forces0, couples0), at_elements(forces_b, couples_b)
+    terms = _stacked_terms(mechanism, kin, frictions)
+    return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
 
 
 def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
@@ -254,12 +281,11 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     solution is not consistent (Painleve: the friction would drive the motion it opposes)."""
     k = len(frictions)
     reactions0, linear = jax.linearize(react, jnp.zeros(k))
-    reactions = _pair_reactions(frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
+    coulomb = _coulomb_limits(mechanism, kin, frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
 
     def law(u):
-        limits = jnp.stack([f.limit(mechanism, kin, force, couple) for f, (force, couple) in zip(frictions, reactions(u))])
-        return -limits * signs - viscous
+        return -coulomb(u) * signs - viscous
 
     def residual(u, _):
         return u - law(u)
