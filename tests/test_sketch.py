@@ -77,6 +77,7 @@ def test_bundled_scene_rebuilt_from_its_joints(name):
 @pytest.mark.parametrize("name", assurjax.bundled_scenes())
 def test_bundled_scene_round_trips_through_the_explicit_form(name):
     scene = assurjax.load_scene(name)
+    scene = scene.with_loads(()) if scene.loads else scene  # the explicit form writes no loads (yet): the mechanism's round trip
     again = assurjax.scene_from_dict(tomllib.loads(explicit_toml(scene)), source=f"{name}.toml")
     leaves_a, tree_a = jax.tree.flatten(scene.mechanism)
     leaves_b, tree_b = jax.tree.flatten(again.mechanism)
