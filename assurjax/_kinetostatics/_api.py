@@ -191,20 +191,25 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     mechanism = model.mechanism
     rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
 
-    def analysis(u):
-        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))
+    def react(u):  # every pair's reaction, for the friction law
+        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[:2]
 
-    # the friction of a motion each way (one vmapped solve); the effort is affine in u
-    react = lambda u: analysis(u)[:2]  # noqa: E731
-    u_plus, u_minus = jax.vmap(lambda d: solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega)[0])(
-        jnp.array([1.0, -1.0]))
-    tau_plus, tau_minus = analysis(u_plus)[2], analysis(u_minus)[2]
-    width = tau_minus - tau_plus  # <= 0: the band [tau_minus, tau_plus] holds it
-    share = jnp.clip(tau_minus / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
-    held = share * u_plus + (1.0 - share) * u_minus
+    def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
+        u = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega)[0]
+        return u, from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+
+    us, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
+    width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
+    share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
-    u = jnp.where(direction > 0, u_plus, jnp.where(direction < 0, u_minus, held))
-    found = from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+
+    def pick(x):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
+        held = share * x[0] + (1.0 - share) * x[1]
+        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], held))
+
+    u = pick(us)
+    found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving),
+             jnp.where(direction > 0, ok[0], jnp.where(direction < 0, ok[1], ok[0] & ok[1])))
     return found + (u, rates) if friction else found
 
 
