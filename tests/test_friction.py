@@ -192,6 +192,9 @@ def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band
     assert np.count_nonzero(expected == 0.0) == 2
     np.testing.assert_allclose(r.driving, expected, rtol=0, atol=1e-12)
     np.testing.assert_allclose(r["O"], np.broadcast_to([0.0, m * g], (theta.size, 2)), rtol=0, atol=1e-12)
+    # the pivot's friction couple carries the rest of the balance (within +-limit), and takes no power at rest
+    np.testing.assert_allclose(r.friction["O"], -gravity - expected, rtol=0, atol=1e-12)
+    assert np.all(np.abs(r.friction["O"]) <= limit * (1 + 1e-12)) and np.all(r.friction_power["O"] == 0.0)
     # breaking away (alpha > 0 from rest at theta = -pi/2 + 0.3): kinetic friction against the start
     alpha, inertia = 2.0, 0.015 + m * l_g**2
     start = aj.reactions(model, (theta[2:3], np.zeros(1), np.full(1, alpha)))
