@@ -22,6 +22,11 @@ from jax._src import core as _jax_core
 
 COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
+# Machine code optimized less (LLVM at -O0: fast instruction selection, no IR passes): XLA's
+# code generation of the L-BFGS synthesis program 2.0 -> 0.7 s, its runs 4-5x slower. For
+# programs compiled once and run briefly (see ``synthesis.optimize``'s ``compile_mode``).
+QUICK_OPTIONS = {**COMPILER_OPTIONS, "xla_backend_optimization_level": 0}
+
 
 def _at_top_level() -> bool:
     """True outside any jit, vmap or grad trace: JAX takes compiler options only there."""
@@ -31,13 +36,14 @@ def _at_top_level() -> bool:
         return False
 
 
-def jit(fun=None, **kwargs):
-    """``equinox.filter_jit`` that compiles with :data:`COMPILER_OPTIONS` when called at
-    the top level and is an ordinary nested jit inside a user's own ``jit``/``vmap``/``grad``.
-    Usable as a decorator; keyword arguments go to ``equinox.filter_jit``."""
+def jit(fun=None, *, compiler_options: dict = COMPILER_OPTIONS, **kwargs):
+    """``equinox.filter_jit`` that compiles with ``compiler_options`` (default
+    :data:`COMPILER_OPTIONS`) when called at the top level and is an ordinary nested jit
+    inside a user's own ``jit``/``vmap``/``grad``. Usable as a decorator; other keyword
+    arguments go to ``equinox.filter_jit``."""
     if fun is None:
-        return lambda f: jit(f, **kwargs)
-    top = eqx.filter_jit(fun, compiler_options=COMPILER_OPTIONS, **kwargs)
+        return lambda f: jit(f, compiler_options=compiler_options, **kwargs)
+    top = eqx.filter_jit(fun, compiler_options=compiler_options, **kwargs)
     nested = eqx.filter_jit(fun, **kwargs)
 
     @functools.wraps(fun)

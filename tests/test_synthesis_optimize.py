@@ -229,6 +229,24 @@ def test_line_search_methods_run_and_count_their_evaluations(method, options):
     assert result.evaluations > len(h.loss)  # the line search's trial points are counted too
 
 
+def test_compile_modes_agree_and_auto_compiles_one_line_search_start_quickly(monkeypatch):
+    from assurjax.synthesis import _optimize
+
+    used = []
+    for mode, run in list(_optimize._RUN.items()):
+        monkeypatch.setitem(_optimize._RUN, mode, lambda *args, _run=run, _mode=mode: used.append(_mode) or _run(*args))
+    design = _four_bar_design()
+    auto = syn.optimize(design, _path_objective, optax.lbfgs, 30, has_aux=True)
+    optimized = syn.optimize(design, _path_objective, optax.lbfgs, 30, has_aux=True, compile_mode="optimized")
+    syn.optimize(design, _path_objective, optax.adam, 5, options={"learning_rate": 0.01}, has_aux=True)
+    assert used == ["quick", "optimized", "optimized"]  # Adam's program is small: its code is optimized
+    # the two programs compute the same run (the machine code differs, not the method)
+    np.testing.assert_allclose(auto.history.loss, optimized.history.loss, rtol=1e-9)
+    np.testing.assert_array_equal(auto.history.evaluations, optimized.history.evaluations)
+    with pytest.raises(AssurjaxError, match="compile_mode"):
+        syn.optimize(design, _path_objective, optax.lbfgs, 30, has_aux=True, compile_mode="fast")
+
+
 def test_tolerance_stops_and_multistart_keeps_every_start():
     design = _four_bar_design()
     lo, hi = (np.asarray(b[0]) for b in (design.lower, design.upper))
