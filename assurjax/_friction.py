@@ -14,10 +14,10 @@ modular method that Durango et al. 2014 name (a successive-approximation force a
 
 The friction values u (one per element) depend on the reactions, and the reactions on
 u and on the driving acceleration: with the reactions affine in both (d'Alembert),
-``solve_friction`` finds u by Newton's method (optimistix) on u = law(F(u)). In a
-one-degree-of-freedom mechanism every relative rate is (d phi/dq) w, so the signs
-follow sign(w) -- or, at rest, the direction the mechanism would start to move in
-(stiction, see ``dynamics._stick``).
+``solve_friction`` finds u from u = law(F(u)) (optimistix: fixed-point iteration, Newton's
+method where that is slow). In a one-degree-of-freedom mechanism every relative rate is
+(d phi/dq) w, so the signs follow sign(w) -- or, at rest, the direction the mechanism
+would start to move in (stiction, see ``dynamics._stick``).
 """
 
 from __future__ import annotations
@@ -270,15 +270,28 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
 
 
+# Fixed-point steps before Newton takes over: within them the iteration converges to 1e-12
+# only while it contracts by ~0.4 per step or better, so its error stays below the tolerance.
+FIXED_POINT_STEPS = 32
+
+
 def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
-    """Friction values u with u = law(reactions(u)): Newton's method (optimistix) on the
-    K values, the reactions being affine in u (linearized once: ``react(u)`` ->
-    (forces, couples) costs one kinetostatic solve, its K tangents one more each).
-    ``kin``: the positions the limits are read on; ``rates``: (K,) relative rates
-    per unit driving velocity (for the viscous terms); ``signs``: (K,) the Coulomb signs,
-    those of the relative rates (rates times the sign of w or, at rest, the direction
-    of the motion tested). Returns (u, ok); ok is False where Newton fails or the
-    solution is not consistent (Painleve: the friction would drive the motion it opposes)."""
+    """Friction values u with u = law(reactions(u)), the reactions being affine in u
+    (linearized once: ``react(u)`` -> (forces, couples) costs one kinetostatic solve, its
+    K tangents one more each). ``kin``: the positions the limits are read on; ``rates``:
+    (K,) relative rates per unit driving velocity (for the viscous terms); ``signs``: (K,)
+    the Coulomb signs, those of the relative rates (rates times the sign of w or, at rest,
+    the direction of the motion tested). Returns (u, ok); ok is False where no solution is
+    found or it is not consistent (Painleve: the friction would drive the motion it opposes).
+
+    The law's slope dlaw/du is small wherever friction is moderate (~mu r / a link's
+    length), so the fixed-point iteration u <- law(u) converges in a handful of cheap
+    steps (optimistix's FixedPointIteration; no Jacobian, no linear solve): the
+    right-hand side with friction costs half what Newton's method did. Where it does
+    not converge quickly (strong friction, a short slider block), Newton's method
+    (optimistix) from the same start, with the consistency test det(I - dlaw/du) > 0.
+    A converged iteration is consistent: it converges only where dlaw/du's spectral
+    radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part."""
     k = len(frictions)
     reactions0, linear = jax.linearize(react, jnp.zeros(k))
     coulomb = _coulomb_limits(mechanism, kin, frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
@@ -290,10 +303,16 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     def residual(u, _):
         return u - law(u)
 
+    def newton(u0):
+        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), u0, max_steps=64, throw=False)
+        # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
+        # than inertia resists (the effective inertia is not positive): no consistent motion has
+        # the assumed signs, the mechanism jams (K x K: a few forward passes of the linear law)
+        consistent = jnp.linalg.det(jax.jacfwd(residual)(sol.value, None)) > 0
+        return sol.value, (sol.result == optx.RESULTS.successful) & consistent
+
     u0 = law(jnp.zeros(k))
-    sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), u0, max_steps=64, throw=False)
-    # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
-    # than inertia resists (the effective inertia is not positive): no consistent motion has
-    # the assumed signs, the mechanism jams (K x K: a few forward passes of the linear law)
-    consistent = jnp.linalg.det(jax.jacfwd(residual)(sol.value, None)) > 0
-    return sol.value, (sol.result == optx.RESULTS.successful) & consistent
+    fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
+                             max_steps=FIXED_POINT_STEPS, throw=False)
+    converged = fixed.result == optx.RESULTS.successful
+    return jax.lax.cond(converged, lambda _: (fixed.value, jnp.array(True)), newton, u0)

@@ -1,13 +1,13 @@
 """Cost of joint friction: one right-hand side and one simulation, with and without friction.
 
 With friction every right-hand side linearizes the kinetostatics once and solves the
-friction values by Newton's method (see assurjax/_friction.py); the target is at most
-2x the cost of a frictionless step. Measured per right-hand-side evaluation (the
+friction values (fixed-point iteration, Newton's method where it is slow: see
+assurjax/_friction.py); the target is at most 2x the cost of a frictionless step. Measured per right-hand-side evaluation (the
 vector field alone, jitted): vmapped over 256 states (a batch, as in a sweep), and one
 state after another inside one program (as a simulation's steps call it: there every
 small operation is a call of its own, and a while loop's iterations cost more than their
 arithmetic); and per simulation (the user's call ``assurjax.simulate``: steps, time,
-time per step).
+time per step; and, on the driven press, the marginal cost of one more step).
 
     python benchmarks/bench_friction.py            # writes results/friction.json
 """
@@ -76,6 +76,19 @@ def per_simulation(scene, loads, q0, t1) -> dict:
     return dict(first_call_s=first, run_s=seconds, steps=steps, us_per_step=1e6 * seconds / steps, status=sol.status)
 
 
+def marginal_per_step(scene, loads, t1=2.0) -> dict:
+    """Microseconds per integration step of a driven motion, from two runs that differ only
+    in their length (t1 and 2 t1, two saved samples): what one more step costs, without the
+    fixed cost of a call (setup, outputs, the start's analysis)."""
+    runs = []
+    for t in (t1, 2 * t1):
+        kwargs = dict(loads=loads, stop=None, t1=t, samples=2)
+        steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))
+        runs.append((best_time(lambda: assurjax.simulate(scene, **kwargs).q, repeats=5), steps))
+    (short, n_short), (long, n_long) = runs
+    return dict(steps=[n_short, n_long], run_s=[short, long], us_per_step=1e6 * (long - short) / (n_long - n_short))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default=os.path.join(HERE, "results", "friction.json"))
@@ -93,6 +106,15 @@ def main():
         case["step_ratio"] = case["simulate_friction"]["us_per_step"] / case["simulate"]["us_per_step"]
         out["cases"][name] = case
         print(name, json.dumps(case, indent=1))
+    # a driven motion (the bundled press: motor, process force, friction in every pair) that
+    # keeps moving, so a longer run is more steps of the same kind: the marginal cost of a step
+    press = assurjax.load_scene("press_with_friction")
+    plain = tuple(load for load in press.loads if not load.needs_reactions)
+    case = dict(elements=len(press.loads) - len(plain), plain=marginal_per_step(press, plain),
+                friction=marginal_per_step(press, press.loads))
+    case["step_ratio"] = case["friction"]["us_per_step"] / case["plain"]["us_per_step"]
+    out["cases"]["press_marginal"] = case
+    print("press_marginal", json.dumps(case, indent=1))
     # a large mechanism with friction in every joint (73 elements): what a first call costs
     # as K grows (the friction law's stacked path, _friction.SUMMED_TERMS)
     scene = assurjax.load_scene("strandbeest")

@@ -242,6 +242,30 @@ def test_with_loads_checks_the_loads(slider):
         slider.with_loads((aj.JointFriction("Z", 0.1, radius=0.01),))
 
 
+@pytest.mark.parametrize("a, b, expected, ok", [
+    (1.0, 0.5, -0.1 / 1.05, True),  # weak coupling (dlaw/du = -0.05): the fixed-point iteration
+    (1.0, 9.0, -0.1 / 1.9, True),  # dlaw/du = -0.9: too slow for the iteration, Newton's method
+    (1.0, 15.0, None, False),  # Newton's root u = -0.2 has dlaw/du = +1.5: inconsistent (Painleve)
+    (1.0, -15.0, None, False),  # no u with u = law(u): reported, not invented
+])
+def test_friction_solve_on_a_closed_form_law(slider, a, b, expected, ok):
+    """solve_friction on one revolute whose reaction is F = (a + b u, 0): u = -mu r |a + b u|
+    (mu r = 0.1), solved by hand; either solver branch, and the failure flag."""
+    from assurjax._friction import solve_friction
+
+    element = aj.JointFriction("O", 0.5, 0.2)
+
+    @jax.jit
+    def solve(a, b):
+        react = lambda u: ({"O": jnp.stack([a + b * u[0], 0.0])}, {})  # noqa: E731
+        return solve_friction(slider.mechanism, (element,), react, None, jnp.zeros(1), jnp.ones(1), 0.0)
+
+    u, found = solve(a, b)
+    assert bool(found) == ok
+    if ok:
+        assert abs(float(u[0]) - expected) < 1e-14
+
+
 @pytest.mark.slow
 def test_gradient_in_mu_against_differences(slider):
     """d t_stop / d mu (standstill, reverse mode through the segments, their located
