@@ -315,4 +315,7 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
-    return jax.lax.cond(converged, lambda _: (fixed.value, jnp.array(True)), newton, u0)
+    # Newton starts from u0 where the iteration failed; in a batch (vmap runs both branches)
+    # the converged members start it at their solution, where it stops after one step
+    start = jnp.where(converged, fixed.value, u0)
+    return jax.lax.cond(converged, lambda u: (u, jnp.array(True)), newton, start)
