@@ -275,7 +275,7 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
 FIXED_POINT_STEPS = 32
 
 
-def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega):
+def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega, *, iterate: bool = True):
     """Friction values u with u = law(reactions(u)), the reactions being affine in u
     (linearized once: ``react(u)`` -> (forces, couples) costs one kinetostatic solve, its
     K tangents one more each). ``kin``: the positions the limits are read on; ``rates``:
@@ -291,7 +291,12 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     not converge quickly (strong friction, a short slider block), Newton's method
     (optimistix) from the same start, with the consistency test det(I - dlaw/du) > 0.
     A converged iteration is consistent: it converges only where dlaw/du's spectral
-    radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part."""
+    radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part.
+
+    ``iterate=False``: Newton's method alone, for solves the package batches itself (two
+    directions, output samples, reactions): there vmap runs both branches, and with both
+    loops in a batched program XLA's CPU runtime stalled a reactions call in 3 of 5 runs
+    of ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on)."""
     k = len(frictions)
     reactions0, linear = jax.linearize(react, jnp.zeros(k))
     coulomb = _coulomb_limits(mechanism, kin, frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
@@ -312,10 +317,12 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
         return sol.value, (sol.result == optx.RESULTS.successful) & consistent
 
     u0 = law(jnp.zeros(k))
+    if not iterate:
+        return newton(u0)
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
-    # Newton starts from u0 where the iteration failed; in a batch (vmap runs both branches)
-    # the converged members start it at their solution, where it stops after one step
+    # Newton starts from u0 where the iteration failed; in a user's batch (vmap runs both
+    # branches) the converged members start it at their solution, where it stops after one step
     start = jnp.where(converged, fixed.value, u0)
     return jax.lax.cond(converged, lambda u: (u, jnp.array(True)), newton, start)

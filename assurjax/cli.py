@@ -664,8 +664,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# XLA's CPU runtime can stall a compiled call (every thread waiting, no CPU used) with its
+# concurrency-optimized scheduler on; off, the stalls seen did not come back (docs/design-notes.md,
+# known issues). The command is a process of its own, so it sets this; the library does not.
+STALL_FREE_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+
+
+def _avoid_runtime_stall() -> None:
+    """Add :data:`STALL_FREE_FLAG` to ``XLA_FLAGS`` (read when JAX starts its CPU backend,
+    which importing assurjax does not), keeping the user's own flags."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_cpu_enable_concurrency_optimized_scheduler" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {STALL_FREE_FLAG}".strip()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``assurjax`` command; returns the exit status."""
+    _avoid_runtime_stall()
     import matplotlib
 
     matplotlib.use("Agg")  # files only: works without a display

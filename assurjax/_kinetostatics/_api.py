@@ -195,7 +195,7 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[:2]
 
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        u = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega)[0]
+        u = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega, iterate=False)[0]
         return u, from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
 
     us, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
