@@ -293,10 +293,12 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     A converged iteration is consistent: it converges only where dlaw/du's spectral
     radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part.
 
-    ``iterate=False``: Newton's method alone, for solves the package batches itself (two
-    directions, output samples, reactions): there vmap runs both branches, and with both
-    loops in a batched program XLA's CPU runtime stalled a reactions call in 3 of 5 runs
-    of ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on)."""
+    ``iterate=False``: Newton's method alone, for the solves batched within one analysis
+    (its two directions, the output samples, reactions): vmap runs both branches, and with
+    both loops in the batched reactions program XLA's CPU runtime stalled in 3 of 5 runs of
+    ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on). A batch
+    of simulations (``simulate`` with an array of starts) keeps the iteration: 14 runs of
+    16 starts did not stall."""
     k = len(frictions)
     reactions0, linear = jax.linearize(react, jnp.zeros(k))
     coulomb = _coulomb_limits(mechanism, kin, frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
@@ -322,7 +324,7 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
-    # Newton starts from u0 where the iteration failed; in a user's batch (vmap runs both
-    # branches) the converged members start it at their solution, where it stops after one step
+    # Newton starts from u0 where the iteration failed; in a batch of simulations (vmap runs
+    # both branches) the converged members start it at their solution: it stops after one step
     start = jnp.where(converged, fixed.value, u0)
     return jax.lax.cond(converged, lambda u: (u, jnp.array(True)), newton, start)

@@ -168,16 +168,15 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
         forces, couples, _, _ = from_kinematics(model, moving, t, extra=friction_wrenches(mechanism, moving, frictions, u))
         return forces, couples
 
-    def solve(direction, iterate=True):
-        u, ok = solve_friction(mechanism, frictions, react, kin, rates, signs * direction, y.omega, iterate=iterate)
-        return alpha_of(u), jnp.sum(rates * u) * y.omega, ok
-
     # several directions (the break-away test, the outputs): one vmapped solve on the same
     # coefficients, by Newton's method alone (see solve_friction's iterate)
-    if jnp.ndim(direction) == 0:
-        alpha, power, ok = solve(direction)
-    else:
-        alpha, power, ok = jax.vmap(lambda d: solve(d, iterate=False))(direction)
+    several = jnp.ndim(direction) > 0
+
+    def solve(direction):
+        u, ok = solve_friction(mechanism, frictions, react, kin, rates, signs * direction, y.omega, iterate=not several)
+        return alpha_of(u), jnp.sum(rates * u) * y.omega, ok
+
+    alpha, power, ok = jax.vmap(solve)(direction) if several else solve(direction)
     return Frictional(red, kin, alpha, power, ok, rates, slopes)
 
 
