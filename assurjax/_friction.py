@@ -275,10 +275,17 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
 FIXED_POINT_STEPS = 32
 
 
-def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, omega, *, iterate: bool = True):
-    """Friction values u with u = law(reactions(u)), the reactions being affine in u
-    (linearized once: ``react(u)`` -> (forces, couples) costs one kinetostatic solve, its
-    K tangents one more each). ``kin``: the positions the limits are read on; ``rates``:
+def linearize_reactions(react, k: int):
+    """(reactions at u = 0, their K tangents) of ``react(u)`` -> (forces, couples), affine
+    in the K friction values u: one kinetostatic solve and one more per tangent."""
+    reactions0, linear = jax.linearize(react, jnp.zeros(k))
+    return reactions0, jax.vmap(linear)(jnp.eye(k))
+
+
+def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, iterate: bool = True):
+    """Friction values u with u = law(reactions(u)), the reactions being affine in u:
+    ``reactions`` = (forces and couples at u = 0, their K tangents), see
+    :func:`linearize_reactions`. ``kin``: the positions the limits are read on; ``rates``:
     (K,) relative rates per unit driving velocity (for the viscous terms); ``signs``: (K,)
     the Coulomb signs, those of the relative rates (rates times the sign of w or, at rest,
     the direction of the motion tested). Returns (u, ok); ok is False where no solution is
@@ -300,8 +307,7 @@ def solve_friction(mechanism: Mechanism, frictions, react, kin, rates, signs, om
     of simulations (``simulate`` with an array of starts) keeps the iteration: 14 runs of
     16 starts did not stall."""
     k = len(frictions)
-    reactions0, linear = jax.linearize(react, jnp.zeros(k))
-    coulomb = _coulomb_limits(mechanism, kin, frictions, reactions0, jax.vmap(linear)(jnp.eye(k)))
+    coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
 
     def law(u):

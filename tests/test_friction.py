@@ -251,14 +251,14 @@ def test_with_loads_checks_the_loads(slider):
 def test_friction_solve_on_a_closed_form_law(slider, a, b, expected, ok):
     """solve_friction on one revolute whose reaction is F = (a + b u, 0): u = -mu r |a + b u|
     (mu r = 0.1), solved by hand; either solver branch, and the failure flag."""
-    from assurjax._friction import solve_friction
+    from assurjax._friction import linearize_reactions, solve_friction
 
     element = aj.JointFriction("O", 0.5, 0.2)
 
     @jax.jit
     def solve(a, b):
         react = lambda u: ({"O": jnp.stack([a + b * u[0], 0.0])}, {})  # noqa: E731
-        return solve_friction(slider.mechanism, (element,), react, None, jnp.zeros(1), jnp.ones(1), 0.0)
+        return solve_friction(slider.mechanism, (element,), linearize_reactions(react, 1), None, jnp.zeros(1), jnp.ones(1), 0.0)
 
     u, found = solve(a, b)
     assert bool(found) == ok

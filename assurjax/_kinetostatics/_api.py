@@ -13,7 +13,7 @@ from .._errors import AssurjaxError
 from .._geometry import rotation
 from .._jit import jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import friction_wrenches, frictions_of, solve_friction
+from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -194,8 +194,10 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     def react(u):  # every pair's reaction, for the friction law
         return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[:2]
 
+    linear = linearize_reactions(react, len(frictions))
+
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        u = solve_friction(mechanism, frictions, react, kin, rates, jnp.sign(rates) * d, omega, iterate=False)[0]
+        u = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)[0]
         return u, from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
 
     us, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
