@@ -177,7 +177,8 @@ def solved():
     out = {}
     for k, (name, scene) in enumerate(SCENES.items()):
         state = _states(scene, k)
-        methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular",)
+        rrp = any(g.kind == "RRP" for g in scene.mechanism.groups)  # closed form against its 6 x 6 system
+        methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular", "dense") if rrp else ("modular",)
         kin, found, red = evaluate(scene, state, methods)
         out[name] = (scene, state, found, kin, red)
     return out
@@ -244,6 +245,41 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         for joint in r.forces:
             np.testing.assert_allclose(other[joint], r[joint], rtol=0, atol=1e-9, err_msg=f"{method} {joint}")
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", [n for n, s in SCENES.items() if any(g.kind == "RRP" for g in s.mechanism.groups)])
+def test_rrp_closed_form_equals_its_dense_solve(solved, name):
+    _, _, found, _, _ = solved[name]
+    r, dense = found["modular"], found["dense"]
+    for joint in r.forces:
+        np.testing.assert_allclose(r[joint], dense[joint], rtol=1e-12, atol=1e-9, err_msg=joint)
+    for joint in r.couples:
+        np.testing.assert_allclose(r.couples[joint], dense.couples[joint], rtol=1e-12, atol=1e-9, err_msg=joint)
+    np.testing.assert_allclose(r.driving, dense.driving, rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(r.ok, dense.ok)
+
+
+def test_rrp_normal_to_its_guide_is_flagged_singular():
+    """Rod normal to the guide: the guide's normal force and the rod's pin force are not
+    determined by statics (the closed form's d x n = 0, the 6 x 6 system singular too)."""
+    from assurjax._kinetostatics._dyads import solve_rrp
+    from assurjax._kinetostatics._system import Geometry, solve_dense
+
+    mech = SCENES["slider_crank"].mechanism
+    group, pairs = mech.groups[1], group_pairs(mech)[1]
+    for slant, singular in ((0.0, True), (0.3, False)):
+        geom = Geometry(points={"A": jnp.array([slant, 0.3]), "B": jnp.zeros(2)},
+                        coms={"rod": jnp.array([0.5 * slant, 0.15]), "slider": jnp.zeros(2)},
+                        rots={"slider": jnp.array([1.0, 0.0]), "rod": jnp.array([0.0, 1.0])})
+        known = {"rod": (jnp.array([1.0, -2.0]), jnp.array(0.3)), "slider": (jnp.array([0.5, 1.0]), jnp.array(-0.2))}
+        closed, _, ok = solve_rrp(group, pairs, geom, known)
+        dense, _, ok_dense = solve_dense(group.links, pairs, geom, known)
+        assert bool(ok) == bool(ok_dense) == (not singular)
+        assert all(np.all(np.isfinite(np.asarray(v))) for r in closed.values() for v in r)
+        if not singular:
+            for name in closed:
+                np.testing.assert_allclose(closed[name].force, dense[name].force, atol=1e-12)
+                np.testing.assert_allclose(closed[name].couple, dense[name].couple, atol=1e-12)
 
 
 def test_prr_is_rrp_listed_from_the_other_end(solved):
