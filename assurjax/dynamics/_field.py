@@ -151,7 +151,7 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
-    # statics) would otherwise make XLA compute each point apart (serial RHS -10 %)
+    # statics) would otherwise make XLA compute each point apart (Watt six-bar RHS 4.2 -> 3.8 us)
     coeffs = eqx.tree_at(lambda c: c.stacked, coeffs, jax.lax.optimization_barrier(coeffs.stacked))
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
