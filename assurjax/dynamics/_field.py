@@ -188,9 +188,9 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     accelerations (in a simulation such a copy over 512 bytes makes XLA's CPU runtime
     schedule the whole step's calls across threads: the Watt six-bar's right-hand side 7.2 -> 3.9 us)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    base, unit = coeffs.kinematics(omega, jnp.zeros(())), coeffs.kinematics(jnp.ones(()))
-    inertial = {name: (-link.mass * unit.com_velocities[name], -link.inertia * unit.angular_velocities[name])
-                for name, link in mechanism.links.items()}
+    base = coeffs.kinematics(omega, jnp.zeros(()))
+    _, dcoms, dangles = coeffs.dx
+    inertial = {name: (-link.mass * dcoms[name], -link.inertia * dangles[name]) for name, link in mechanism.links.items()}
 
     def react(v):  # v = (dw/dt, u)
         extra = friction_wrenches(mechanism, base, frictions, v[1:])
