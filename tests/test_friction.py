@@ -242,28 +242,65 @@ def test_with_loads_checks_the_loads(slider):
         slider.with_loads((aj.JointFriction("Z", 0.1, radius=0.01),))
 
 
-@pytest.mark.parametrize("a, b, expected, ok", [
+CLOSED_FORM_LAWS = [
     (1.0, 0.5, -0.1 / 1.05, True),  # weak coupling (dlaw/du = -0.05): the fixed-point iteration
     (1.0, 9.0, -0.1 / 1.9, True),  # dlaw/du = -0.9: too slow for the iteration, Newton's method
     (1.0, 15.0, None, False),  # Newton's root u = -0.2 has dlaw/du = +1.5: inconsistent (Painleve)
     (1.0, -15.0, None, False),  # no u with u = law(u): reported, not invented
-])
-def test_friction_solve_on_a_closed_form_law(slider, a, b, expected, ok):
-    """solve_friction on one revolute whose reaction is F = (a + b u, 0): u = -mu r |a + b u|
-    (mu r = 0.1), solved by hand; either solver branch, and the failure flag."""
+]
+
+
+def _closed_form_solve(slider):
+    """solve_friction on one revolute whose reaction is F = (a + b u, 0): u = -mu r |a + b u| (mu r = 0.1)."""
     from assurjax._friction import linearize_reactions, solve_friction
 
     element = aj.JointFriction("O", 0.5, 0.2)
 
-    @jax.jit
     def solve(a, b):
         react = lambda u: ({"O": jnp.stack([a + b * u[0], 0.0])}, {})  # noqa: E731
         return solve_friction(slider.mechanism, (element,), linearize_reactions(react, 1), None, jnp.zeros(1), jnp.ones(1), 0.0)
 
-    u, found = solve(a, b)
+    return solve
+
+
+@pytest.mark.parametrize("a, b, expected, ok", CLOSED_FORM_LAWS)
+def test_friction_solve_on_a_closed_form_law(slider, a, b, expected, ok):
+    """The friction solve against the law solved by hand; either solver branch, and the failure flag."""
+    u, found = jax.jit(_closed_form_solve(slider))(a, b)
     assert bool(found) == ok
     if ok:
         assert abs(float(u[0]) - expected) < 1e-14
+
+
+def test_friction_solve_batched(slider):
+    """The same laws as one vmapped batch (Newton's method runs for the batch because some
+    members need it; each member keeps its own branch's answer), and a batch where the
+    iteration converges for every member (no Newton)."""
+    solve = jax.jit(jax.vmap(_closed_form_solve(slider)))
+    a, b, expected, ok = zip(*CLOSED_FORM_LAWS)
+    u, found = solve(jnp.asarray(a), jnp.asarray(b))
+    assert list(np.asarray(found)) == list(ok)
+    for k, value in enumerate(expected):
+        if value is not None:
+            assert abs(float(u[k, 0]) - value) < 1e-12  # the iteration's tolerance
+    b_weak = jnp.asarray([0.5, -0.5, 0.2])
+    u, found = solve(jnp.ones(3), b_weak)
+    assert np.all(np.asarray(found))
+    np.testing.assert_allclose(np.asarray(u[:, 0]), -0.1 / (1.0 + 0.1 * np.asarray(b_weak)), rtol=1e-12)
+
+
+def test_batch_of_starts_equals_single_runs():
+    """A batch of simulations with friction (the driven press from rest: break-away, Coulomb
+    switches) equals each member's own run: the friction solve's Newton fallback, taken
+    for a batch only when some member needs it, leaves every member's answer its own."""
+    press = aj.load_scene("press_with_friction")
+    q0 = np.array([0.0, 1.0, 2.5])
+    kw = dict(stop=None, t1=0.5, samples=6, points=(), angles=(), energies=False)
+    batch = aj.simulate(press, q0=q0, **kw)
+    for k, start in enumerate(q0):
+        single = aj.simulate(press, q0=start, **kw)
+        np.testing.assert_allclose(batch.q[k], single.q, atol=1e-10)
+        np.testing.assert_allclose(batch.omega[k], single.omega, atol=1e-8)
 
 
 @pytest.mark.slow
