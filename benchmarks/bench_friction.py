@@ -7,7 +7,8 @@ vector field alone, jitted): vmapped over 256 states (a batch, as in a sweep), a
 state after another inside one program (as a simulation's steps call it: there every
 small operation is a call of its own, and a while loop's iterations cost more than their
 arithmetic); and per simulation (the user's call ``assurjax.simulate``: steps, time,
-time per step; and, on the driven press, the marginal cost of one more step).
+time per step; and, on the driven press, the marginal cost of one more step, alone and
+per member of a batch of 16).
 
     python benchmarks/bench_friction.py            # writes results/friction.json
 """
@@ -89,6 +90,18 @@ def marginal_per_step(scene, loads, t1=2.0) -> dict:
     return dict(steps=[n_short, n_long], run_s=[short, long], us_per_step=1e6 * (long - short) / (n_long - n_short))
 
 
+def batch_marginal_per_step(scene, loads, n=16, t1=1.0) -> dict:
+    """Microseconds per member and step of a batch of n simulations (``simulate`` with an
+    array of starts, the exact reduction), from runs of t1 and 2 t1 as above."""
+    runs = []
+    for t in (t1, 2 * t1):
+        kwargs = dict(loads=loads, stop=None, t1=t, samples=2, q0=np.linspace(0.0, 6.0, n), reduction="exact")
+        steps = int(np.sum(np.asarray(assurjax.simulate(scene, **kwargs).num_steps)))
+        runs.append((best_time(lambda: assurjax.simulate(scene, **kwargs).q, repeats=3), steps))
+    (short, n_short), (long, n_long) = runs
+    return dict(members=n, steps=[n_short, n_long], run_s=[short, long], us_per_step=1e6 * (long - short) / (n_long - n_short))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default=os.path.join(HERE, "results", "friction.json"))
@@ -115,6 +128,11 @@ def main():
     case["step_ratio"] = case["friction"]["us_per_step"] / case["plain"]["us_per_step"]
     out["cases"]["press_marginal"] = case
     print("press_marginal", json.dumps(case, indent=1))
+    # the same as a batch of 16 starts (a sweep): per member and step
+    case = dict(plain=batch_marginal_per_step(press, plain), friction=batch_marginal_per_step(press, press.loads))
+    case["step_ratio"] = case["friction"]["us_per_step"] / case["plain"]["us_per_step"]
+    out["cases"]["press_batch"] = case
+    print("press_batch", json.dumps(case, indent=1))
     # a large mechanism with friction in every joint (73 elements): what a first call costs
     # as K grows (the friction law's stacked path, _friction.SUMMED_TERMS)
     scene = assurjax.load_scene("strandbeest")
