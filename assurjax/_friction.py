@@ -338,5 +338,5 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
 
     # on whether any member of a batch failed (unbatched: under vmap a cond on a per-member
     # test runs both branches for every member, and Newton's was most of a batched
-    # right-hand side: slider-crank 1.55 -> 0.96 us, Watt six-bar 3.5 -> 1.5 us per state)
+    # right-hand side: slider-crank 1.55 -> 1.1 us, Watt six-bar 3.5 -> 1.6 us per state)
     return jax.lax.cond(eqxi.unvmap_any(~converged), fallback, lambda: (fixed.value, jnp.array(True)))
