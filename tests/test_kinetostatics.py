@@ -171,14 +171,21 @@ def evaluate(scene, state, methods=("modular",)):
     return kin, {m: Solved(*found[m], pairs) for m in methods}, red
 
 
+PRISMATIC_DYADS = ("RRP", "PRR", "RPR", "PRP")  # the dyads with prismatic pairs, all solved in closed form
+
+
+def _has_prismatic_dyad(scene):
+    return any(g.kind in PRISMATIC_DYADS for g in scene.mechanism.groups)
+
+
 @pytest.fixture(scope="module")
 def solved():
     """Per scene: states, kinematics, reactions and reduction."""
     out = {}
     for k, (name, scene) in enumerate(SCENES.items()):
         state = _states(scene, k)
-        rrp = any(g.kind == "RRP" for g in scene.mechanism.groups)  # closed form against its 6 x 6 system
-        methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular", "dense") if rrp else ("modular",)
+        prismatic = _has_prismatic_dyad(scene)  # closed forms against their 6 x 6 systems
+        methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular", "dense") if prismatic else ("modular",)
         kin, found, red = evaluate(scene, state, methods)
         out[name] = (scene, state, found, kin, red)
     return out
@@ -247,8 +254,8 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", [n for n, s in SCENES.items() if any(g.kind == "RRP" for g in s.mechanism.groups)])
-def test_rrp_closed_form_equals_its_dense_solve(solved, name):
+@pytest.mark.parametrize("name", [n for n, s in SCENES.items() if _has_prismatic_dyad(s)])
+def test_prismatic_dyad_closed_forms_equal_their_dense_solves(solved, name):
     _, _, found, _, _ = solved[name]
     r, dense = found["modular"], found["dense"]
     for joint in r.forces:
@@ -259,27 +266,61 @@ def test_rrp_closed_form_equals_its_dense_solve(solved, name):
     np.testing.assert_array_equal(r.ok, dense.ok)
 
 
-def test_rrp_normal_to_its_guide_is_flagged_singular():
-    """Rod normal to the guide: the guide's normal force and the rod's pin force are not
-    determined by statics (the closed form's d x n = 0, the 6 x 6 system singular too)."""
-    from assurjax._kinetostatics._dyads import solve_rrp
-    from assurjax._kinetostatics._system import Geometry, solve_dense
+def test_every_prismatic_dyad_kind_is_covered():
+    kinds = {g.kind for s in SCENES.values() for g in s.mechanism.groups}
+    assert set(PRISMATIC_DYADS) <= kinds
 
-    mech = SCENES["slider_crank"].mechanism
-    group, pairs = mech.groups[1], group_pairs(mech)[1]
-    for slant, singular in ((0.0, True), (0.3, False)):
+
+def _rot(angle):
+    return jnp.array([np.cos(angle), np.sin(angle)])
+
+
+def _dyad_geometry(kind, slant):
+    """(scene, group index, geometry) of a dyad, singular at slant = 0 (closed form's
+    determinant zero): RRP/PRR the rod normal to the guide, RPR E1 - E2 normal to the
+    guide (|E1 E2| = |offset|), PRP the two guides parallel."""
+    from assurjax._kinetostatics._system import Geometry
+
+    if kind in ("RRP", "PRR"):  # rod A-B, slider at B on a guide along x
         geom = Geometry(points={"A": jnp.array([slant, 0.3]), "B": jnp.zeros(2)},
-                        coms={"rod": jnp.array([0.5 * slant, 0.15]), "slider": jnp.zeros(2)},
-                        rots={"slider": jnp.array([1.0, 0.0]), "rod": jnp.array([0.0, 1.0])})
-        known = {"rod": (jnp.array([1.0, -2.0]), jnp.array(0.3)), "slider": (jnp.array([0.5, 1.0]), jnp.array(-0.2))}
-        closed, _, ok = solve_rrp(group, pairs, geom, known)
+                        coms={"rod": jnp.array([0.5 * slant, 0.15]), "slider": jnp.array([0.02, -0.01])},
+                        rots={"slider": _rot(0.0), "rod": _rot(np.pi / 2)})
+        return ("slider_crank" if kind == "RRP" else "slider_crank_prr"), 1, geom
+    if kind == "RPR":  # block at A in the arm's slot along x, arm pivot O4 (an offset slot)
+        geom = Geometry(points={"A": jnp.array([slant, 0.3]), "O4": jnp.zeros(2)},
+                        coms={"block": jnp.array([slant + 0.01, 0.3]), "arm": jnp.array([0.2, 0.25])},
+                        rots={"block": _rot(0.0), "arm": _rot(0.0)})
+        return "quick_return", 1, geom
+    # PRP: the block's guide (on the crank) turned by slant from the slide's (on the ground)
+    geom = Geometry(points={"J": jnp.array([0.3, 0.2])},
+                    coms={"block": jnp.array([0.31, 0.2]), "slide": jnp.array([0.25, 0.22])},
+                    rots={"block": _rot(slant), "slide": _rot(0.0)})
+    return "tangent_drive", 1, geom
+
+
+@pytest.mark.parametrize("kind", PRISMATIC_DYADS)
+def test_prismatic_dyad_singular_geometry_is_flagged(kind):
+    """At the singular geometry the reactions are not determined by statics: the closed
+    form's determinant and the dyad's 6 x 6 system both vanish; nearby both agree."""
+    from assurjax._kinetostatics._api import SOLVERS
+    from assurjax._kinetostatics._system import solve_dense
+
+    for slant, singular in ((0.0, True), (0.3, False)):
+        name, index, geom = _dyad_geometry(kind, slant)
+        mech = SCENES[name].mechanism
+        group, pairs = mech.groups[index], group_pairs(mech)[index]
+        assert group.kind == kind
+        a, b = group.links
+        known = {a: (jnp.array([1.0, -2.0]), jnp.array(0.3)), b: (jnp.array([0.5, 1.0]), jnp.array(-0.2))}
+        closed, _, ok = SOLVERS[kind](group, pairs, geom, known)
         dense, _, ok_dense = solve_dense(group.links, pairs, geom, known)
-        assert bool(ok) == bool(ok_dense) == (not singular)
-        assert all(np.all(np.isfinite(np.asarray(v))) for r in closed.values() for v in r)
+        assert bool(ok) == bool(ok_dense) == (not singular), (slant, bool(ok), bool(ok_dense))
+        assert set(closed) == {p.name for p in pairs}
+        assert all(np.all(np.isfinite(np.asarray(v))) for r in (closed, dense) for x in r.values() for v in x)
         if not singular:
-            for name in closed:
-                np.testing.assert_allclose(closed[name].force, dense[name].force, atol=1e-12)
-                np.testing.assert_allclose(closed[name].couple, dense[name].couple, atol=1e-12)
+            for joint in closed:
+                np.testing.assert_allclose(closed[joint].force, dense[joint].force, rtol=0, atol=1e-12, err_msg=joint)
+                np.testing.assert_allclose(closed[joint].couple, dense[joint].couple, rtol=0, atol=1e-12, err_msg=joint)
 
 
 def test_prr_is_rrp_listed_from_the_other_end(solved):

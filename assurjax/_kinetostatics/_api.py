@@ -19,7 +19,7 @@ from .._mechanism import Mechanism
 from .._model import Model, as_model
 from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
-from ._dyads import solve_rrp, solve_rrr
+from ._dyads import solve_prp, solve_prr, solve_rpr, solve_rrp, solve_rrr
 from ._layout import Pair, group_pairs, groups_for
 from ._system import Geometry, hand_back, solve_dense
 
@@ -33,14 +33,18 @@ class SingularConfigurationError(AssurjaxError):
         self.group = group
 
 
-# group kind -> solver(group, pairs, geometry, known wrenches) -> (reactions, driving or None, ok).
-# Every other group (the other dyads with prismatic pairs, the triad) solves its own
-# 3 n x 3 n system with solve_dense.
+# group kind -> solver(group, pairs, geometry, known wrenches) -> (reactions, driving or None, ok):
+# closed forms for the drivers and every dyad. A class-IV group with special Assur points
+# uses solve_class4_special; any other group (the triad) solves its own 3 n x 3 n system
+# with solve_dense.
 SOLVERS = {
     "crank": solve_crank,
     "slider": solve_slider,
     "RRR": solve_rrr,
     "RRP": solve_rrp,
+    "PRR": solve_prr,
+    "RPR": solve_rpr,
+    "PRP": solve_prp,
 }
 
 METHODS = ("modular", "dense", "global")

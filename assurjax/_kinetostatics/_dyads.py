@@ -1,6 +1,8 @@
-"""Class-II RRR and RRP dyads in closed form. The other dyads with prismatic pairs (PRR,
-RPR, PRP) solve their own 6 x 6 system (two links, three equations each) with
-:func:`._system.solve_dense`, the fallback of :func:`._api.solve_groups`."""
+"""Class-II dyads in closed form: RRR and the dyads with prismatic pairs (RRP, PRR,
+RPR, PRP). Each solves its two links' six equilibrium equations by force sums and
+moments about points where unknowns drop out, with no matrix; a singular dyad (the
+determinant of the closed form is zero exactly where its 6 x 6 system is singular)
+gets ok = False and zero reactions."""
 
 import jax.numpy as jnp
 
@@ -58,3 +60,84 @@ def solve_rrp(group, pairs, geom: Geometry, known):
     zero = jnp.zeros(())
     return {pe.name: Reaction(rj - fr, zero), pj.name: Reaction(rj, zero),
             guide.name: Reaction(normal * n, -moment_about(geom, known, slider, xj))}, None, ok
+
+
+def solve_prr(group, pairs, geom: Geometry, known):
+    """PRR dyad (the RRP listed from its prismatic end), links (slider, rod), joints (J, E),
+    the slider on its guide at J; closed form.
+
+    As for the RRP, but the internal reaction R_J now acts on the rod by the slider.
+    The slider's forces -R_J + N n + f_s = 0 and the rod's R_E + R_J + f_r = 0 give
+    R_E = -f_r - f_s - N n; the rod's moments about J, d x R_E = -M_r (d = E - J),
+    give N = (M_r - d x (f_r + f_s)) / (d x n), singular when the rod is normal to the
+    guide; the slider's moments about J give C = -M_s. R_E on the rod at E, R_J =
+    f_s + N n on the rod by the slider at J, N n and C on the slider by the guide.
+    """
+    (slider, rod), (j, e) = group.links, group.joints
+    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, rod, "R")], by_point[(j, slider, "P")]
+    fr, fs = known[rod][0], known[slider][0]
+    xj = geom.points[j]
+    d, n = geom.points[e] - xj, guide_normal(geom, guide)
+    det = cross(d, n)
+    ok = jnp.abs(det) > SINGULAR * safe_norm(d)
+    normal = jnp.where(ok, (moment_about(geom, known, rod, xj) - cross(d, fr + fs)) / jnp.where(ok, det, 1.0), 0.0)
+    rj = fs + normal * n
+    zero = jnp.zeros(())
+    return {pe.name: Reaction(-rj - fr, zero), pj.name: Reaction(rj, zero),
+            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, xj))}, None, ok
+
+
+def solve_rpr(group, pairs, geom: Geometry, known):
+    """RPR dyad, links (block, guide link), joints (E1, E2), the block sliding on the
+    guide link at E1; closed form.
+
+    The block's forces R_1 + N n + f_b = 0 give R_1 = -f_b - N n; its moments about
+    E1 give the couple C = -M_b (about E1). The guide link's forces R_2 - N n + f_g = 0
+    give R_2 = N n - f_g; its moments about E2, where N n and C act back on it at E1,
+    d x (-N n) - C + M_g = 0 (d = E1 - E2), give N = (M_g + M_b) / (d x n) with M_g
+    about E2, singular when E1 - E2 is normal to the guide (|E1 E2| = |offset|, the
+    dyad's assembly limit). R_1 on the block at E1, R_2 on the guide link at E2,
+    N n and C on the block by the guide link.
+    """
+    (block, arm), (e1, e2) = group.links, group.joints
+    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    p1, p2, slot = by_point[(e1, block, "R")], by_point[(e2, arm, "R")], by_point[(e1, block, "P")]
+    x1, x2 = geom.points[e1], geom.points[e2]
+    d, n = x1 - x2, guide_normal(geom, slot)
+    det = cross(d, n)
+    ok = jnp.abs(det) > SINGULAR * safe_norm(d)
+    mb = moment_about(geom, known, block, x1)
+    normal = jnp.where(ok, (moment_about(geom, known, arm, x2) + mb) / jnp.where(ok, det, 1.0), 0.0)
+    zero = jnp.zeros(())
+    return {p1.name: Reaction(-known[block][0] - normal * n, zero), p2.name: Reaction(normal * n - known[arm][0], zero),
+            slot.name: Reaction(normal * n, -mb)}, None, ok
+
+
+def solve_prp(group, pairs, geom: Geometry, known):
+    """PRP dyad, links (slider 1, slider 2) pinned together at J, each on its own guide
+    at J; closed form.
+
+    Each slider's moments about J give its guide's couple, C_k = -M_k. The dyad's
+    force sum N1 n1 + N2 n2 = -(f1 + f2) = -F, crossed with n2 and with n1, gives
+    N1 = (n2 x F) / (n1 x n2) and N2 = (F x n1) / (n1 x n2), singular when the guides
+    are parallel (where the dyad cannot assemble either). The first slider's forces
+    -R_J + N1 n1 + f1 = 0 give R_J = f1 + N1 n1, on slider 2 by slider 1 at J;
+    N_k n_k and C_k on slider k by its guide's link.
+    """
+    (s1, s2), j = group.links, group.joint
+    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    pj, g1, g2 = by_point[(j, s2, "R")], by_point[(j, s1, "P")], by_point[(j, s2, "P")]
+    f1 = known[s1][0]
+    force = f1 + known[s2][0]
+    xj = geom.points[j]
+    n1, n2 = guide_normal(geom, g1), guide_normal(geom, g2)
+    det = cross(n1, n2)
+    ok = jnp.abs(det) > SINGULAR
+    det = jnp.where(ok, det, 1.0)
+    normal1 = jnp.where(ok, cross(n2, force) / det, 0.0)
+    normal2 = jnp.where(ok, cross(force, n1) / det, 0.0)
+    zero = jnp.zeros(())
+    return {pj.name: Reaction(f1 + normal1 * n1, zero),
+            g1.name: Reaction(normal1 * n1, -moment_about(geom, known, s1, xj)),
+            g2.name: Reaction(normal2 * n2, -moment_about(geom, known, s2, xj))}, None, ok
