@@ -50,16 +50,25 @@ def solve_rrp(group, pairs, geom: Geometry, known):
     (rod, slider), (e, j) = group.links, group.joints
     by_point = {(p.point, p.on, p.kind): p for p in pairs}
     pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, slider, "R")], by_point[(j, slider, "P")]
-    fr, fs = known[rod][0], known[slider][0]
+    normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
+    rj = -known[slider][0] - normal * n
+    zero = jnp.zeros(())
+    return {pe.name: Reaction(rj - known[rod][0], zero), pj.name: Reaction(rj, zero),
+            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, geom.points[j]))}, None, ok
+
+
+def _normal_on_slider(geom: Geometry, known, rod, slider, e, j, guide):
+    """(N, the guide's normal n, ok) for a rod pinned at E and at J to a slider on its
+    guide at J: the rod's moments about J, d x R_E = -M_r with R_E = -f_r - f_s - N n
+    (d = E - J), give N = (M_r - d x (f_r + f_s)) / (d x n), singular when the rod is
+    normal to the guide (N = 0 there, never NaN)."""
     xj = geom.points[j]
     d, n = geom.points[e] - xj, guide_normal(geom, guide)
     det = cross(d, n)
     ok = jnp.abs(det) > SINGULAR * safe_norm(d)
-    normal = jnp.where(ok, (moment_about(geom, known, rod, xj) - cross(d, fr + fs)) / jnp.where(ok, det, 1.0), 0.0)
-    rj = -fs - normal * n
-    zero = jnp.zeros(())
-    return {pe.name: Reaction(rj - fr, zero), pj.name: Reaction(rj, zero),
-            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, xj))}, None, ok
+    force = known[rod][0] + known[slider][0]
+    normal = jnp.where(ok, (moment_about(geom, known, rod, xj) - cross(d, force)) / jnp.where(ok, det, 1.0), 0.0)
+    return normal, n, ok
 
 
 def solve_prr(group, pairs, geom: Geometry, known):
@@ -76,16 +85,11 @@ def solve_prr(group, pairs, geom: Geometry, known):
     (slider, rod), (j, e) = group.links, group.joints
     by_point = {(p.point, p.on, p.kind): p for p in pairs}
     pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, rod, "R")], by_point[(j, slider, "P")]
-    fr, fs = known[rod][0], known[slider][0]
-    xj = geom.points[j]
-    d, n = geom.points[e] - xj, guide_normal(geom, guide)
-    det = cross(d, n)
-    ok = jnp.abs(det) > SINGULAR * safe_norm(d)
-    normal = jnp.where(ok, (moment_about(geom, known, rod, xj) - cross(d, fr + fs)) / jnp.where(ok, det, 1.0), 0.0)
-    rj = fs + normal * n
+    normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
+    rj = known[slider][0] + normal * n
     zero = jnp.zeros(())
-    return {pe.name: Reaction(-rj - fr, zero), pj.name: Reaction(rj, zero),
-            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, xj))}, None, ok
+    return {pe.name: Reaction(-rj - known[rod][0], zero), pj.name: Reaction(rj, zero),
+            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, geom.points[j]))}, None, ok
 
 
 def solve_rpr(group, pairs, geom: Geometry, known):
