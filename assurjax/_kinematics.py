@@ -252,13 +252,12 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
     return jax.lax.cond(~(distance >= window), interpolate, lambda: plain)
 
 
-def branch_coefficients(mechanism: Mechanism, q, *, near=None, bridge: float = 0.0, order: int = 2) -> Coefficients:
-    """Coefficients up to ``order`` on the fixed modes (``near`` None) or a tracked branch,
-    bridged across singular windows of half-width ``bridge`` when it is positive (then
-    always order 2)."""
+def branch_coefficients(mechanism: Mechanism, q, *, near=None, bridge: float = 0.0) -> Coefficients:
+    """Order-2 coefficients on the fixed modes (``near`` None) or a tracked branch,
+    bridged across singular windows of half-width ``bridge`` when it is positive."""
     if near is not None and bridge > 0:
         return bridged_coefficients(mechanism, q, near=near, window=bridge)
-    return coefficients(mechanism, q, order=order, near=near)
+    return coefficients(mechanism, q, order=2, near=near)
 
 
 def _stacked_single(mechanism: Mechanism, q, omega, alpha, points, order: int, what=(True, True)):

@@ -17,7 +17,7 @@ import optimistix as optx
 
 from .._friction import frictions_of
 from .._positions import assembled
-from ._field import FieldArgs, State, element_rates
+from ._field import FieldArgs, State
 from ._results import LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER
 from ._settings import Settings
 
@@ -31,16 +31,16 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     standstill: w times the direction of motion, the sign of w0, or from rest the
     displacement q - q0 (0 at the start, > 0 while moving, < 0 once w has reversed:
     no force evaluation at t0 is needed to know which way the mechanism starts);
-    user events: cond(t, q, w) times its sign at t0; rate switches (``args.rate_offsets``
-    given): the smallest d phi_k/dq (less its offset) times its sign frozen for the
-    segment, over the elements with a Coulomb coefficient (the others do not switch).
+    user events: cond(t, q, w) times its sign at t0; rate switches (a state with
+    ``friction_rates``): the smallest d phi_k/dq times its sign frozen for the segment,
+    over the elements with a Coulomb coefficient (the others do not switch).
     """
     out = []
     if settings.standstill:  # a hair above 0 at a start from rest, so that it hides no other crossing there
         out.append(y.omega * jnp.where(args.direction != 0, args.direction, y.q - args.q0) + _FLOOR)
     out += user_margins(settings, t, y, args)
-    if args.rate_offsets is not None:
-        out.append(jnp.min(rate_margins(args, element_rates(args.model, y, args.bridge) - args.rate_offsets)))
+    if y.friction_rates is not None:
+        out.append(jnp.min(rate_margins(args, y.friction_rates)))
     return out
 
 
@@ -49,12 +49,12 @@ def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     return [args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float) for k, cond in enumerate(settings.events)]
 
 
-def rate_margins(args: FieldArgs, rates):
-    """Per friction element: its ``rates`` d phi_k/dq times its sign frozen for the
-    segment, positive until it changes sign; inf for the elements that cannot switch (no
-    Coulomb coefficient, or a rate 0 with slope 0 at the segment's start)."""
+def rate_margins(args: FieldArgs, friction_rates):
+    """Per friction element: d phi_k/dq times its sign frozen for the segment, positive
+    until it changes sign; inf for the elements that cannot switch (no Coulomb
+    coefficient, or a rate 0 with slope 0 at the segment's start)."""
     coulomb = jnp.stack([f.coefficient for f in frictions_of(args.model.loads)]) > 0
-    return jnp.where(coulomb & (args.rate_signs != 0), args.rate_signs * rates, jnp.inf)
+    return jnp.where(coulomb & (args.rate_signs != 0), args.rate_signs * friction_rates, jnp.inf)
 
 
 def event_codes(settings: Settings, switches: bool = False) -> tuple[int, ...]:
@@ -64,8 +64,7 @@ def event_codes(settings: Settings, switches: bool = False) -> tuple[int, ...]:
 
 def stop_event(settings: Settings, switches: bool = False):
     """One event on the smallest margin (:func:`located_event`). None when no condition is
-    enabled. ``switches``: the friction elements' rate switches end the run (the field's
-    arguments carry ``rate_offsets``)."""
+    enabled. ``switches``: the state carries ``friction_rates`` (their sign changes end the run)."""
     if not event_codes(settings, switches):
         return None
     return located_event(lambda t, y, args: jnp.min(jnp.stack(margins(settings, t, y, args))), settings)
@@ -84,7 +83,7 @@ def located_event(margin, settings: Settings) -> diffrax.Event:
 
 def which_event(sol, settings: Settings, args: FieldArgs, last):
     """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
-    codes = event_codes(settings, args.rate_offsets is not None)
+    codes = event_codes(settings, sol.ys.friction_rates is not None)
     if not codes:
         return jnp.asarray(NO_EVENT)
     y_final = jax.tree.map(lambda y: y[last], sol.ys)

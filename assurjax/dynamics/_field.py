@@ -37,23 +37,24 @@ from ._table import ReducedTable
 
 class State(NamedTuple):
     """The integrated state: ``q`` (rad or m), ``omega`` (rad/s or m/s), and optional
-    quadratures ``work`` (J, loads outside V), ``dissipated`` (J) and the tracked
-    ``branch`` angles (rad, stacked in ``tracked_links`` order). Absent parts are None."""
+    quadratures ``work`` (J, loads outside V), ``dissipated`` (J), the tracked
+    ``branch`` angles (rad, stacked in ``tracked_links`` order) and, with joint friction,
+    the ``friction_rates`` d phi_k/dq of its elements (integrated, d/dt = d2 phi_k/dq2 w,
+    so that a stop condition sees where one changes sign). Absent parts are None."""
 
     q: Array
     omega: Array
     work: Array | None = None
     dissipated: Array | None = None
     branch: Array | None = None
+    friction_rates: Array | None = None
 
 
 class FieldArgs(eqx.Module):
     """What the vector field and the events read besides the state: the ``model``, an
     optional ``table``, the start (``direction`` of motion, ``q0``) for the standstill
     margin, the signs of the user events at t0 and, with joint friction, the signs of
-    the elements' d phi_k/dq frozen for the segment (None: read at each state) and, for
-    the event on their switches, the ``rate_offsets`` subtracted from d phi_k/dq (see
-    ``_stick``)."""
+    the elements' d phi_k/dq frozen for the segment (None: read at each state)."""
 
     model: Model
     table: ReducedTable | None
@@ -61,7 +62,6 @@ class FieldArgs(eqx.Module):
     q0: Array
     user_signs: tuple | None
     rate_signs: Array | None = None
-    rate_offsets: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
     nan_unassembled: bool = eqx.field(static=True, default=False)
@@ -91,12 +91,13 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
 def _rates(t, y: State, args: FieldArgs):
     """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table."""
     model = args.model
+    slopes = None
     if frictions_of(model.loads):
         # the Coulomb signs of the segment (its direction of motion, the signs of the rates
         # d phi_k/dq), frozen until w returns to 0 or a rate changes sign (events end the
         # segment there): the field stays smooth inside a segment
-        red, kin, alpha, friction_power, consistent, _, _ = frictional(model, t, y, args.direction, args.bridge,
-                                                                       args.rate_signs)
+        red, kin, alpha, friction_power, consistent, _, slopes = frictional(model, t, y, args.direction, args.bridge,
+                                                                            args.rate_signs)
         # direction 0: held at rest by the friction (a stick segment): nothing moves;
         # no consistent friction (a jam): NaN, so that the solver stops there instead of running away
         moving = args.direction != 0
@@ -111,6 +112,7 @@ def _rates(t, y: State, args: FieldArgs):
         work=None if y.work is None else red.work_force * y.omega + friction_power,
         dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
         branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
+        friction_rates=None if y.friction_rates is None else slopes * y.omega,
     )
     return rates, red.ok
 
@@ -154,9 +156,11 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
 
+    def rates_at(x, dx):
+        return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
+
     # d/dq of the rates: along q, x moves by dx and dx by d2x
-    rates, slopes = jax.jvp(lambda x, dx: _rates_of(mechanism, frictions, x, dx), (coeffs.x, coeffs.dx),
-                            (coeffs.dx, coeffs.d2x))
+    rates, slopes = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
     signs = jnp.sign(rates) if rate_signs is None else rate_signs
 
     def alpha_of(u):
@@ -198,18 +202,6 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     reactions0, basis = linearize_reactions(react, len(frictions) + 1)
     at_zero = jax.tree.map(lambda r, b: r + alpha0 * b[0], reactions0, basis)
     return at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)
-
-
-def _rates_of(mechanism, frictions, x, dx):
-    """The elements' d phi_k/dq (K,) from positions and first coefficients."""
-    return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
-
-
-def element_rates(model: Model, y: State, bridge: float = 0.0):
-    """The friction elements' d phi_k/dq (K,) at a state's q: first-order kinematics
-    only (what the event on their sign changes reads at each step)."""
-    coeffs = branch_coefficients(model.mechanism, y.q, near=near(model, y), bridge=bridge, order=1)
-    return _rates_of(model.mechanism, frictions_of(model.loads), coeffs.x, coeffs.dx)
 
 
 def directional_accelerations(model: Model, t, y: State):

@@ -380,6 +380,10 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
 
 
 def _finite_norm(y) -> Array:
-    """diffrax's RMS norm, infinite where the error is not finite (NaN stages: rejected)."""
+    """diffrax's RMS norm, infinite where the error is not finite (NaN stages: rejected).
+    The friction elements' integrated rates (``State.friction_rates``) only mark where a
+    segment ends: they do not steer the steps (mu = 0 steps as without friction)."""
+    if getattr(y, "friction_rates", None) is not None:
+        y = y._replace(friction_rates=None)
     n = optx.rms_norm(y)
     return jnp.where(jnp.isfinite(n), n, jnp.inf)

@@ -11,8 +11,8 @@ that way, when a time-dependent load makes that change.
 The motion is integrated by diffrax in segments inside one loop, each with its Coulomb
 signs frozen, so that the field is smooth inside a segment and a derivative sees every
 switch of the law (its saltation) through the located switch time: a slip segment ends
-where w returns to 0, or where some element's d phi_k/dq changes sign (read from the
-first-order kinematics at each step's end: the motion goes on with that sign flipped),
+where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
+value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
 the break-away margin max(a_+, -a_-) crosses 0 (another Event). Each segment starts by
 deciding its direction (sign(w), or at rest the break-away test), so the test is in the
@@ -32,6 +32,7 @@ import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 
+from .._friction import frictions_of
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
@@ -52,7 +53,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0).
     Returns (the Solution without outputs, the tracked branch's saved link angles or None)."""
     first_rest = settings.standstill
-    solver, n = solver_for(settings), ts.shape[0]
+    solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     slip_settings = settings._replace(standstill=True)
     slip_event = stop_event(slip_settings, switches=True)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
@@ -69,9 +70,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, offsets, stuck):
+    def segment(start, y, direction, signs, stuck):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
-                         rate_offsets=offsets, bridge=settings.bridge, nan_unassembled=settings.check_assembly)
+                         bridge=settings.bridge, nan_unassembled=settings.check_assembly)
         # held for good (nothing varies in time, or the run ends at the first rest): a segment of length zero
         stop = t1 if holds else jnp.where(stuck, start, t1)
         kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
@@ -94,11 +95,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
         # goes on with
         signs = jnp.sign(rates + slopes * direction * LOOKAHEAD * (1.0 + jnp.abs(y.q)))
-        # such an element starts just on that side (its rate offset so that its margin starts
-        # at +1e-200): the event watches the smallest margin, and one at or below 0 would hide
-        # every other crossing
-        offsets = jnp.where(signs * rates > 0, 0.0, rates - signs * 1e-200)
-        sol, args = segment(start, y, direction, signs, offsets, stuck)
+        # such an element starts just on that side: the event watches the smallest margin, and
+        # one at or below 0 would hide every other crossing
+        start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
+        sol, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
@@ -129,6 +129,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     def cond(carry):
         return ~carry[-1]
 
+    y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
