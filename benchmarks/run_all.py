@@ -27,6 +27,8 @@ BENCHMARKS = {
     "profile": ("bench_profile.py", []),
     "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
+    "dyads": ("bench_dyads.py", ["--repeats", "3"]),
+    "friction": ("bench_friction.py", []),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
     "gradients": ("bench_gradients.py", ["--repeats", "3"]),
