@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import assurjax
-from assurjax._geometry import cross
+from assurjax._geometry import cross, rotation
 from assurjax._kinetostatics import SingularConfigurationError, joint_names, reactions, static_reactions, static_torque
 from assurjax._kinematics import _kinematics_single
 from assurjax._kinetostatics import _api as kinetostatics_api
@@ -271,10 +271,6 @@ def test_every_prismatic_dyad_kind_is_covered():
     assert set(PRISMATIC_DYADS) <= kinds
 
 
-def _rot(angle):
-    return jnp.array([np.cos(angle), np.sin(angle)])
-
-
 def _dyad_geometry(kind, slant):
     """(scene, group index, geometry) of a dyad, singular at slant = 0 (closed form's
     determinant zero): RRP/PRR the rod normal to the guide, RPR E1 - E2 normal to the
@@ -284,17 +280,17 @@ def _dyad_geometry(kind, slant):
     if kind in ("RRP", "PRR"):  # rod A-B, slider at B on a guide along x
         geom = Geometry(points={"A": jnp.array([slant, 0.3]), "B": jnp.zeros(2)},
                         coms={"rod": jnp.array([0.5 * slant, 0.15]), "slider": jnp.array([0.02, -0.01])},
-                        rots={"slider": _rot(0.0), "rod": _rot(np.pi / 2)})
+                        rots={"slider": rotation(0.0), "rod": rotation(np.pi / 2)})
         return ("slider_crank" if kind == "RRP" else "slider_crank_prr"), 1, geom
     if kind == "RPR":  # block at A in the arm's slot along x, arm pivot O4 (an offset slot)
         geom = Geometry(points={"A": jnp.array([slant, 0.3]), "O4": jnp.zeros(2)},
                         coms={"block": jnp.array([slant + 0.01, 0.3]), "arm": jnp.array([0.2, 0.25])},
-                        rots={"block": _rot(0.0), "arm": _rot(0.0)})
+                        rots={"block": rotation(0.0), "arm": rotation(0.0)})
         return "quick_return", 1, geom
     # PRP: the block's guide (on the crank) turned by slant from the slide's (on the ground)
     geom = Geometry(points={"J": jnp.array([0.3, 0.2])},
                     coms={"block": jnp.array([0.31, 0.2]), "slide": jnp.array([0.25, 0.22])},
-                    rots={"block": _rot(slant), "slide": _rot(0.0)})
+                    rots={"block": rotation(slant), "slide": rotation(0.0)})
     return "tangent_drive", 1, geom
 
 

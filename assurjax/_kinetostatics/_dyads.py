@@ -10,6 +10,16 @@ from .._geometry import cross, safe_norm
 from ._system import SINGULAR, Geometry, Reaction, guide_normal, moment_about
 
 
+def _divided(numerator, det, ok):
+    """numerator / det where the dyad is regular (``ok``), 0 where it is singular (never NaN)."""
+    return jnp.where(ok, numerator / jnp.where(ok, det, 1.0), 0.0)
+
+
+def _pairs_by_point(pairs) -> dict:
+    """A dyad's pairs keyed by (point, the link they act on, kind)."""
+    return {(p.point, p.on, p.kind): p for p in pairs}
+
+
 def solve_rrr(group, pairs, geom: Geometry, known):
     """RRR dyad, links (a, b), joints (E1, E2, J), closed form.
 
@@ -20,8 +30,8 @@ def solve_rrr(group, pairs, geom: Geometry, known):
     R1 on a at E1, R2 on b at E2, RJ = R1 + fa on b by a at J.
     """
     (a, b), (e1, e2, j) = group.links, group.joints
-    by_point = {(p.point, p.on): p for p in pairs}
-    p1, p2, pj = by_point[(e1, a)], by_point[(e2, b)], by_point[(j, b)]
+    by_point = _pairs_by_point(pairs)
+    p1, p2, pj = by_point[(e1, a, "R")], by_point[(e2, b, "R")], by_point[(j, b, "R")]
     fa, fb = known[a][0], known[b][0]
     xj = geom.points[j]
     d1, d2 = geom.points[e1] - xj, geom.points[e2] - xj
@@ -30,8 +40,7 @@ def solve_rrr(group, pairs, geom: Geometry, known):
     c2 = mb_j - cross(d2, fa + fb)
     det = cross(d1, d2)
     ok = jnp.abs(det) > SINGULAR * safe_norm(d1) * safe_norm(d2)
-    det = jnp.where(ok, det, 1.0)
-    r1 = jnp.where(ok, jnp.stack([d2[0] * c1 - d1[0] * c2, d2[1] * c1 - d1[1] * c2]) / det, 0.0)
+    r1 = _divided(jnp.stack([d2[0] * c1 - d1[0] * c2, d2[1] * c1 - d1[1] * c2]), det, ok)
     rj = r1 + fa
     r2 = -rj - fb
     zero = jnp.zeros(())
@@ -48,7 +57,7 @@ def solve_rrp(group, pairs, geom: Geometry, known):
     rod at E, R_J on the slider by the rod at J, N n and C on the slider by the guide.
     """
     (rod, slider), (e, j) = group.links, group.joints
-    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    by_point = _pairs_by_point(pairs)
     pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, slider, "R")], by_point[(j, slider, "P")]
     normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
     rj = -known[slider][0] - normal * n
@@ -67,7 +76,7 @@ def _normal_on_slider(geom: Geometry, known, rod, slider, e, j, guide):
     det = cross(d, n)
     ok = jnp.abs(det) > SINGULAR * safe_norm(d)
     force = known[rod][0] + known[slider][0]
-    normal = jnp.where(ok, (moment_about(geom, known, rod, xj) - cross(d, force)) / jnp.where(ok, det, 1.0), 0.0)
+    normal = _divided(moment_about(geom, known, rod, xj) - cross(d, force), det, ok)
     return normal, n, ok
 
 
@@ -83,7 +92,7 @@ def solve_prr(group, pairs, geom: Geometry, known):
     f_s + N n on the rod by the slider at J, N n and C on the slider by the guide.
     """
     (slider, rod), (j, e) = group.links, group.joints
-    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    by_point = _pairs_by_point(pairs)
     pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, rod, "R")], by_point[(j, slider, "P")]
     normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
     rj = known[slider][0] + normal * n
@@ -105,14 +114,14 @@ def solve_rpr(group, pairs, geom: Geometry, known):
     N n and C on the block by the guide link.
     """
     (block, arm), (e1, e2) = group.links, group.joints
-    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    by_point = _pairs_by_point(pairs)
     p1, p2, slot = by_point[(e1, block, "R")], by_point[(e2, arm, "R")], by_point[(e1, block, "P")]
     x1, x2 = geom.points[e1], geom.points[e2]
     d, n = x1 - x2, guide_normal(geom, slot)
     det = cross(d, n)
     ok = jnp.abs(det) > SINGULAR * safe_norm(d)
     mb = moment_about(geom, known, block, x1)
-    normal = jnp.where(ok, (moment_about(geom, known, arm, x2) + mb) / jnp.where(ok, det, 1.0), 0.0)
+    normal = _divided(moment_about(geom, known, arm, x2) + mb, det, ok)
     zero = jnp.zeros(())
     return {p1.name: Reaction(-known[block][0] - normal * n, zero), p2.name: Reaction(normal * n - known[arm][0], zero),
             slot.name: Reaction(normal * n, -mb)}, None, ok
@@ -130,7 +139,7 @@ def solve_prp(group, pairs, geom: Geometry, known):
     N_k n_k and C_k on slider k by its guide's link.
     """
     (s1, s2), j = group.links, group.joint
-    by_point = {(p.point, p.on, p.kind): p for p in pairs}
+    by_point = _pairs_by_point(pairs)
     pj, g1, g2 = by_point[(j, s2, "R")], by_point[(j, s1, "P")], by_point[(j, s2, "P")]
     f1 = known[s1][0]
     force = f1 + known[s2][0]
@@ -138,9 +147,7 @@ def solve_prp(group, pairs, geom: Geometry, known):
     n1, n2 = guide_normal(geom, g1), guide_normal(geom, g2)
     det = cross(n1, n2)
     ok = jnp.abs(det) > SINGULAR
-    det = jnp.where(ok, det, 1.0)
-    normal1 = jnp.where(ok, cross(n2, force) / det, 0.0)
-    normal2 = jnp.where(ok, cross(force, n1) / det, 0.0)
+    normal1, normal2 = _divided(cross(n2, force), det, ok), _divided(cross(force, n1), det, ok)
     zero = jnp.zeros(())
     return {pj.name: Reaction(f1 + normal1 * n1, zero),
             g1.name: Reaction(normal1 * n1, -moment_about(geom, known, s1, xj)),
