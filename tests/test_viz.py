@@ -211,3 +211,36 @@ def test_draw_mechanism_slider_and_units(tmp_path):
     np.testing.assert_allclose(corners.mean(axis=0), b, atol=1e-12)
     ax.figure.savefig(tmp_path / "slider.png")
     assert (tmp_path / "slider.png").stat().st_size > 1000
+
+
+
+def _guided_mechanisms():
+    """Bundled scenes with a guide on the ground, and random dyads (test_dyads) whose guides
+    on the ground have random directions and offsets: RRP, PRR, a slider driver with a PRP."""
+    import test_dyads
+
+    rng = np.random.default_rng(7)
+    out = {name: assurjax.load_scene(name).mechanism for name in ("slider_crank", "quick_return", "tangent_drive")}
+    out["random RRP"] = test_dyads.crank_rrp(rng, 1)[0]
+    out["random PRR"] = test_dyads.crank_rrp(rng, -1, kind="PRR")[0]
+    out["random slider + PRP"] = test_dyads.slider_prp(rng)[0]
+    return out
+
+
+def test_ground_guides_drawn_through_the_sliding_points():
+    """Every guide line the drawing puts on the ground carries the point that slides on it,
+    at every configuration that assembles (the lines come from the groups' declared guides)."""
+    from assurjax.groups import GROUND
+    from assurjax.viz._draw import _ground_guides
+
+    for name, mech in _guided_mechanisms().items():
+        q = np.linspace(0.0, 2 * np.pi, 13) if mech.driver.kind == "crank" else np.linspace(-0.05, 0.05, 9)
+        frames = viz.mechanism_frames(mech, q)
+        lines = _ground_guides(mech)
+        owner = dict(mech.owner)
+        sliding = [p for g in mech.groups for _, guide, p in g.prismatic_pairs(owner) if guide == GROUND]
+        assert lines and sliding and frames.ok.any(), name
+        for p in sliding:
+            xy = frames.points[p][frames.ok]
+            distances = [np.max(np.abs(u[0] * (xy - base)[:, 1] - u[1] * (xy - base)[:, 0])) for base, u in lines]
+            assert min(distances) < 1e-9, (name, p, distances)

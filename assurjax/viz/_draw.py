@@ -41,20 +41,18 @@ def _hull_order(local: dict[str, np.ndarray]) -> list[str]:
 
 
 def _ground_guides(mechanism: Mechanism) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(point on the line, unit direction) of each prismatic guide carried by the ground (m)."""
+    """(point on the line, unit direction) of each prismatic guide carried by the ground (m):
+    the guides the groups declare (``AbstractGroup.guides``) through a ground point."""
     owner = dict(mechanism.owner)
     guides = []
     for g in mechanism.groups:
-        points = getattr(g, "guide_points", None) or ((g.guide_point,) if hasattr(g, "guide_point") else ())
-        dirs = np.atleast_2d(np.asarray(getattr(g, "directions", getattr(g, "direction", [1.0, 0.0])), dtype=float))
-        offsets = np.atleast_1d(np.asarray(getattr(g, "offsets", getattr(g, "offset", 0.0)), dtype=float))
-        for k, p in enumerate(points):
-            if owner.get(p) != GROUND:
+        for point, direction, offset in g.guides():
+            if point is None or owner.get(point) != GROUND:
                 continue
-            u = dirs[min(k, len(dirs) - 1)]
+            u = np.asarray(direction, dtype=float)
             u = u / np.hypot(*u)
             n = np.array([-u[1], u[0]])
-            guides.append((np.asarray(mechanism.ground[p], dtype=float) + offsets[min(k, len(offsets) - 1)] * n, u))
+            guides.append((np.asarray(mechanism.ground[point], dtype=float) + float(offset) * n, u))
     return guides
 
 
