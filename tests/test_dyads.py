@@ -418,3 +418,15 @@ def test_kinematics_batch_shape_and_order():
     for k in (kin, kin0):
         np.testing.assert_allclose(k.points["B"][..., 0], r * np.cos(q) + root, atol=1e-13)
     np.testing.assert_allclose(kin.velocities["B"][..., 0], -r * np.sin(q) - r**2 * np.sin(q) * np.cos(q) / root, atol=1e-12)
+
+
+def test_groups_with_an_assembly_mode_declare_two_modes():
+    """A group class with a ``mode`` field declares ``two_modes`` (the tracked branch then
+    tries both roots), and no other does."""
+    import dataclasses
+    import inspect
+
+    classes = [c for _, c in inspect.getmembers(groups, inspect.isclass) if issubclass(c, groups.AbstractGroup)]
+    assert any(c.two_modes for c in classes)
+    for c in classes:
+        assert c.two_modes == ("mode" in {f.name for f in dataclasses.fields(c)}), c.__name__

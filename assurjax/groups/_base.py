@@ -158,8 +158,8 @@ def distance(links: dict[str, Link], link: str, a: str, b: str) -> Array:
 class AbstractGroup(eqx.Module):
     """Base of drivers and Assur groups.
 
-    Subclasses declare ``kind`` and ``n_prismatic`` (prismatic pairs that are not
-    visible as shared point names) and implement ``external_points``,
+    Subclasses declare ``kind``, ``n_prismatic`` (prismatic pairs that are not
+    visible as shared point names) and ``two_modes`` and implement ``external_points``,
     ``required_points`` and ``solve``.
     """
 
@@ -168,6 +168,7 @@ class AbstractGroup(eqx.Module):
     kind: ClassVar[str]
     n_prismatic: ClassVar[int] = 0
     is_driver: ClassVar[bool] = False
+    two_modes: ClassVar[bool] = False  # a closed form with two assembly modes, its field ``mode`` = +1 / -1
 
     @abc.abstractmethod
     def external_points(self) -> tuple[str, ...]:

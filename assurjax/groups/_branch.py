@@ -35,11 +35,10 @@ from ._base import AbstractGroup, Frame, Link, Placement
 
 def branch_candidates(group: AbstractGroup) -> tuple[AbstractGroup, ...]:
     """The group itself, then the same group with its assembly mode flipped
-    (closed-form groups with a ``mode`` field); just the group otherwise."""
-    mode = getattr(group, "mode", None)
-    if group.is_driver or mode not in (1, -1):
+    (closed forms with two modes, ``AbstractGroup.two_modes``); just the group otherwise."""
+    if not group.two_modes:
         return (group,)
-    return (group, dataclasses.replace(group, mode=-mode))
+    return (group, dataclasses.replace(group, mode=-group.mode))
 
 
 def branch_distance(frames: dict[str, Frame], near: dict[str, Array], tracked: tuple[str, ...]) -> Array:

@@ -24,6 +24,7 @@ class RPR(AbstractGroup):
     direction: Array
     offset: Array
     kind = "RPR"
+    two_modes = True
     n_prismatic = 1  # block on the guide link
 
     def __check_init__(self):

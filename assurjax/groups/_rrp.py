@@ -26,6 +26,7 @@ class RRP(AbstractGroup):
     direction: Array
     offset: Array
     kind = "RRP"
+    two_modes = True
     n_prismatic = 1
 
     def __check_init__(self):
