@@ -48,57 +48,41 @@ def solve_rrr(group, pairs, geom: Geometry, known):
 
 
 def solve_rrp(group, pairs, geom: Geometry, known):
-    """RRP dyad, links (rod, slider), joints (E, J), the slider on its guide at J; closed form.
-
-    The slider's forces R_J + N n + f_s = 0 and the rod's R_E - R_J + f_r = 0 give
-    R_E = -f_r - f_s - N n; the rod's moments about J, d x R_E = -M_r (d = E - J),
-    give N = (M_r - d x (f_r + f_s)) / (d x n), singular when the rod is normal to the
-    guide; the slider's moments about J give the guide's couple C = -M_s. R_E on the
-    rod at E, R_J on the slider by the rod at J, N n and C on the slider by the guide.
-    """
+    """RRP dyad, links (rod, slider), joints (E, J), the slider on its guide at J; closed
+    form (:func:`_rod_and_slider`), R_J on the slider by the rod."""
     (rod, slider), (e, j) = group.links, group.joints
+    return _rod_and_slider(pairs, geom, known, rod, slider, e, j, joint_on=slider)
+
+
+def solve_prr(group, pairs, geom: Geometry, known):
+    """PRR dyad (the RRP listed from its prismatic end), links (slider, rod), joints (J, E);
+    closed form (:func:`_rod_and_slider`), R_J on the rod by the slider."""
+    (slider, rod), (j, e) = group.links, group.joints
+    return _rod_and_slider(pairs, geom, known, rod, slider, e, j, joint_on=rod)
+
+
+def _rod_and_slider(pairs, geom: Geometry, known, rod, slider, e, j, joint_on):
+    """A rod pinned at E and at J to a slider on its guide at J (RRP, PRR).
+
+    With R_J on the slider by the rod, the slider's forces R_J + N n + f_s = 0 and the
+    rod's R_E - R_J + f_r = 0 give R_E = -f_r - f_s - N n; the rod's moments about J,
+    d x R_E = -M_r (d = E - J), give N = (M_r - d x (f_r + f_s)) / (d x n), singular when
+    the rod is normal to the guide (N = 0 there, never NaN); the slider's moments about J
+    give the guide's couple C = -M_s. R_E on the rod at E, R_J at J on ``joint_on`` (the
+    link the dyad's layout puts that pair on; on the rod it is -R_J), N n and C on the
+    slider by the guide."""
     by_point = _pairs_by_point(pairs)
-    pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, slider, "R")], by_point[(j, slider, "P")]
-    normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
-    rj = -known[slider][0] - normal * n
-    zero = jnp.zeros(())
-    return {pe.name: Reaction(rj - known[rod][0], zero), pj.name: Reaction(rj, zero),
-            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, geom.points[j]))}, None, ok
-
-
-def _normal_on_slider(geom: Geometry, known, rod, slider, e, j, guide):
-    """(N, the guide's normal n, ok) for a rod pinned at E and at J to a slider on its
-    guide at J: the rod's moments about J, d x R_E = -M_r with R_E = -f_r - f_s - N n
-    (d = E - J), give N = (M_r - d x (f_r + f_s)) / (d x n), singular when the rod is
-    normal to the guide (N = 0 there, never NaN)."""
+    pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, joint_on, "R")], by_point[(j, slider, "P")]
     xj = geom.points[j]
     d, n = geom.points[e] - xj, guide_normal(geom, guide)
     det = cross(d, n)
     ok = jnp.abs(det) > SINGULAR * safe_norm(d)
-    force = known[rod][0] + known[slider][0]
-    normal = _divided(moment_about(geom, known, rod, xj) - cross(d, force), det, ok)
-    return normal, n, ok
-
-
-def solve_prr(group, pairs, geom: Geometry, known):
-    """PRR dyad (the RRP listed from its prismatic end), links (slider, rod), joints (J, E),
-    the slider on its guide at J; closed form.
-
-    As for the RRP, but the internal reaction R_J now acts on the rod by the slider.
-    The slider's forces -R_J + N n + f_s = 0 and the rod's R_E + R_J + f_r = 0 give
-    R_E = -f_r - f_s - N n; the rod's moments about J, d x R_E = -M_r (d = E - J),
-    give N = (M_r - d x (f_r + f_s)) / (d x n), singular when the rod is normal to the
-    guide; the slider's moments about J give C = -M_s. R_E on the rod at E, R_J =
-    f_s + N n on the rod by the slider at J, N n and C on the slider by the guide.
-    """
-    (slider, rod), (j, e) = group.links, group.joints
-    by_point = _pairs_by_point(pairs)
-    pe, pj, guide = by_point[(e, rod, "R")], by_point[(j, rod, "R")], by_point[(j, slider, "P")]
-    normal, n, ok = _normal_on_slider(geom, known, rod, slider, e, j, guide)
-    rj = known[slider][0] + normal * n
+    normal = _divided(moment_about(geom, known, rod, xj) - cross(d, known[rod][0] + known[slider][0]), det, ok)
+    on_slider = -known[slider][0] - normal * n
     zero = jnp.zeros(())
-    return {pe.name: Reaction(-rj - known[rod][0], zero), pj.name: Reaction(rj, zero),
-            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, geom.points[j]))}, None, ok
+    return {pe.name: Reaction(on_slider - known[rod][0], zero),
+            pj.name: Reaction(on_slider if joint_on == slider else -on_slider, zero),
+            guide.name: Reaction(normal * n, -moment_about(geom, known, slider, xj))}, None, ok
 
 
 def solve_rpr(group, pairs, geom: Geometry, known):
