@@ -56,6 +56,7 @@ from .dynamics import (
     simulate_seed_euler as simulate_seed_euler,
 )
 from ._cache import enable_compilation_cache as enable_compilation_cache
+from ._jit import enable_fast_loops as enable_fast_loops
 from ._jit import jit as jit
 from ._loads import (
     AbstractLoad as AbstractLoad,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 import threading
 
 import equinox as eqx
@@ -26,6 +27,46 @@ COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 # code generation of the L-BFGS synthesis program 2.0 -> 0.7 s, its runs 4-5x slower. For
 # programs compiled once and run briefly (see ``synthesis.optimize``'s ``compile_mode``).
 QUICK_OPTIONS = {**COMPILER_OPTIONS, "xla_backend_optimization_level": 0}
+
+
+# XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
+# function instead of running its operations one at a time; a simulation's integration loop
+# is over the default threshold. Above it, a compiled simulation runs 3-7x faster
+# (benchmarks/bench_fast_loops.py). An XLA flag, read once per process at its first
+# compile: offered (enable_fast_loops), never set for the user.
+FAST_LOOPS_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+
+
+def fast_loops() -> bool:
+    """Whether this process runs with :func:`enable_fast_loops`'s XLA flag."""
+    return FAST_LOOPS_FLAG in os.environ.get("XLA_FLAGS", "")
+
+
+def enable_fast_loops() -> None:
+    """Let XLA compile each simulation's integration loop into one function: compiled
+    simulations run 3-7x faster on a CPU (single runs and batches; with joint friction
+    too), first calls take up to ~1.5x longer. Process-wide: it sets an XLA flag that JAX
+    reads at its first computation, so call it right after ``import assurjax``, before
+    anything runs (else :class:`assurjax.AssurjaxError`; restart the kernel). Scenes whose
+    groups are solved iteratively (triads, class-IV groups) keep LAPACK calls in the loop
+    and run as before. Same as starting Python with ``XLA_FLAGS`` holding
+    :data:`FAST_LOOPS_FLAG`.
+
+    >>> import assurjax
+    >>> assurjax.enable_fast_loops()
+    """
+    from ._errors import AssurjaxError
+
+    if fast_loops():
+        return
+    try:
+        from jax._src.xla_bridge import backends_are_initialized
+    except ImportError:  # a JAX without it: the flag still applies if nothing has run yet
+        backends_are_initialized = lambda: False  # noqa: E731
+    if backends_are_initialized():
+        raise AssurjaxError("enable_fast_loops() comes too late: JAX has already run a computation in this process and "
+                            "reads XLA's flags only once; call it right after `import assurjax` (restart the kernel)")
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_LOOPS_FLAG}".strip()
 
 
 def _at_top_level() -> bool:

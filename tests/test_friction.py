@@ -430,3 +430,57 @@ def test_start_on_a_switch_takes_the_signs_it_goes_on_with():
     fd = (q_at(jnp.asarray(0.15 + h), "recursive") - q_at(jnp.asarray(0.15 - h), "recursive")) / (2 * h)
     np.testing.assert_allclose(float(jax.grad(lambda m: q_at(m, "recursive"))(jnp.asarray(0.15))), float(fd), rtol=1e-6)
     np.testing.assert_allclose(float(jax.jacfwd(lambda m: q_at(m, "forward"))(jnp.asarray(0.15))), float(fd), rtol=1e-6)
+
+
+def test_determinant_against_numpy():
+    """The LAPACK-free determinant of the Painleve test against numpy's (LAPACK), on random
+    matrices with zeros that force row exchanges, and on singular ones."""
+    from assurjax._friction import determinant
+
+    rng = np.random.default_rng(7)
+    det = jax.jit(determinant)
+    for n in (1, 2, 3, 5, 8):
+        for _ in range(20):
+            a = rng.normal(size=(n, n)) * (rng.random((n, n)) > 0.3)
+            assert abs(float(det(jnp.asarray(a))) - np.linalg.det(a)) <= 1e-13 * max(1.0, abs(np.linalg.det(a)))
+    assert float(det(jnp.array([[0.0, 1.0], [1.0, 0.0]]))) == -1.0
+    assert float(det(jnp.array([[1.0, 2.0], [2.0, 4.0]]))) == 0.0
+
+
+FAST_LOOPS_RUN = """
+import json, sys
+import assurjax as aj
+aj.enable_fast_loops()
+import jax, jax.numpy as jnp
+sys.path.insert(0, {tests!r})
+import test_friction as tf
+slider = aj.load_scene("slider_crank")
+sol = tf.run(slider, tf.MU, viscous=1e-3)
+solve = jax.jit(tf._closed_form_solve(slider))
+laws = [(float(u[0]), bool(ok)) for u, ok in (solve(a, b) for a, b, _, _ in tf.CLOSED_FORM_LAWS)]
+print(json.dumps(dict(q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws)))
+"""
+
+
+def test_fast_loops_give_the_same_motion(rough):
+    """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the
+    friction's Newton fallback solves without LAPACK (conjugate gradients): the rough
+    slider-crank's motion as in this process, its energy balance, the closed-form laws
+    with their failure flags; and in this process, where JAX has run, the call says it is too late."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = FAST_LOOPS_RUN.format(tests=os.path.dirname(__file__))
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", code], check=True, env=env, capture_output=True, text=True).stdout
+    fast = json.loads(out.strip().splitlines()[-1])
+    np.testing.assert_allclose(fast["q"], rough.q, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(fast["omega"], rough.omega, rtol=0, atol=1e-7)
+    assert np.max(np.abs(fast["balance"])) < 1e-8 * np.max(np.abs(rough.total))
+    for (u, ok), (_, _, expected, expected_ok) in zip(fast["laws"], CLOSED_FORM_LAWS):
+        assert ok == expected_ok and (expected is None or abs(u - expected) < 1e-12)
+    if "xla_cpu_small_while_loop_byte_threshold" not in os.environ.get("XLA_FLAGS", ""):
+        with pytest.raises(aj.AssurjaxError, match="too late"):
+            aj.enable_fast_loops()
