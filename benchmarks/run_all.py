@@ -29,6 +29,7 @@ BENCHMARKS = {
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
+    "fast_loops": ("bench_fast_loops.py", []),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
     "gradients": ("bench_gradients.py", ["--repeats", "3"]),

@@ -473,8 +473,7 @@ def test_fast_loops_give_the_same_motion(rough):
     import sys
 
     code = FAST_LOOPS_RUN.format(tests=os.path.dirname(__file__))
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    out = subprocess.run([sys.executable, "-c", code], check=True, env=env, capture_output=True, text=True).stdout
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     fast = json.loads(out.strip().splitlines()[-1])
     np.testing.assert_allclose(fast["q"], rough.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(fast["omega"], rough.omega, rtol=0, atol=1e-7)
