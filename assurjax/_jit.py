@@ -31,7 +31,7 @@ QUICK_OPTIONS = {**COMPILER_OPTIONS, "xla_backend_optimization_level": 0}
 
 # XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
 # function instead of running its operations one at a time; a simulation's integration loop
-# is over the default threshold. Above it, a compiled simulation runs 3-7x faster
+# is over the default threshold. Above it, a compiled simulation runs 1.6-8x faster
 # (benchmarks/bench_fast_loops.py). An XLA flag, read once per process at its first
 # compile: offered (enable_fast_loops), never set for the user.
 FAST_LOOPS_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
@@ -44,13 +44,15 @@ def fast_loops() -> bool:
 
 def enable_fast_loops() -> None:
     """Let XLA compile each simulation's integration loop into one function: compiled
-    simulations run 3-7x faster on a CPU (single runs and batches; with joint friction
-    too), first calls take up to ~1.5x longer. Process-wide: it sets an XLA flag that JAX
-    reads at its first computation, so call it right after ``import assurjax``, before
-    anything runs (else :class:`assurjax.AssurjaxError`; restart the kernel). Scenes whose
-    groups are solved iteratively (triads, class-IV groups) keep LAPACK calls in the loop
-    and run as before. Same as starting Python with ``XLA_FLAGS`` holding
-    :data:`FAST_LOOPS_FLAG`.
+    simulations run 1.6-8x faster on a CPU without friction, 1.8-5x with it (single runs
+    and batches); first calls take as long without friction, 2-3x longer with it. Worth it
+    where one compiled program runs many times (sweeps, synthesis, interactive use).
+    Process-wide: it sets an XLA flag that JAX reads at its first computation, so call it
+    right after ``import assurjax``, before anything runs (else
+    :class:`assurjax.AssurjaxError`; restart the kernel). Scenes whose groups are solved
+    iteratively (triads, class-IV groups) keep LAPACK calls in the loop and run as before.
+    Same as starting Python with
+    ``XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``.
 
     >>> import assurjax
     >>> assurjax.enable_fast_loops()
