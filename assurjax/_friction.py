@@ -292,8 +292,8 @@ def determinant(a: Array) -> Array:
 
     def eliminate(j, carry):
         a, det = carry
-        pivot = jnp.argmax(jnp.where(jnp.arange(n) >= j, jnp.abs(a[:, j]), -1.0))
         rows = jnp.arange(n)
+        pivot = jnp.argmax(jnp.where(rows >= j, jnp.abs(a[:, j]), -1.0))
         swapped = jnp.where((rows == j)[:, None], a[pivot], jnp.where((rows == pivot)[:, None], a[j], a))
         det = det * swapped[j, j] * jnp.where(pivot == j, 1.0, -1.0)
         factors = jnp.where(rows > j, swapped[:, j] / jnp.where(swapped[j, j] == 0, 1.0, swapped[j, j]), 0.0)

@@ -29,17 +29,26 @@ COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 QUICK_OPTIONS = {**COMPILER_OPTIONS, "xla_backend_optimization_level": 0}
 
 
+def add_xla_flag(flag: str, setting: str) -> None:
+    """Append ``flag`` to ``XLA_FLAGS`` unless it already names ``setting`` (the user's own
+    value stands). XLA reads the variable once per process, when JAX first compiles."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if setting not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
+
+
 # XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
 # function instead of running its operations one at a time; a simulation's integration loop
 # is over the default threshold. Above it, a compiled simulation runs 1.6-8x faster
 # (benchmarks/bench_fast_loops.py). An XLA flag, read once per process at its first
 # compile: offered (enable_fast_loops), never set for the user.
-FAST_LOOPS_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+FAST_LOOPS_SETTING = "xla_cpu_small_while_loop_byte_threshold"
+FAST_LOOPS_FLAG = f"--xla_backend_extra_options={FAST_LOOPS_SETTING}=1000000000"
 
 
 def fast_loops() -> bool:
-    """Whether this process runs with :func:`enable_fast_loops`'s XLA flag."""
-    return FAST_LOOPS_FLAG in os.environ.get("XLA_FLAGS", "")
+    """Whether this process runs with the threshold of :func:`enable_fast_loops` set."""
+    return FAST_LOOPS_SETTING in os.environ.get("XLA_FLAGS", "")
 
 
 def enable_fast_loops() -> None:
@@ -68,7 +77,7 @@ def enable_fast_loops() -> None:
     if backends_are_initialized():
         raise AssurjaxError("enable_fast_loops() comes too late: JAX has already run a computation in this process and "
                             "reads XLA's flags only once; call it right after `import assurjax` (restart the kernel)")
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_LOOPS_FLAG}".strip()
+    add_xla_flag(FAST_LOOPS_FLAG, FAST_LOOPS_SETTING)
 
 
 def _at_top_level() -> bool:

@@ -672,10 +672,10 @@ STALL_FREE_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
 
 def _avoid_runtime_stall() -> None:
     """Add :data:`STALL_FREE_FLAG` to ``XLA_FLAGS`` (read when JAX starts its CPU backend,
-    which importing assurjax does not), keeping the user's own flags."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_enable_concurrency_optimized_scheduler" not in flags:
-        os.environ["XLA_FLAGS"] = f"{flags} {STALL_FREE_FLAG}".strip()
+    which importing assurjax does not), keeping the user's own setting."""
+    from ._jit import add_xla_flag
+
+    add_xla_flag(STALL_FREE_FLAG, "xla_cpu_enable_concurrency_optimized_scheduler")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -3,19 +3,19 @@
 import os
 import textwrap
 
+import numpy as np
+import pytest
+
+import assurjax  # importing it starts no JAX backend
+from assurjax._jit import add_xla_flag
+from assurjax.cli import STALL_FREE_FLAG
+
 # XLA's CPU runtime can stall inside a large compiled call on this 2-core machine (all
 # threads waiting; reproduced standalone with reactions() of 4001 states of the shaper in
 # test_outputs.py, 0 of 4 runs finished); with the concurrency-optimized scheduler off it
 # finished 5 of 5. Set before JAX starts its backend; the package itself sets no process-wide
 # flag (docs/design-notes.md, "Known issues").
-_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
-
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-import assurjax  # noqa: E402
+add_xla_flag(STALL_FREE_FLAG, "xla_cpu_enable_concurrency_optimized_scheduler")
 
 # The command line keeps compiled programs on disk by default; tests leave no files behind.
 os.environ.setdefault("ASSURJAX_NO_CACHE", "1")

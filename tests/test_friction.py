@@ -458,7 +458,7 @@ slider = aj.load_scene("slider_crank")
 sol = tf.run(slider, tf.MU, viscous=1e-3)
 solve = jax.jit(tf._closed_form_solve(slider))
 laws = [(float(u[0]), bool(ok)) for u, ok in (solve(a, b) for a, b, _, _ in tf.CLOSED_FORM_LAWS)]
-print(json.dumps(dict(q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws)))
+print(json.dumps(dict(fast=aj._jit.fast_loops(), q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws)))
 """
 
 
@@ -475,6 +475,7 @@ def test_fast_loops_give_the_same_motion(rough):
     code = FAST_LOOPS_RUN.format(tests=os.path.dirname(__file__))
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     fast = json.loads(out.strip().splitlines()[-1])
+    assert fast["fast"], "the child process did not run with the fast-loops flag"
     np.testing.assert_allclose(fast["q"], rough.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(fast["omega"], rough.omega, rtol=0, atol=1e-7)
     assert np.max(np.abs(fast["balance"])) < 1e-8 * np.max(np.abs(rough.total))
