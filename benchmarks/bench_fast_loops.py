@@ -16,8 +16,10 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
+import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -32,7 +34,6 @@ sys.path.insert(0, {here!r})
 import assurjax
 if {fast}:
     assurjax.enable_fast_loops()
-import jax
 import numpy as np
 from _timing import best_time
 from bench_friction import frictions, marginal_per_step
@@ -82,9 +83,6 @@ def run_child(fast: bool) -> dict:
 
 def lapack_calls(fast: bool, name: str) -> dict:
     """Library calls left in the integration program (XLA's dump after optimization)."""
-    import re
-    import tempfile
-
     with tempfile.TemporaryDirectory() as dump:
         flags = f"--xla_dump_to={dump} --xla_dump_hlo_as_text"
         env = {**{k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}, "ASSURJAX_NO_CACHE": "1", "XLA_FLAGS": flags}
