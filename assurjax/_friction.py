@@ -30,14 +30,13 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
-from ._jit import fast_loops
+from ._linalg import determinant, small_solver
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
 from .groups._base import GROUND
@@ -273,35 +272,6 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
 
 
-def _linear_solver(k: int) -> lx.AbstractLinearSolver:
-    """Newton's linear solver for the K x K friction system: LU, or with
-    :func:`assurjax.enable_fast_loops` conjugate gradients on the normal equations (matrix-vector
-    products only, exact in K steps up to round-off): XLA compiles an integration loop into one
-    function only if no LAPACK call is inside, and one LU in this fallback kept every loop with
-    friction out (the press's step 18 -> 4 us). CG costs ~2 s more to compile, so only there.
-    (lineax's BiCGStab returns NaN where a step solves the system exactly, e.g. at mu = 0.)"""
-    if fast_loops():
-        return lx.Normal(lx.CG(rtol=1e-13, atol=1e-13, max_steps=8 * (k + 1)))
-    return lx.LU()
-
-
-def determinant(a: Array) -> Array:
-    """det(a) of a small square matrix by Gaussian elimination with partial pivoting, in
-    plain array operations (``jnp.linalg.det`` calls LAPACK, see :func:`_linear_solver`)."""
-    n = a.shape[0]
-
-    def eliminate(j, carry):
-        a, det = carry
-        rows = jnp.arange(n)
-        pivot = jnp.argmax(jnp.where(rows >= j, jnp.abs(a[:, j]), -1.0))
-        swapped = jnp.where((rows == j)[:, None], a[pivot], jnp.where((rows == pivot)[:, None], a[j], a))
-        det = det * swapped[j, j] * jnp.where(pivot == j, 1.0, -1.0)
-        factors = jnp.where(rows > j, swapped[:, j] / jnp.where(swapped[j, j] == 0, 1.0, swapped[j, j]), 0.0)
-        return swapped - factors[:, None] * swapped[j][None, :], det
-
-    return jax.lax.fori_loop(0, n, eliminate, (a, jnp.ones((), a.dtype)))[1]
-
-
 # Fixed-point steps before Newton takes over: within them the iteration converges to 1e-12
 # only while it contracts by ~0.4 per step or better, so its error stays below the tolerance.
 FIXED_POINT_STEPS = 32
@@ -349,7 +319,7 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         return u - law(u)
 
     def newton(u0):
-        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=_linear_solver(k)), u0, max_steps=64,
+        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), u0, max_steps=64,
                              throw=False)
         # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
         # than inertia resists (the effective inertia is not positive): no consistent motion has

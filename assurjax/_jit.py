@@ -58,9 +58,9 @@ def enable_fast_loops() -> None:
     where one compiled program runs many times (sweeps, synthesis, interactive use).
     Process-wide: it sets an XLA flag that JAX reads at its first computation, so call it
     right after ``import assurjax``, before anything runs (else
-    :class:`assurjax.AssurjaxError`; restart the kernel). Scenes whose groups are solved
-    iteratively (triads, class-IV groups) keep LAPACK calls in the loop and run as before.
-    Same as starting Python with
+    :class:`assurjax.AssurjaxError`; restart the kernel). The dense systems of a right-hand
+    side (friction's Newton fallback, a triad's statics) then solve without LAPACK, which
+    would keep the loop out. Same as starting Python with
     ``XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``.
 
     >>> import assurjax

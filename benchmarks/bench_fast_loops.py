@@ -6,7 +6,8 @@ no persistent compilation cache: the first call (trace and compile) and the best
 call of single simulations on the bundled scenes, with and without joint friction in every
 pair; a batch of 16 starts; the marginal cost of one more step of the driven press (runs
 of 2 and 4 s, as in bench_friction.py); and whether the integration program still calls
-LAPACK (then XLA cannot compile its loop into one function).
+LAPACK with friction (then XLA cannot compile its loop into one function), for the press
+and the triad mechanism.
 
     python benchmarks/bench_fast_loops.py          # writes results/fast_loops.json
 """
@@ -26,7 +27,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 # (scene, t1, friction in every pair)
 SINGLE = [("slider_crank", 2.0, False), ("slider_crank", 2.0, True), ("watt_sixbar", 2.0, False),
           ("watt_sixbar", 2.0, True), ("press_with_friction", 2.0, False), ("press_with_friction", 2.0, True),
-          ("quick_return", 2.0, False), ("triad_mechanism", 2.0, False), ("strandbeest", 0.2, False)]
+          ("quick_return", 2.0, False), ("triad_mechanism", 2.0, False), ("triad_mechanism", 1.0, True),
+          ("strandbeest", 0.2, False)]
 
 CHILD = r"""
 import json, sys, time
@@ -65,11 +67,15 @@ print("RESULT" + json.dumps(out))
 """
 
 LAPACK_CHILD = r"""
+import sys
+sys.path.insert(0, {here!r})
 import assurjax
 if {fast}:
     assurjax.enable_fast_loops()
+from bench_friction import frictions
 scene = assurjax.load_scene({name!r})
-assurjax.simulate(scene, t1=0.1, stop=None, samples=2)
+rough = scene.loads if any(l.needs_reactions for l in scene.loads) else scene.loads + frictions(scene.mechanism)
+assurjax.simulate(scene, loads=rough, t1=0.1, stop=None, samples=2)
 """
 
 
@@ -82,11 +88,11 @@ def run_child(fast: bool) -> dict:
 
 
 def lapack_calls(fast: bool, name: str) -> dict:
-    """Library calls left in the integration program (XLA's dump after optimization)."""
+    """Library calls left in the integration program with friction (XLA's dump after optimization)."""
     with tempfile.TemporaryDirectory() as dump:
         flags = f"--xla_dump_to={dump} --xla_dump_hlo_as_text"
         env = {**{k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}, "ASSURJAX_NO_CACHE": "1", "XLA_FLAGS": flags}
-        subprocess.run([sys.executable, "-c", LAPACK_CHILD.format(fast=fast, name=name)], env=env, check=True,
+        subprocess.run([sys.executable, "-c", LAPACK_CHILD.format(here=HERE, fast=fast, name=name)], env=env, check=True,
                        capture_output=True)
         text = "".join(open(os.path.join(dump, f)).read() for f in os.listdir(dump)
                        if "integrate" in f and f.endswith("cpu_after_optimizations.txt"))
@@ -100,6 +106,7 @@ def main():
         key = "fast_loops" if fast else "default"
         out["configurations"][key] = run_child(fast)
         out["configurations"][key]["lapack_in_press_integration"] = lapack_calls(fast, "press_with_friction")
+        out["configurations"][key]["lapack_in_triad_integration"] = lapack_calls(fast, "triad_mechanism")
         print(key, json.dumps(out["configurations"][key], indent=1))
     default, fast = out["configurations"]["default"], out["configurations"]["fast_loops"]
     for a, b in zip(default["single"], fast["single"]):

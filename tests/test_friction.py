@@ -432,21 +432,6 @@ def test_start_on_a_switch_takes_the_signs_it_goes_on_with():
     np.testing.assert_allclose(float(jax.jacfwd(lambda m: q_at(m, "forward"))(jnp.asarray(0.15))), float(fd), rtol=1e-6)
 
 
-def test_determinant_against_numpy():
-    """The LAPACK-free determinant of the Painleve test against numpy's (LAPACK), on random
-    matrices with zeros that force row exchanges, and on singular ones."""
-    from assurjax._friction import determinant
-
-    rng = np.random.default_rng(7)
-    det = jax.jit(determinant)
-    for n in (1, 2, 3, 5, 8):
-        for _ in range(20):
-            a = rng.normal(size=(n, n)) * (rng.random((n, n)) > 0.3)
-            assert abs(float(det(jnp.asarray(a))) - np.linalg.det(a)) <= 1e-13 * max(1.0, abs(np.linalg.det(a)))
-    assert float(det(jnp.array([[0.0, 1.0], [1.0, 0.0]]))) == -1.0
-    assert float(det(jnp.array([[1.0, 2.0], [2.0, 4.0]]))) == 0.0
-
-
 FAST_LOOPS_RUN = """
 import json, sys
 import assurjax as aj
@@ -458,15 +443,29 @@ slider = aj.load_scene("slider_crank")
 sol = tf.run(slider, tf.MU, viscous=1e-3)
 solve = jax.jit(tf._closed_form_solve(slider))
 laws = [(float(u[0]), bool(ok)) for u, ok in (solve(a, b) for a, b, _, _ in tf.CLOSED_FORM_LAWS)]
-print(json.dumps(dict(fast=aj._jit.fast_loops(), q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws)))
+print(json.dumps(dict(fast=aj._jit.fast_loops(), q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws,
+                      triad=tf.rough_triad_reactions())))
 """
 
 
+def rough_triad_reactions() -> list:
+    """Driving torque and every joint's force of the triad mechanism with friction in its seven
+    joints, at three states (moving both ways, starting from rest): its group's dense statics
+    and the friction's Newton solve (K = 7), the solves fast loops do without LAPACK."""
+    triad = aj.load_scene("triad_mechanism")
+    rough = triad.with_loads(tuple(triad.loads) + tuple(aj.JointFriction(j, MU, RADIUS, viscous=1e-3)
+                                                        for j in aj.joint_names(triad.mechanism)))
+    found = aj.reactions(rough, (jnp.array([0.3, 1.2, 2.5]), jnp.array([1.0, -2.0, 0.0]), jnp.array([0.5, 0.1, -1.0])))
+    assert bool(jnp.all(found.ok))
+    return [found.driving.tolist()] + [found.forces[j].tolist() for j in sorted(found.forces)]
+
+
 def test_fast_loops_give_the_same_motion(rough):
-    """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the
-    friction's Newton fallback solves without LAPACK (conjugate gradients): the rough
-    slider-crank's motion as in this process, its energy balance, the closed-form laws
-    with their failure flags; and in this process, where JAX has run, the call says it is too late."""
+    """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the dense
+    systems solve without LAPACK (plain LU: the friction's Newton fallback, a triad's statics):
+    the rough slider-crank's motion as in this process, its energy balance, the closed-form
+    laws with their failure flags, the rough triad's reactions; and in this process, where JAX
+    has run, the call says it is too late."""
     import json
     import os
     import subprocess
@@ -481,6 +480,8 @@ def test_fast_loops_give_the_same_motion(rough):
     assert np.max(np.abs(fast["balance"])) < 1e-8 * np.max(np.abs(rough.total))
     for (u, ok), (_, _, expected, expected_ok) in zip(fast["laws"], CLOSED_FORM_LAWS):
         assert ok == expected_ok and (expected is None or abs(u - expected) < 1e-12)
+    for fast_values, values in zip(fast["triad"], rough_triad_reactions()):
+        np.testing.assert_allclose(fast_values, values, rtol=1e-10, atol=1e-10 * np.max(np.abs(values)))
     if "xla_cpu_small_while_loop_byte_threshold" not in os.environ.get("XLA_FLAGS", ""):
         with pytest.raises(aj.AssurjaxError, match="too late"):
             aj.enable_fast_loops()

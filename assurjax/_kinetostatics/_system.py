@@ -12,10 +12,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 from jaxtyping import Array
 
 from .._geometry import cross, perp
+from .._linalg import lu_factor, lu_solve
 from ..groups._base import GROUND
 from ._layout import Pair
 
@@ -107,11 +107,11 @@ def known_vector(known: dict, links) -> Array:
 
 def solve_flagged(a: Array, rhs: Array) -> tuple[Array, Array]:
     """Solve a x = rhs by LU; ``ok`` is False (and x = 0, never NaN) when a is singular."""
-    lu, piv = jsl.lu_factor(a)
+    lu, pivots = lu_factor(a)
     row_norms = jnp.sqrt(jnp.sum(a * a, axis=-1))
     ratio = jnp.prod(jnp.abs(jnp.diagonal(lu)) / jnp.where(row_norms > 0, row_norms, 1.0))
     ok = ratio > SINGULAR
-    x = jsl.lu_solve((jnp.where(ok, lu, jnp.eye(a.shape[0])), piv), rhs)
+    x = lu_solve((jnp.where(ok, lu, jnp.eye(a.shape[0])), pivots), rhs)
     return jnp.where(ok, x, 0.0), ok
 
 

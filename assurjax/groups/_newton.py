@@ -47,12 +47,12 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import MechanismError
+from .._linalg import PlainLU
 from .._values import check_value, value_problem
 from .._geometry import heading
 from ._base import AbstractGroup, Link, Placement
@@ -78,8 +78,8 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     step_tol, f_tol = _tolerances(z0.dtype)
     if loose:
         step_tol, f_tol = max(step_tol, 1e-8), max(f_tol, 1e-6)
-    solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=lx.LU())
-    adjoint = optx.ImplicitAdjoint(linear_solver=lx.LU())
+    solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=PlainLU())
+    adjoint = optx.ImplicitAdjoint(linear_solver=PlainLU())
     sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
     finite = jnp.all(jnp.isfinite(sol.value))
     z = jnp.where(finite, sol.value, z0)
