@@ -39,7 +39,7 @@ def add_xla_flag(flag: str, setting: str) -> None:
 
 # XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
 # function instead of running its operations one at a time; a simulation's integration loop
-# is over the default threshold. Above it, a compiled simulation runs 1.6-8x faster
+# is over the default threshold. Above it, a compiled simulation runs 1.5-8x faster
 # (benchmarks/bench_fast_loops.py). An XLA flag, read once per process at its first
 # compile: offered (enable_fast_loops), never set for the user.
 FAST_LOOPS_SETTING = "xla_cpu_small_while_loop_byte_threshold"
@@ -53,8 +53,8 @@ def fast_loops() -> bool:
 
 def enable_fast_loops() -> None:
     """Let XLA compile each simulation's integration loop into one function: compiled
-    simulations run 1.6-8x faster on a CPU without friction, 1.8-5x with it (single runs
-    and batches); first calls take as long without friction, 2-3x longer with it. Worth it
+    simulations run 1.5-8x faster on a CPU without friction, 2-5x with it (single runs
+    and batches); first calls take about as long without friction, 1.4-2x longer with it. Worth it
     where one compiled program runs many times (sweeps, synthesis, interactive use).
     Process-wide: it sets an XLA flag that JAX reads at its first computation, so call it
     right after ``import assurjax``, before anything runs (else
