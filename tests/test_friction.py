@@ -443,9 +443,31 @@ slider = aj.load_scene("slider_crank")
 sol = tf.run(slider, tf.MU, viscous=1e-3)
 solve = jax.jit(tf._closed_form_solve(slider))
 laws = [(float(u[0]), bool(ok)) for u, ok in (solve(a, b) for a, b, _, _ in tf.CLOSED_FORM_LAWS)]
-print(json.dumps(dict(fast=aj._jit.fast_loops(), q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws,
-                      triad=tf.rough_triad_reactions())))
+print(json.dumps(dict(fast=aj._jit.fast_loops(), q=sol.q.tolist(), omega=sol.omega.tolist(), balance=sol.balance.tolist(), laws=laws)))
 """
+
+FAST_LOOPS_TRIAD = """
+import json, sys
+import assurjax as aj
+aj.enable_fast_loops()
+sys.path.insert(0, {tests!r})
+import test_friction as tf
+print(json.dumps(dict(fast=aj._jit.fast_loops(), triad=tf.rough_triad_reactions())))
+"""
+
+
+def run_fast_loops(code: str) -> dict:
+    """The last line a fresh Python process with fast loops prints, as JSON."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", code.format(tests=os.path.dirname(__file__))], check=True,
+                         capture_output=True, text=True).stdout
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["fast"], "the child process did not run with the fast-loops flag"
+    return result
 
 
 def rough_triad_reactions() -> list:
@@ -461,27 +483,27 @@ def rough_triad_reactions() -> list:
 
 
 def test_fast_loops_give_the_same_motion(rough):
-    """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the dense
-    systems solve without LAPACK (plain LU: the friction's Newton fallback, a triad's statics):
-    the rough slider-crank's motion as in this process, its energy balance, the closed-form
-    laws with their failure flags, the rough triad's reactions; and in this process, where JAX
-    has run, the call says it is too late."""
-    import json
+    """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the
+    friction's Newton fallback solves without LAPACK (plain LU): the rough slider-crank's
+    motion as in this process, its energy balance, the closed-form laws with their failure
+    flags; and in this process, where JAX has run, the call says it is too late."""
     import os
-    import subprocess
-    import sys
 
-    code = FAST_LOOPS_RUN.format(tests=os.path.dirname(__file__))
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
-    fast = json.loads(out.strip().splitlines()[-1])
-    assert fast["fast"], "the child process did not run with the fast-loops flag"
+    fast = run_fast_loops(FAST_LOOPS_RUN)
     np.testing.assert_allclose(fast["q"], rough.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(fast["omega"], rough.omega, rtol=0, atol=1e-7)
     assert np.max(np.abs(fast["balance"])) < 1e-8 * np.max(np.abs(rough.total))
     for (u, ok), (_, _, expected, expected_ok) in zip(fast["laws"], CLOSED_FORM_LAWS):
         assert ok == expected_ok and (expected is None or abs(u - expected) < 1e-12)
-    for fast_values, values in zip(fast["triad"], rough_triad_reactions()):
-        np.testing.assert_allclose(fast_values, values, rtol=1e-10, atol=1e-10 * np.max(np.abs(values)))
     if "xla_cpu_small_while_loop_byte_threshold" not in os.environ.get("XLA_FLAGS", ""):
         with pytest.raises(aj.AssurjaxError, match="too late"):
             aj.enable_fast_loops()
+
+
+@pytest.mark.slow
+def test_fast_loops_give_the_same_triad_reactions():
+    """With fast loops a triad's dense statics and the friction's Newton solve (K = 7) use plain
+    LU: the rough triad's reactions as this process's (LAPACK) ones."""
+    fast = run_fast_loops(FAST_LOOPS_TRIAD)
+    for fast_values, values in zip(fast["triad"], rough_triad_reactions()):
+        np.testing.assert_allclose(fast_values, values, rtol=1e-10, atol=1e-10 * np.max(np.abs(values)))
