@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import lineax as lx
 from jaxtyping import Array
-from lineax._solver.misc import pack_structures, ravel_vector, transpose_packed_structures, unravel_solution
 
 from ._jit import fast_loops
 
@@ -104,32 +103,37 @@ def determinant(a: Array) -> Array:
 
 class PlainLU(lx.AbstractLinearSolver):
     """lineax's ``LU`` without LAPACK, for the small square systems of a right-hand side
-    (an iterative group's Newton steps and implicit derivatives, the friction's fallback)."""
+    (an iterative group's Newton steps and implicit derivatives, the friction's fallback):
+    operators on one 1-D array."""
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
         del options
-        if operator.in_size() != operator.out_size():
-            raise ValueError("PlainLU solves square systems only")
+        if not (_is_vector(operator.in_structure()) and _is_vector(operator.out_structure())
+                and operator.in_size() == operator.out_size()):
+            raise ValueError("PlainLU solves square systems on one 1-D array only")
         matrix = operator.as_matrix()
         factors = matrix if matrix.shape == (2, 2) else plain_lu_factor(matrix)
-        return factors, pack_structures(operator), eqxi.Static(False)
+        return factors, eqxi.Static(False)
 
     def compute(self, state, vector, options: dict[str, Any]):
         del options
-        factors, structures, transpose = state
-        b = ravel_vector(vector, structures)
+        factors, transpose = state
         if isinstance(factors, tuple):
-            x = plain_lu_solve(factors, b, transpose=transpose.value)
+            x = plain_lu_solve(factors, vector, transpose=transpose.value)
         else:
-            x = solve_2x2(factors.T if transpose.value else factors, b)
-        return unravel_solution(x, structures), lx.RESULTS.successful, {}
+            x = solve_2x2(factors.T if transpose.value else factors, vector)
+        return x, lx.RESULTS.successful, {}
 
     def transpose(self, state, options: dict[str, Any]):
-        factors, structures, transpose = state
-        return (factors, transpose_packed_structures(structures), eqxi.Static(not transpose.value)), {}
+        factors, transpose = state
+        return (factors, eqxi.Static(not transpose.value)), {}
 
     def conj(self, state, options: dict[str, Any]):
         return state, {}  # real systems only
 
     def assume_full_rank(self):
         return True
+
+
+def _is_vector(structure) -> bool:
+    return isinstance(structure, jax.ShapeDtypeStruct) and len(structure.shape) == 1
