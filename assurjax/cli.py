@@ -368,6 +368,8 @@ def _history_figure(scene, sol, forces, units):
     import numpy as np
 
     from . import viz
+    from .dynamics._results import LOCKUP
+    from .viz._plots import place_legend_clear
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), layout="constrained")
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
@@ -376,6 +378,9 @@ def _history_figure(scene, sol, forces, units):
         lost = getattr(sol, "dissipated", None)
         lost = lost if lost is not None and np.max(np.abs(lost)) > 0 else None  # no flat zero line
         viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=sol.work, dissipated=lost)
+        if int(np.asarray(sol.event)) == LOCKUP:
+            axes[1, 0].axvline(float(sol.t_final), color="0.5", ls="--", lw=1, label="lock-up (T not resolved at it)")
+            place_legend_clear(axes[1, 0], len(axes[1, 0].get_lines()))
     else:
         axes[1, 0].text(0.5, 0.5, "energies not requested ([outputs] energies = false)", ha="center", transform=axes[1, 0].transAxes)
         axes[1, 0].axis("off")
@@ -478,6 +483,25 @@ def _energy_drift(scene, sol):
     return drift, drift / scale
 
 
+LOCKUP_APPROACH = 0.01  # the share of a run before its lock-up whose balance the command reports apart
+
+
+def _lockup_approach(sol):
+    """(max |balance| before the last LOCKUP_APPROACH of the run, that window (s), max
+    |balance| inside it) for a run that ended at a lock-up (where T is not resolved, see
+    ``Solution.balance``); None otherwise."""
+    import numpy as np
+
+    from .dynamics._results import LOCKUP
+
+    if getattr(sol, "balance", None) is None or int(np.asarray(sol.event)) != LOCKUP:
+        return None
+    window = LOCKUP_APPROACH * (float(sol.t_final) - float(sol.t[0]))
+    before = np.asarray(sol.t) < float(sol.t_final) - window
+    balance = np.abs(np.asarray(sol.balance))
+    return float(np.max(balance[before], initial=0.0)), window, float(np.max(balance[~before]))
+
+
 def _standstill_line(scene, sol) -> str:
     if scene.simulation.get("stop") != "standstill":
         return "  standstill detection: off (set [simulation] stop = \"standstill\" to stop there)"
@@ -527,6 +551,9 @@ def cmd_run(args) -> int:
     drift = _energy_drift(scene, sol)
     if drift is not None:
         summary["energy_drift_J"], summary["energy_drift_relative"] = drift
+    approach = _lockup_approach(sol)
+    if approach is not None:
+        summary["energy_drift_before_lockup_J"], summary["lockup_window_s"], _ = approach
     files.append(out / "summary.json")
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"{scene.name}: {sol.status}")
@@ -534,6 +561,9 @@ def cmd_run(args) -> int:
     if drift is not None:
         print(f"  energy balance: max |T + V - W - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest energy; "
               "W: the work of the loads outside V)")
+        if approach is not None:
+            print(f"    {approach[0]:.3e} J until {approach[1]:.3g} s before the lock-up, {approach[2]:.3e} J after: at a limit "
+                  "position J_red grows without bound as w goes to 0, and the driving coordinate no longer resolves T")
     else:
         print("  energy balance: not checked (energies not requested)")
     spacing = (float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))) / (samples - 1)

@@ -310,3 +310,24 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert lost == pytest.approx(-cols["W"][-1], rel=1e-4)
     printed = capsys.readouterr().out
     assert f"friction: {lost:.5g} J lost over the motion (O 100 %)" in printed
+
+
+def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsys):
+    """The Roberts four-bar coasts (no loads) into the limit position of its crank: T stays at
+    T(0) up to the lock-up's approach, where J_red grows without bound and w goes to 0; the
+    command reports the balance before that window apart from the one at the lock-up."""
+    import json
+
+    out = tmp_path / "out"
+    assert main(["run", "roberts", "--out", str(out), "--no-animation", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    cols = read_csv(out / "solution.csv")
+    assert "can no longer assemble" in summary["status"]
+    window = summary["lockup_window_s"]
+    assert window == pytest.approx(0.01 * (cols["t"][-1] - cols["t"][0]))
+    before = cols["t"] < cols["t"][-1] - window
+    assert np.max(np.abs(cols["T"][before] - cols["T"][0])) < 1e-5 * cols["T"][0]  # no loads: T is conserved
+    assert summary["energy_drift_before_lockup_J"] < 1e-5 * cols["T"][0]
+    assert summary["energy_drift_before_lockup_J"] <= summary["energy_drift_J"]
+    printed = capsys.readouterr().out
+    assert "s before the lock-up" in printed and "no longer resolves T" in printed

@@ -81,7 +81,11 @@ class Solution(eqx.Module):
     @property
     def balance(self) -> Array | None:
         """T + V - W minus its value at t0 (J): zero for an exact solution (None
-        unless energies and work were computed)."""
+        unless energies and work were computed). Not at a lock-up (``event`` 1): at a
+        limit position J_red grows without bound as w goes to 0, and T = J_red w^2 / 2
+        is not resolved by the driving coordinate in the last steps before it (the
+        Roberts four-bar at the default tolerances: 1e-6 of its energy until 5 ms
+        before, 7e-5 until 3 us before, 10 % at it)."""
         if self.total is None or self.work is None:
             return None
         closed = self.total - self.work
