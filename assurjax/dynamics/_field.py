@@ -156,11 +156,7 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
 
-    def rates_at(x, dx):
-        return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
-
-    # d/dq of the rates: along q, x moves by dx and dx by d2x
-    rates, slopes = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+    rates, slopes = _rates_and_slopes(mechanism, frictions, coeffs)
     signs = jnp.sign(rates) if rate_signs is None else rate_signs
 
     def alpha_of(u):
@@ -178,6 +174,21 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
 
     alpha, power, ok = jax.vmap(solve)(direction) if several else solve(direction)
     return Frictional(red, kin, alpha, power, ok, rates, slopes)
+
+
+def _rates_and_slopes(mechanism, frictions, coeffs):
+    """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients."""
+    def rates_at(x, dx):
+        return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
+
+    # d/dq of the rates: along q, x moves by dx and dx by d2x
+    return jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+
+
+def rates_and_slopes(model: Model, y: State):
+    """:func:`_rates_and_slopes` at the state's q, without the friction analysis."""
+    coeffs = branch_coefficients(model.mechanism, y.q, near=near(model, y))
+    return _rates_and_slopes(model.mechanism, frictions_of(model.loads), coeffs)
 
 
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):

@@ -89,6 +89,9 @@ class Settings(NamedTuple):
     steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
     bridge: float = 0.0  # tracked branch: half-width (rad or m of q) of the bridged singular windows (BRIDGE_WINDOW); 0: off
     save_steps: bool = False  # also save the state at every accepted solver step, merged in time with the saved times
+    # joint friction: at most this many solver steps per diffrax call, the segment going on in the next one (None:
+    # a whole segment per call); set by simulate for batches, whose members then wait for one another per chunk
+    segment_steps: int | None = None
 
 
 # [simulation] keys of a scene file and what they must be: (type check, description).

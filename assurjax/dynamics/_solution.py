@@ -18,7 +18,7 @@ from .._model import Model
 from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
-from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, status_text
+from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, result_text, status_text
 from ._settings import Settings
 
 
@@ -243,5 +243,5 @@ def batch_summary(sols: Solution) -> Solution:
     unassembled = result_code(sols.result) == START_NOT_ASSEMBLED
     parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
     failures = (events < 0) & (results != 0) & ~unassembled
-    parts += [f"{np.sum(failures)} solver failures"] if np.any(failures) else []
+    parts += [f"{np.sum(failures & (codes == code))} solver failures ({result_text(int(code))})" for code in np.unique(codes[failures])]
     return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))

@@ -20,12 +20,18 @@ program once. Without loads that may vary in time (and user events to watch) a m
 held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
 ends at the first rest. Each segment saves the requested times that fall inside
-it. The loop is equinox's checkpointed while loop (the one diffrax's own steps run in):
-reverse-mode derivatives go through it; with ``adjoint='forward'`` a plain while loop,
-for forward mode.
+it. A batch (``simulate`` with an array of starts) steps its members together, each
+diffrax call until its slowest member's segment ends: there a segment is integrated in
+chunks of ``Settings.segment_steps`` steps, so that a member whose segment ended waits
+at most one chunk for the next (the press, 16 starts: 15.6 -> 9.4 us per member and
+step; a single run takes whole segments). The loop is equinox's checkpointed while loop
+(the one diffrax's own steps run in): reverse-mode derivatives go through it; with
+``adjoint='forward'`` a plain while loop, for forward mode.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import diffrax
 import equinox.internal as eqxi
@@ -35,12 +41,15 @@ import jax.numpy as jnp
 from .._friction import frictions_of
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, near, rest_analysis, rest_direction, vector_field, directional_accelerations
+from ._field import (FieldArgs, State, directional_accelerations, near, rates_and_slopes, rest_analysis, rest_direction,
+                     vector_field)
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
+FIRST_STEP = 1e-4  # in chunks, the first call's first step, times t1 - t0 (the controller adapts it)
+BATCH_SEGMENT_STEPS = 16  # Settings.segment_steps of simulate's batches (benchmarks/bench_friction.py)
 LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a segment reads the signs it starts with
 
 
@@ -54,6 +63,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     Returns (the Solution without outputs, the tracked branch's saved link angles or None)."""
     first_rest = settings.standstill
     solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
+    # a batch of runs steps together: diffrax's loop runs until its slowest member ends its segment; in chunks
+    # of segment_steps steps a member whose segment has ended waits at most that many to start its next one
+    chunk = settings.segment_steps
     slip_settings = settings._replace(standstill=True)
     slip_event = stop_event(slip_settings, switches=True)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
@@ -70,13 +82,21 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck):
+    def segment(start, y, direction, signs, stuck, step):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly)
         # held for good (nothing varies in time, or the run ends at the first rest): a segment of length zero
         stop = t1 if holds else jnp.where(stuck, start, t1)
-        kwargs = dict(t0=start, t1=stop, dt0=None if dt is None else jnp.asarray(dt, dtype=float), y0=y, args=args,
-                      saveat=diffrax.SaveAt(ts=jnp.clip(ts, start, stop), t1=True), max_steps=settings.max_steps,
+        outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, stop), t1=True)
+        # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
+        # step (diffrax's final state of a batch member whose loop ended while another member's event
+        # fired is the end of its last attempted step, which may have been rejected)
+        saveat = diffrax.SaveAt(subs=[outputs] if chunk is None else [outputs, diffrax.SubSaveAt(steps=True)])
+        # in chunks, each call's first step is the last chunk's mean step (diffrax's own choice, made
+        # afresh at every call, is small: 16 % more steps on the press)
+        dt0 = None if dt is None else jnp.asarray(dt, dtype=float)
+        kwargs = dict(t0=start, t1=stop, dt0=dt0 if chunk is None else step, y0=y, args=args,
+                      saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
                                            event=slip_event, **kwargs)
@@ -84,11 +104,20 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
+    def start_analysis(start, y):
+        """rest_analysis; in chunks (a batch), only the rates unless some member is at rest:
+        most chunks start in motion, and under vmap a cond on a member's own test runs both"""
+        if chunk is None:
+            return rest_analysis(model, start, y)
+        zero = jnp.zeros(())
+        return jax.lax.cond(eqxi.unvmap_any(y.omega == 0), lambda: rest_analysis(model, start, y),
+                            lambda: (zero, zero, *rates_and_slopes(model, y)))
+
     def body(carry):
-        start, y, previous, _, saved, filled, steps, result, event, failed, _ = carry
+        start, y, previous, _, saved, filled, steps, result, event, failed, step, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the direction the mechanism accelerates in, if any (else it sticks)
-        a_plus, a_minus, rates, slopes = rest_analysis(model, start, y)
+        a_plus, a_minus, rates, slopes = start_analysis(start, y)
         go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(a_plus, a_minus))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
@@ -98,10 +127,18 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
-        sol, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck)
+        run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step)
+        sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
+        # a chunk that used its steps: the segment goes on in the next call, while the run's budget lasts
+        more = jnp.asarray(False) if chunk is None else sol.result == diffrax.RESULTS.max_steps_reached
+        if chunk is not None:
+            taken = jnp.sum(jnp.isfinite(run.ts[1]))
+            end = jnp.where(more, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
+            y_end = jax.tree.map(lambda z, s, z0: jnp.where(more, jnp.where(taken > 0, s[taken - 1], z0), z),
+                                 y_end, run.ys[1], y._replace(friction_rates=start_rates))
         inside = (ts >= start) & (ts <= end) & ~filled
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
         filled = filled | inside
@@ -109,7 +146,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a stick segment stopped by a user event (its margins are read only where there are any)
         hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
         code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
+        steps = steps + sol.stats["num_steps"]
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
+        if chunk is not None:
+            segment_result = RESULTS.where(more & (steps < settings.max_steps), RESULTS.successful, segment_result)
         if settings.check_assembly:
             ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
             segment_event, segment_result = lockup_found(segment_event, segment_result, ok_end)
@@ -121,10 +161,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         held_start = first_rest & stuck
         ends = (code >= USER) | (first_rest & rest) | held_start
         event = jnp.where(locked, LOCKUP, jnp.where(ends, jnp.where(held_start, STANDSTILL, code), event))
-        done = ~fired | locked | (end >= t1) | ~finished(segment_result) | ends
+        done = (~fired & ~more) | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
-        steps = steps + sol.stats["num_steps"]
-        return end, y_next, direction, stuck, saved, filled, steps, result, event, failed, done
+        accepted = sol.stats["num_accepted_steps"]
+        # the chunk's mean step (not a stick segment's: its field is 0, its steps grow unchecked)
+        step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
+        return end, y_next, direction, stuck, saved, filled, steps, result, event, failed, step, done
 
     def cond(carry):
         return ~carry[-1]
@@ -132,10 +174,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
-             RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(False))
+             RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
+                                                                                  dtype=float), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
-    end, y_end, _, stuck, saved, filled, steps, result, event, failed, done = eqxi.while_loop(
-        cond, body, carry, max_steps=MAX_SEGMENTS, kind=kind)
+    calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
+    end, y_end, _, stuck, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
+        cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = stuck & (event != LOCKUP) & finished(result)
@@ -155,6 +199,17 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         result=result, num_steps=steps,
     )
     return sol, saved.branch
+
+
+class _Saved(NamedTuple):
+    """A segment's solution as the rest of the loop reads it: the saved times and states
+    (the requested times, then the end), whether an event fired, the result, the stats."""
+
+    ts: jax.Array
+    ys: State
+    event_mask: jax.Array | None
+    result: RESULTS
+    stats: dict
 
 
 def _expand(mask, like):
