@@ -158,3 +158,26 @@ def test_batch_simulate_matches_single_simulations():
         # differ by ~1e-3 (the masses differ by 2 %)
         np.testing.assert_allclose(sols.q[i], one.q, rtol=0, atol=1e-8)
     assert np.all(sols.result == assurjax.RESULTS.successful)
+
+
+@pytest.mark.slow  # compiles a vmapped simulation with friction and three single ones
+def test_batch_simulate_with_friction_matches_single_simulations():
+    """batch_simulate of the press with friction (its segments in chunks, as simulate's
+    batches): each member equals its own simulation to the tolerance (rtol = atol = 1e-10:
+    two step sequences; a mixed-up member would differ by ~1e-2, the masses by 5 %); and
+    simulate's batch whose step budget runs out says so."""
+    from assurjax.dynamics._stick import BATCH_SEGMENT_STEPS
+
+    scene = assurjax.load_scene("press_with_friction")
+    batch = assurjax.perturb(scene.mechanism, jax.random.key(3), 3, relative=0.05,
+                             select=lambda m: tuple(link.mass for link in m.links.values()))
+    kw = dict(t1=0.5, samples=6, energies=False, points=(), angles=(), rtol=1e-10, atol=1e-10)
+    sols = assurjax.batch_simulate(scene, batch, progress=False, **kw)
+    assert np.all(sols.result == assurjax.RESULTS.successful)
+    for i in range(3):
+        one = assurjax.simulate(scene, mechanism=jax.tree.map(lambda x: x[i], batch), stop=None, **kw)
+        np.testing.assert_allclose(sols.q[i], one.q, rtol=0, atol=1e-7)
+    # a batch whose step budget runs out in its chunks says so, within a chunk of the budget
+    short = assurjax.simulate(scene, q0=np.array([0.0, 1.0]), stop=None, max_steps=100, throw=False, **kw)
+    assert not short.successful and "step budget" in short.status
+    assert np.all(np.asarray(short.num_steps) <= 100 + BATCH_SEGMENT_STEPS)

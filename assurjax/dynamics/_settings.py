@@ -90,7 +90,8 @@ class Settings(NamedTuple):
     bridge: float = 0.0  # tracked branch: half-width (rad or m of q) of the bridged singular windows (BRIDGE_WINDOW); 0: off
     save_steps: bool = False  # also save the state at every accepted solver step, merged in time with the saved times
     # joint friction: at most this many solver steps per diffrax call, the segment going on in the next one (None:
-    # a whole segment per call); set by simulate for batches, whose members then wait for one another per chunk
+    # a whole segment per call); set by simulate and batch_simulate for batches, whose members then wait for one
+    # another per chunk
     segment_steps: int | None = None
 
 

@@ -19,12 +19,12 @@ deciding its direction (sign(w), or at rest the break-away test), so the test is
 program once. Without loads that may vary in time (and user events to watch) a mechanism
 held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
-ends at the first rest. Each segment saves the requested times that fall inside
-it. A batch (``simulate`` with an array of starts) steps its members together, each
-diffrax call until its slowest member's segment ends: there a segment is integrated in
-chunks of ``Settings.segment_steps`` steps, so that a member whose segment ended waits
-at most one chunk for the next (the press, 16 starts: 15.6 -> 9.4 us per member and
-step; a single run takes whole segments). The loop is equinox's checkpointed while loop
+ends at the first rest. Each segment saves the requested times that fall inside it. A
+batch (``simulate`` with an array of starts, ``batch_simulate``) steps its members
+together, each diffrax call until its slowest member's segment ends: there a segment is
+integrated in chunks of ``Settings.segment_steps`` steps, so that a member whose segment
+ended waits at most one chunk for the next (the press, 16 starts: 15.6 -> 9.4 us per
+member and step; a single run takes whole segments). The loop is equinox's checkpointed while loop
 (the one diffrax's own steps run in): reverse-mode derivatives go through it; with
 ``adjoint='forward'`` a plain while loop, for forward mode.
 """
