@@ -90,7 +90,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, stop), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
-        # fired is the end of its last attempted step, which may have been rejected)
+        # fired is its dense output at the end of its last attempted step, which may have been rejected)
         saveat = diffrax.SaveAt(subs=[outputs] if chunk is None else [outputs, diffrax.SubSaveAt(steps=True)])
         # in chunks, each call's first step is the last chunk's mean step (diffrax's own choice, made
         # afresh at every call, is small: 16 % more steps on the press)
@@ -135,7 +135,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a chunk that used its steps: the segment goes on in the next call, while the run's budget lasts
         more = jnp.asarray(False) if chunk is None else sol.result == diffrax.RESULTS.max_steps_reached
         if chunk is not None:
-            taken = jnp.sum(jnp.isfinite(run.ts[1]))
+            # its accepted steps, not the saved steps' last row: with an event in the call diffrax
+            # appends its final state there, an interpolation at the end of the last attempt
+            taken = sol.stats["num_accepted_steps"]
             end = jnp.where(more, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
             y_end = jax.tree.map(lambda z, s, z0: jnp.where(more, jnp.where(taken > 0, s[taken - 1], z0), z),
                                  y_end, run.ys[1], y._replace(friction_rates=start_rates))
