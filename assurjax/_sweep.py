@@ -327,9 +327,8 @@ def batch_simulate(
     member that locks up or fails does not stop the others).
     """
     from .dynamics._settings import fixed_step_from, settings_from
-    from ._friction import frictions_of
     from .dynamics._solve import simulate_core
-    from .dynamics._stick import BATCH_SEGMENT_STEPS
+    from .dynamics._stick import batch_settings
 
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
@@ -337,8 +336,7 @@ def batch_simulate(
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
     options = settings_from(scene, **settings)
     options = options._replace(reduction="exact") if options.reduction == "auto" else options
-    if frictions_of(scene.loads):  # a batch: each segment in chunks (see dynamics._stick)
-        options = options._replace(segment_steps=BATCH_SEGMENT_STEPS)
+    options = batch_settings(options, scene.loads)
     step = fixed_step_from(scene, settings.get("dt"))
     gravity, loads = scene.gravity, scene.loads
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)

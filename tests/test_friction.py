@@ -304,8 +304,8 @@ def test_batch_of_starts_equals_single_runs():
     assert batch.successful
     for k, start in enumerate(q0):
         single = aj.simulate(press, q0=start, **kw)
-        np.testing.assert_allclose(batch.q[k], single.q, rtol=0, atol=1e-7)
-        np.testing.assert_allclose(batch.omega[k], single.omega, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(batch.q[k], single.q, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(batch.omega[k], single.omega, rtol=0, atol=2e-7)
 
 
 @pytest.mark.slow

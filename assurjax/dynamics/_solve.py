@@ -32,7 +32,7 @@ from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, setti
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim
-from ._stick import BATCH_SEGMENT_STEPS, stick_slip
+from ._stick import batch_settings, stick_slip
 from ._table import ReducedTable, build_table, build_table_core
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
@@ -479,8 +479,8 @@ class _Prepared:
         if key not in self._resolutions:
             # simulate() returns host arrays, never differentiated: diffrax's plain while loop
             # (forward mode) traces faster than the checkpointed one and computes the same
-            chunk = BATCH_SEGMENT_STEPS if batch is not None and frictions_of(self.model.loads) else None
-            settings = self.settings._replace(max_steps=max_steps, adjoint="forward", segment_steps=chunk)
+            settings = self.settings._replace(max_steps=max_steps, adjoint="forward")
+            settings = settings if batch is None else batch_settings(settings, self.model.loads)
             self._resolutions[key] = _resolve_reduction(settings, table, self.model, batch)
         return self._resolutions[key]
 

@@ -53,6 +53,12 @@ BATCH_SEGMENT_STEPS = 16  # Settings.segment_steps of simulate's batches (benchm
 LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a segment reads the signs it starts with
 
 
+def batch_settings(settings: Settings, loads) -> Settings:
+    """The settings of a batch of runs: with joint friction, segments in chunks of
+    BATCH_SEGMENT_STEPS steps (see the module docstring)."""
+    return settings._replace(segment_steps=BATCH_SEGMENT_STEPS) if frictions_of(loads) else settings
+
+
 def _stuck_field(t, y, args):
     return jax.tree.map(jnp.zeros_like, y)
 
@@ -94,8 +100,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         saveat = diffrax.SaveAt(subs=[outputs] if chunk is None else [outputs, diffrax.SubSaveAt(steps=True)])
         # in chunks, each call's first step is the last chunk's mean step (diffrax's own choice, made
         # afresh at every call, is small: 16 % more steps on the press)
-        dt0 = None if dt is None else jnp.asarray(dt, dtype=float)
-        kwargs = dict(t0=start, t1=stop, dt0=dt0 if chunk is None else step, y0=y, args=args,
+        dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
+        kwargs = dict(t0=start, t1=stop, dt0=dt0, y0=y, args=args,
                       saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
@@ -132,9 +138,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
-        # a chunk that used its steps: the segment goes on in the next call, while the run's budget lasts
-        more = jnp.asarray(False) if chunk is None else sol.result == diffrax.RESULTS.max_steps_reached
-        if chunk is not None:
+        more = jnp.asarray(False)
+        if chunk is not None:  # a chunk that used its steps: the segment goes on in the next call, while the budget lasts
+            more = sol.result == diffrax.RESULTS.max_steps_reached
             # its accepted steps, not the saved steps' last row: with an event in the call diffrax
             # appends its final state there, an interpolation at the end of the last attempt
             taken = sol.stats["num_accepted_steps"]
