@@ -303,7 +303,7 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part.
 
     ``iterate=False``: Newton's method alone, for the solves batched within one analysis
-    (its two directions, the output samples, reactions): with both loops in the batched
+    (the output samples, the reactions' two directions): with both loops in the batched
     reactions program XLA's CPU runtime stalled in 3 of 5 runs of
     ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on). A batch
     of simulations (``simulate`` with an array of starts) keeps the iteration: 14 runs of

@@ -131,23 +131,25 @@ class Frictional(NamedTuple):
     slopes: Array
 
 
-def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None) -> Frictional:
+def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None, *, iterate: bool = True) -> Frictional:
     """The reduction, its kinematics, dw/dt and the friction power of a model with
     friction in its joints: the reduced equation with the friction's generalized force
     sum_k u_k dphi_k/dq, u from ``solve_friction`` with the Coulomb signs
-    ``rate_signs`` (the signs of d phi_k/dq; None: read at the state) times
-    ``direction`` (sign(w), or at rest the direction tested for break-away; an array of
-    directions gives one dw/dt and power per direction), and whether the friction has a
-    consistent solution with those signs (see ``solve_friction``)."""
+    ``rate_signs`` (the signs of d phi_k/dq; None: read at the state) times the
+    ``direction`` of motion (sign(w); 0: at rest, the direction of the frictionless
+    generalized force, see :func:`rest_analysis`), and whether the friction has a
+    consistent solution with those signs (see ``solve_friction``). ``iterate=False``:
+    Newton's method alone (batched analyses, see ``solve_friction``)."""
     # arrays: the nested jit below would take Python numbers as static and trace per value
-    return _frictional(model, jnp.asarray(t, dtype=float), y, jnp.asarray(direction, dtype=float), bridge, rate_signs)
+    return _frictional(model, jnp.asarray(t, dtype=float), y, jnp.asarray(direction, dtype=float), bridge, rate_signs,
+                       iterate)
 
 
 # A nested jit: a simulation with friction solves it in several places (the solver's stages,
 # its first step's size, each segment's start, the outputs); traced once and reused, where
 # each trace costs ~0.4 s (XLA inlines it: the compiled program is unchanged).
 @jit
-def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs) -> Frictional:
+def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs, iterate: bool) -> Frictional:
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
@@ -158,22 +160,22 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs)
 
     rates, slopes = _rates_and_slopes(mechanism, frictions, coeffs)
     signs = jnp.sign(rates) if rate_signs is None else rate_signs
+    direction = jnp.where(direction != 0, direction, rest_side(red.force))
 
     def alpha_of(u):
         return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.sum(rates * u), y.omega)
 
     linear = _linear_reactions(model, coeffs, t, y.omega, alpha_of(jnp.zeros(len(frictions))), rates / red.inertia)
+    u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, iterate=iterate)
+    return Frictional(red, kin, alpha_of(u), jnp.sum(rates * u) * y.omega, ok, rates, slopes)
 
-    # several directions (the break-away test, the outputs): one vmapped solve on the same
-    # coefficients, by Newton's method alone (see solve_friction's iterate)
-    several = jnp.ndim(direction) > 0
 
-    def solve(direction):
-        u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, iterate=not several)
-        return alpha_of(u), jnp.sum(rates * u) * y.omega, ok
-
-    alpha, power, ok = jax.vmap(solve)(direction) if several else solve(direction)
-    return Frictional(red, kin, alpha, power, ok, rates, slopes)
+def rest_side(force):
+    """The only direction a mechanism at rest can start to move in: that of the generalized
+    force without friction (tau + tau_red; +1 where it is 0). Coulomb friction only resists:
+    the friction of a motion in direction s has s sum_k u_k dphi_k/dq <= 0, so
+    J_red s dw/dt <= s (tau + tau_red): the other direction cannot accelerate away."""
+    return jnp.where(force >= 0, 1.0, -1.0)
 
 
 def _rates_and_slopes(mechanism, frictions, coeffs):
@@ -215,30 +217,27 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     return at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)
 
 
-def directional_accelerations(model: Model, t, y: State):
-    """(a_+, a_-): dw/dt at rest with the friction of a motion in each direction (0 where
-    that friction has no consistent solution: it cannot start that way)."""
-    return rest_analysis(model, t, y)[:2]
-
-
 def rest_analysis(model: Model, t, y: State):
-    """(a_+, a_- of :func:`directional_accelerations`, the elements' d phi_k/dq and
-    d2 phi_k/dq2) at the state's q, at rest: what a segment of stick and slip starts from."""
-    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), jnp.array([1.0, -1.0]))
-    a = jnp.where(f.consistent, f.alpha, 0.0)  # a direction whose friction has no consistent solution stays jammed
-    return a[0], a[1], f.rates, f.slopes
+    """(dw/dt of the motion a mechanism at rest would start, the direction s of that motion
+    (:func:`rest_side`), the elements' d phi_k/dq and d2 phi_k/dq2) at the state's q: what a
+    segment of stick and slip starts from. It breaks away where s dw/dt > 0, with the
+    friction of a motion in direction s; dw/dt is 0 where that friction has no consistent
+    solution (jammed). One friction solve: the other direction cannot start."""
+    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0)
+    return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
 
 
-def rest_direction(a_plus, a_minus):
-    """+1 / -1: the direction a mechanism at rest starts to move in; 0: it sticks."""
-    return jnp.where(a_plus > 0, 1.0, jnp.where(a_minus < 0, -1.0, 0.0))
+def rest_direction(alpha, side):
+    """+1 / -1: the direction a mechanism at rest starts to move in; 0: it sticks.
+    ``alpha``, ``side``: the first two values of :func:`rest_analysis`."""
+    return jnp.where(alpha * side > 0, side, 0.0)
 
 
 def start_direction(model: Model, t0, y0: State):
     """The direction of motion at the start: sign(w0), or from rest the break-away
     direction (0 when the friction holds the mechanism)."""
-    a_plus, a_minus = directional_accelerations(model, t0, y0)
-    return jnp.where(y0.omega != 0, jnp.sign(y0.omega), rest_direction(a_plus, a_minus))
+    alpha, side = rest_analysis(model, t0, y0)[:2]
+    return jnp.where(y0.omega != 0, jnp.sign(y0.omega), rest_direction(alpha, side))
 
 
 def arrival_acceleration(model: Model, t, q, omega, q0, omega0, t0):
@@ -264,12 +263,11 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     if not frictions_of(model.loads):
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
-    # moving, the friction of its direction; at rest, of the direction it breaks away in
-    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.array([1.0, -1.0]), bridge)
-    moving = jnp.where(y.omega > 0, a[0], a[1])
-    a_plus, a_minus = jnp.where(consistent[0], a[0], 0.0), jnp.where(consistent[1], a[1], 0.0)
-    at_rest = jnp.where(a_plus > 0, a_plus, jnp.where(a_minus < 0, a_minus, 0.0))
-    return jnp.where(y.omega != 0, moving, at_rest), red, kin
+    # moving, the friction of its direction; at rest, of the direction it would break away in
+    # (one Newton solve per sample: the outputs' analysis is batched, see solve_friction)
+    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=False)
+    at_rest = jnp.where(consistent & (a * rest_side(red.force) > 0), a, 0.0)
+    return jnp.where(y.omega != 0, a, at_rest), red, kin
 
 
 def near(model: Model, y: State) -> dict | None:

@@ -4,9 +4,11 @@ while the friction can hold it, and breaks away when the loads overcome it.
 In a one-degree-of-freedom mechanism every relative rate is (d phi_k/dq) w, so the
 Coulomb sign of element k is sign(d phi_k/dq) sign(w). At rest the question is one of
 direction: with the kinetic friction signs of a motion in direction s, the acceleration
-a_s (``dynamics._field.frictional``). The mechanism sticks when neither direction
-accelerates away (a_+ <= 0 <= a_-); it breaks away, in the direction s whose a_s points
-that way, when a time-dependent load makes that change.
+a_s (``dynamics._field.frictional``). Friction only resists, so only the direction s of
+the frictionless generalized force can start (``_field.rest_side``): the mechanism
+sticks while s a_s <= 0, and breaks away in direction s when a time-dependent load
+makes s a_s positive. (Testing both directions, as this module did, gives the same
+answer at twice the cost.)
 
 The motion is integrated by diffrax in segments inside one loop, each with its Coulomb
 signs frozen, so that the field is smooth inside a segment and a derivative sees every
@@ -14,7 +16,7 @@ switch of the law (its saltation) through the located switch time: a slip segmen
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
-the break-away margin max(a_+, -a_-) crosses 0 (another Event). Each segment starts by
+the break-away margin s a_s crosses 0 (another Event). Each segment starts by
 deciding its direction (sign(w), or at rest the break-away test), so the test is in the
 program once. Without loads that may vary in time (and user events to watch) a mechanism
 held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
@@ -41,8 +43,7 @@ import jax.numpy as jnp
 from .._friction import frictions_of
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import (FieldArgs, State, directional_accelerations, near, rates_and_slopes, rest_analysis, rest_direction,
-                     vector_field)
+from ._field import FieldArgs, State, near, rates_and_slopes, rest_analysis, rest_direction, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished
 from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs
@@ -82,8 +83,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
     def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
-        a_plus, a_minus = directional_accelerations(args.model, t, y)
-        return [-jnp.maximum(a_plus, -a_minus)] + user_margins(settings, t, y, args)
+        alpha, side = rest_analysis(args.model, t, y)[:2]
+        return [-side * alpha] + user_margins(settings, t, y, args)
 
     breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
@@ -123,8 +124,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         start, y, previous, _, saved, filled, steps, result, event, failed, step, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the direction the mechanism accelerates in, if any (else it sticks)
-        a_plus, a_minus, rates, slopes = start_analysis(start, y)
-        go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(a_plus, a_minus))
+        alpha, side, rates, slopes = start_analysis(start, y)
+        go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(alpha, side))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
