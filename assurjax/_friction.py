@@ -275,6 +275,7 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
 # Fixed-point steps before Newton takes over: within them the iteration converges to 1e-12
 # only while it contracts by ~0.4 per step or better, so its error stays below the tolerance.
 FIXED_POINT_STEPS = 32
+CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_friction's robust_newton)
 
 
 def linearize_reactions(react, k: int):
@@ -301,6 +302,8 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     (optimistix) from the same start, with the consistency test det(I - dlaw/du) > 0.
     A converged iteration is consistent: it converges only where dlaw/du's spectral
     radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part.
+    Where Newton's root is not consistent, Newton's method once more, continued in mu from
+    0 (strong friction can give the law several roots).
 
     ``iterate=False``: Newton's method alone, for the solves batched within one analysis
     (the output samples, the reactions' two directions): with both loops in the batched
@@ -312,13 +315,13 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
 
-    def law(u):
-        return -coulomb(u) * signs - viscous
+    def law(u, scale=1.0):  # scale: of the Coulomb terms, for the continuation below
+        return -scale * coulomb(u) * signs - viscous
 
-    def residual(u, _):
-        return u - law(u)
+    def newton(u0, scale=1.0):
+        def residual(u, _):
+            return u - law(u, scale)
 
-    def newton(u0):
         sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), u0, max_steps=64,
                              throw=False)
         # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
@@ -327,15 +330,39 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         consistent = determinant(jax.jacfwd(residual)(sol.value, None)) > 0
         return sol.value, (sol.result == optx.RESULTS.successful) & consistent
 
+    def robust_newton(u0):
+        """Newton from u0; where its root is not consistent, Newton's method again, continued
+        in mu from 0 (where u = -viscous) in CONTINUATION_STEPS steps, each from the last
+        root: the root on the branch of moderate friction. With strong friction the law has
+        several roots, and Newton's method from u0 can land on one that is not consistent
+        while this one is (a slider-crank, mu = 5 on a 5 mm block: a consistent root at
+        dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with det(I - dlaw/du) < 0, which
+        stopped the run as a jam). The attempts are one loop, so that the program holds one
+        Newton's method (two: first calls 35 % longer)."""
+        n = CONTINUATION_STEPS
+
+        def attempt(carry):
+            i, u, ok, last, _ = carry
+            start = jnp.where(i == 0, u0, jnp.where(i == 1, -viscous, last))
+            v, found = newton(start, jnp.where(i == 0, 1.0, i / n))
+            # attempt 0 stands where consistent; the continuation ends at its last step or where it fails (a jam)
+            done = jnp.where(i == 0, found, ~found | (i == n))
+            keep = (i == 0) | (i == n)
+            return i + 1, jnp.where(keep, v, u), jnp.where(keep, found, ok & found), v, ~done
+
+        init = (jnp.asarray(0), u0, jnp.asarray(False), u0, jnp.asarray(True))
+        _, u, ok, _, _ = jax.lax.while_loop(lambda carry: carry[-1], attempt, init)
+        return u, ok
+
     u0 = law(jnp.zeros(k))
     if not iterate:
-        return newton(u0)
+        return robust_newton(u0)
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
 
     def fallback():  # Newton from u0 where the iteration failed
-        u, ok = newton(jnp.where(converged, fixed.value, u0))
+        u, ok = robust_newton(jnp.where(converged, fixed.value, u0))
         return jnp.where(converged, fixed.value, u), converged | ok
 
     # on whether any member of a batch failed (unbatched: under vmap a cond on a per-member

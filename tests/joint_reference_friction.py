@@ -218,13 +218,23 @@ class FrictionSystem(jr.System):
             sig[tiny] = np.sign(self.directions(z2)[0] @ zq2)[tiny]
         return sig
 
+    # Newton's starts: 1 from the frictionless solution; n > 1 continued in the friction
+    # coefficients, coef * k / n for k = 1..n, each from the last root (strong friction:
+    # the system has several roots, this one on the branch from mu = 0)
+    continuation = 1
+
     def _solve_with_friction(self, A, b, lam_at, G, coef):
         """Solve A x = b + [G^T c(lam); 0], c = -coef * rho(lam), lam = x[lam_at], by Newton
-        from the frictionless solution.  Stops when the update is below 1e-14 relative (or
-        stalls at rounding)."""
+        from the frictionless solution (or continued, see ``continuation``)."""
         x = np.linalg.solve(A, b)
         if not np.any(coef):
             return x
+        for k in range(1, self.continuation + 1):
+            x = self._newton_with_friction(A, b, lam_at, G, coef * k / self.continuation, x)
+        return x
+
+    def _newton_with_friction(self, A, b, lam_at, G, coef, x):
+        """Newton from x; stops when the update is below 1e-14 relative (or stalls at rounding)."""
         n, prev = self.n, np.inf
         for _ in range(60):
             rho, drho, _ = self._normal_loads(x[lam_at])

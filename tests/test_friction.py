@@ -245,7 +245,9 @@ def test_with_loads_checks_the_loads(slider):
 CLOSED_FORM_LAWS = [
     (1.0, 0.5, -0.1 / 1.05, True),  # weak coupling (dlaw/du = -0.05): the fixed-point iteration
     (1.0, 9.0, -0.1 / 1.9, True),  # dlaw/du = -0.9: too slow for the iteration, Newton's method
-    (1.0, 15.0, None, False),  # Newton's root u = -0.2 has dlaw/du = +1.5: inconsistent (Painleve)
+    # two roots: Newton's from u0, u = -0.2, has dlaw/du = +1.5 (not consistent: Painleve); the
+    # consistent one (dlaw/du = -1.5), on the branch from mu = 0, by the continuation in mu
+    (1.0, 15.0, -0.1 / 2.5, True),
     (1.0, -15.0, None, False),  # no u with u = law(u): reported, not invented
 ]
 
@@ -341,6 +343,37 @@ def test_gradient_in_mu_through_a_standstill_and_reversal(slider):
     forward = jax.jacfwd(lambda mu: q_at(mu, "forward"))(jnp.asarray(MU))
     np.testing.assert_allclose(float(reverse), float(fd), rtol=1e-5)
     np.testing.assert_allclose(float(forward), float(fd), rtol=1e-5)
+
+
+def test_strong_friction_takes_the_root_on_the_branch_from_mu_0(slider):
+    """Strong friction (mu = 5 on pin A and on a 5 mm slider block): the friction law has
+    several roots. Newton's method from the law's value at u = 0 landed, at w = 4.6 rad/s on
+    the way to rest, on one that is not consistent (det(I - dlaw/du) < 0): the run stopped
+    there as if jammed. The solve now continues in mu from 0 where Newton's root is not
+    consistent: the motion goes on to rest, the energy balance closes, and its dw/dt at
+    every moving sample is that of the joint-based reference solved the same way
+    (continued in mu) in its own coordinates, where Newton's method alone finds another root."""
+    import joint_reference_friction as jrf
+
+    loads = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
+             aj.SlideFriction("slider/ground", 5.0, 0.005))  # the structure of frictions(): run()'s program
+    times = np.linspace(0.0, 0.04, TIMES.size)
+    sol = aj.simulate(slider, loads=loads, q0=0.5, omega0=5.0, stop=None, t1=0.04, saveat=times, energies=True,
+                      rtol=1e-10, atol=1e-10)
+    assert sol.status.startswith("reached t1"), sol.status
+    assert sol.omega[-1] == 0.0  # at rest, held by the friction
+    assert np.max(np.abs(sol.balance)) < 1e-9 * np.max(np.abs(sol.total))
+    ref = jrf.slider_crank(0.5, 5.0, friction=dict(A=jrf.Friction(mu=5.0, radius=RADIUS), P=jrf.Friction(mu=5.0, length=0.005)))
+    state = (0.5067189849544655, 4.6)  # where Newton's method from u0 found the inconsistent root
+    plain = ref.forward(*state)["wdot"]
+    ref.system.continuation = 4
+    assert abs(ref.forward(*state)["wdot"] - plain) > 10.0  # the case has several roots
+    moving = np.flatnonzero(sol.omega != 0.0)
+    assert moving.size > 10
+    for k in moving:
+        expected = ref.forward(float(sol.q[k]), float(sol.omega[k]))["wdot"]
+        assert abs(float(sol.domega[k]) - expected) < 1e-9 * abs(expected), (k, float(sol.domega[k]), expected)
+
 
 
 # ---------------------------------------------------------------------------- against the joint-based reference
