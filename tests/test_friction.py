@@ -65,6 +65,7 @@ def test_energy_balance_closes_with_friction(rough):
     np.testing.assert_allclose(rough.work, -rough.dissipated, atol=1e-12 * scale)
 
 
+@pytest.mark.slow  # 29 s of compiles (stick segments with user events): the default suite ran 10:03
 def test_user_events_past_a_rest_and_while_held(slider, rough):
     """User events with friction past the first rest (0.52 s): t = 0.7 s, while it swings
     back, and t = 1.7 s, while the friction holds it at rest (from ~0.95 s): each stops the
