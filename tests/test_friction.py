@@ -377,6 +377,28 @@ def test_strong_friction_takes_the_root_on_the_branch_from_mu_0(slider):
 
 
 
+def test_a_friction_jam_is_named(slider):
+    """The same strong friction launched at 20 rad/s: no friction values satisfy the law of
+    that motion with a positive effective inertia (the joint-based reference's Newton's
+    method finds none, from the frictionless solution or continued in mu in 4 or 16
+    steps). The run stops at once, and its status says the friction jams the mechanism,
+    not that the solver could not get on."""
+    import joint_reference_friction as jrf
+
+    loads = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
+             aj.SlideFriction("slider/ground", 5.0, 0.005))
+    sol = aj.simulate(slider, loads=loads, q0=0.5, omega0=20.0, stop=None, t1=T1, saveat=TIMES, energies=True,
+                      rtol=1e-10, atol=1e-10)  # run()'s program
+    assert not sol.successful
+    assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20)"), sol.status
+    for steps in (1, 4, 16):
+        ref = jrf.slider_crank(0.5, 20.0, friction=dict(A=jrf.Friction(mu=5.0, radius=RADIUS),
+                                                        P=jrf.Friction(mu=5.0, length=0.005)))
+        ref.system.continuation = steps
+        with pytest.raises(RuntimeError, match="did not converge"):
+            ref.forward(0.5, 20.0)
+
+
 # ---------------------------------------------------------------------------- against the joint-based reference
 
 

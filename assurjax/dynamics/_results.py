@@ -36,7 +36,7 @@ _EVENT = int(RESULTS.event_occurred._value)
 FINISHED = (_SUCCESS, _EVENT)  # host-side codes of runs that ended as asked
 START_NOT_ASSEMBLED = int(RESULTS.start_not_assembled._value)
 _MAX_STEPS = int(RESULTS.max_steps_reached._value)
-_DT_MIN = int(RESULTS.dt_min_reached._value)
+DT_MIN = int(RESULTS.dt_min_reached._value)  # host-side code of a run that could not get on (NaN ahead)
 
 
 def result_text(code: int, *, max_steps: int | None = None) -> str:
@@ -47,7 +47,7 @@ def result_text(code: int, *, max_steps: int | None = None) -> str:
         budget = "" if max_steps is None else f" (max_steps = {max_steps})"
         return (f"the step budget{budget} was used up before t1: raise max_steps, loosen rtol/atol, "
                 "or shorten the time span")
-    if code == _DT_MIN:  # from the lock-up controllers (dynamics._settings.lockup_controller)
+    if code == DT_MIN:  # from the lock-up controllers (dynamics._settings.lockup_controller)
         return ("the right-hand side turned NaN ahead and the steps closing in on it got no further, yet every group "
                 "assembles just past where they stopped: a load or the joint friction (a jam) gave NaN there, or, with "
                 "dt= constant steps near a limit position, the motion was not resolved (use adaptive steps or a smaller dt)")
@@ -82,3 +82,11 @@ def status_text(code: int, event: int, group: str | None, t_final: float, *, max
     if code in (_SUCCESS, _EVENT):
         return f"reached t1 = {t_final:.9g} s"
     return f"solver stopped at t = {t_final:.9g} s: {result_text(code, max_steps=max_steps)}"
+
+
+def jam_text(t_final: float, q_final: float, omega_final: float) -> str:
+    """The status of a run stopped where the joint friction jams the mechanism."""
+    return (f"the joint friction jams the mechanism at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g}): "
+            "there no friction values satisfy the Coulomb law of this motion with a positive effective inertia "
+            "(Painleve's paradox: the friction would drive the motion it opposes), so it cannot go on sliding; a real "
+            "mechanism wedges there. Lower the friction coefficients, lengthen the slider blocks or change the geometry")

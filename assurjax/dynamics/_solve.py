@@ -32,7 +32,7 @@ from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, setti
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim
-from ._stick import batch_settings, stick_slip
+from ._stick import batch_settings, stick_slip, with_jam_status
 from ._table import ReducedTable, build_table, build_table_core
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
@@ -448,7 +448,7 @@ def simulate(
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
         sol = prepared.run(args, batch)
     if batch is None:
-        sol = trim(sol, model.mechanism, settings)
+        sol = with_jam_status(trim(sol, model.mechanism, settings), model)
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol

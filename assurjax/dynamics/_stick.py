@@ -41,12 +41,13 @@ import jax
 import jax.numpy as jnp
 
 from .._friction import frictions_of
+from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, near, rates_and_slopes, rest_analysis, rest_direction, vector_field
-from ._results import LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished
-from ._settings import Settings, adjoint_for, controller_for, lockup_controller, solver_for
-from ._solution import Solution, no_outputs
+from ._field import FieldArgs, State, frictional, near, rates_and_slopes, rest_analysis, rest_direction, vector_field
+from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
+from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
+from ._solution import Solution, no_outputs, replaced
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 FIRST_STEP = 1e-4  # in chunks, the first call's first step, times t1 - t0 (the controller adapts it)
@@ -223,3 +224,30 @@ class _Saved(NamedTuple):
 
 def _expand(mask, like):
     return mask.reshape(mask.shape + (1,) * (jnp.ndim(like) - 1))
+
+
+JAM_PROBES = (0.0, 1.0, 10.0, 100.0)  # where a stopped motion's friction is tested: q moved by these x LOCKUP_RESOLUTION (1 + |q|)
+
+
+def with_jam_status(sol: Solution, model: Model) -> Solution:
+    """A run with joint friction that stopped on NaN ahead (``dt_min_reached``, no lock-up)
+    where the friction of its motion has no consistent solution at or just past its end:
+    its status names the jam (on the host, compiled only for such a run)."""
+    if int(result_code(sol.result)) != DT_MIN or not frictions_of(model.loads) or sol.omega_final == 0.0:
+        return sol
+    if not bool(_jams(model, *(jnp.asarray(v, dtype=float) for v in (sol.t_final, sol.q_final, sol.omega_final)))):
+        return sol
+    return replaced(sol, status=jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final)))
+
+
+@jit
+def _jams(model: Model, t, q, omega):
+    """Whether the friction of the motion in sign(omega) has no consistent solution at (t, q,
+    omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt at the state)."""
+    direction = jnp.sign(omega)
+    alpha = frictional(model, t, State(q, omega), direction, iterate=False).alpha
+    h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
+    alpha = jnp.where(jnp.isfinite(alpha), alpha, 0.0)
+    ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
+                                          iterate=False).consistent)(h)
+    return ~jnp.all(ahead)
