@@ -337,21 +337,26 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         several roots, and Newton's method from u0 can land on one that is not consistent
         while this one is (a slider-crank, mu = 5 on a 5 mm block: a consistent root at
         dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with det(I - dlaw/du) < 0, which
-        stopped the run as a jam). The attempts are one loop, so that the program holds one
+        stopped the run as a jam). The attempts are one scan, so that the program holds one
         Newton's method (two: first calls 35 % longer)."""
         n = CONTINUATION_STEPS
 
-        def attempt(carry):
-            i, u, ok, last, _ = carry
-            start = jnp.where(i == 0, u0, jnp.where(i == 1, -viscous, last))
-            v, found = newton(start, jnp.where(i == 0, 1.0, i / n))
-            # attempt 0 stands where consistent; the continuation ends at its last step or where it fails (a jam)
-            done = jnp.where(i == 0, found, ~found | (i == n))
-            keep = (i == 0) | (i == n)
-            return i + 1, jnp.where(keep, v, u), jnp.where(keep, found, ok & found), v, ~done
+        def attempt(carry, i):
+            u, ok, last, go = carry
 
-        init = (jnp.asarray(0), u0, jnp.asarray(False), u0, jnp.asarray(True))
-        _, u, ok, _, _ = jax.lax.while_loop(lambda carry: carry[-1], attempt, init)
+            def run():
+                start = jnp.where(i == 0, u0, jnp.where(i == 1, -viscous, last))
+                v, found = newton(start, jnp.where(i == 0, 1.0, i / n))
+                # attempt 0 stands where consistent; the continuation ends at its last step or where it fails (a jam)
+                done = jnp.where(i == 0, found, ~found | (i == n))
+                keep = go & ((i == 0) | (i == n))
+                return jnp.where(keep, v, u), jnp.where(keep, found, ok), jnp.where(go, v, last), go & ~done
+
+            # a scan (reverse mode goes through it) whose attempts run only while some member needs them
+            return jax.lax.cond(eqxi.unvmap_any(go), run, lambda: carry), None
+
+        init = (u0, jnp.asarray(False), u0, jnp.asarray(True))
+        (u, ok, _, _), _ = jax.lax.scan(attempt, init, jnp.arange(n + 1))
         return u, ok
 
     u0 = law(jnp.zeros(k))
