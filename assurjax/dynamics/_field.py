@@ -135,7 +135,7 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_s
     """The reduction, its kinematics, dw/dt and the friction power of a model with
     friction in its joints: the reduced equation with the friction's generalized force
     sum_k u_k dphi_k/dq, u from ``solve_friction`` with the Coulomb signs
-    ``rate_signs`` (the signs of d phi_k/dq; None: read at the state) times the
+    ``rate_signs`` (the signs of d phi_k/dq; None or 0: read at the state) times the
     ``direction`` of motion (sign(w); 0: at rest, the direction of the frictionless
     generalized force, see :func:`rest_analysis`), and whether the friction has a
     consistent solution with those signs (see ``solve_friction``). ``iterate=False``:
@@ -159,7 +159,7 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs,
                                    rates=y.branch is not None)
 
     rates, slopes = _rates_and_slopes(mechanism, frictions, coeffs)
-    signs = jnp.sign(rates) if rate_signs is None else rate_signs
+    signs = jnp.sign(rates) if rate_signs is None else jnp.where(rate_signs != 0, rate_signs, jnp.sign(rates))
     direction = jnp.where(direction != 0, direction, rest_side(red.force))
 
     def alpha_of(u):
@@ -217,13 +217,16 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     return at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)
 
 
-def rest_analysis(model: Model, t, y: State):
+def rest_analysis(model: Model, t, y: State, bridge: float = 0.0):
     """(dw/dt of the motion a mechanism at rest would start, the direction s of that motion
     (:func:`rest_side`), the elements' d phi_k/dq and d2 phi_k/dq2) at the state's q: what a
     segment of stick and slip starts from. It breaks away where s dw/dt > 0, with the
     friction of a motion in direction s; dw/dt is 0 where that friction has no consistent
     solution (jammed). One friction solve: the other direction cannot start."""
-    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0)
+    # the signs as an array of zeros (read at the state): a simulation's right-hand side passes
+    # an array there, so that both calls share one trace (~0.3 s of a first call)
+    unset = jnp.zeros(len(frictions_of(model.loads)))
+    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
 
 

@@ -84,7 +84,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
     def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
-        alpha, side = rest_analysis(args.model, t, y)[:2]
+        alpha, side = rest_analysis(args.model, t, y, args.bridge)[:2]
         return [-side * alpha] + user_margins(settings, t, y, args)
 
     breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
@@ -116,9 +116,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         """rest_analysis; in chunks (a batch), only the rates unless some member is at rest:
         most chunks start in motion, and under vmap a cond on a member's own test runs both"""
         if chunk is None:
-            return rest_analysis(model, start, y)
+            return rest_analysis(model, start, y, settings.bridge)
         zero = jnp.zeros(())
-        return jax.lax.cond(eqxi.unvmap_any(y.omega == 0), lambda: rest_analysis(model, start, y),
+        return jax.lax.cond(eqxi.unvmap_any(y.omega == 0), lambda: rest_analysis(model, start, y, settings.bridge),
                             lambda: (zero, zero, *rates_and_slopes(model, y)))
 
     def body(carry):
