@@ -144,10 +144,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         if chunk is not None:  # a chunk that used its steps: the segment goes on in the next call, while the budget lasts
             more = sol.result == diffrax.RESULTS.max_steps_reached
             # its accepted steps, not the saved steps' last row: with an event in the call diffrax
-            # appends its final state there, an interpolation at the end of the last attempt
+            # appends its final state there, an interpolation at the end of the last attempt (NaN
+            # where that attempt met NaN: a member stopped by a friction jam beside one whose event fired)
+            stopped = more | ((sol.result != diffrax.RESULTS.successful) & (sol.result != diffrax.RESULTS.event_occurred))
             taken = sol.stats["num_accepted_steps"]
-            end = jnp.where(more, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
-            y_end = jax.tree.map(lambda z, s, z0: jnp.where(more, jnp.where(taken > 0, s[taken - 1], z0), z),
+            end = jnp.where(stopped, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
+            y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(taken > 0, s[taken - 1], z0), z),
                                  y_end, run.ys[1], y._replace(friction_rates=start_rates))
         inside = (ts >= start) & (ts <= end) & ~filled
         saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
