@@ -346,6 +346,20 @@ def test_gradient_in_mu_through_a_standstill_and_reversal(slider):
     np.testing.assert_allclose(float(forward), float(fd), rtol=1e-5)
 
 
+# mu = 5 on pin A and on a 5 mm slider block, none elsewhere: the structure of frictions() (run()'s program)
+STRONG = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
+          aj.SlideFriction("slider/ground", 5.0, 0.005))
+
+
+def _strong_reference(omega0, continuation):
+    """The joint-based reference with STRONG's friction, its Newton continued in that many steps."""
+    import joint_reference_friction as jrf
+
+    ref = jrf.slider_crank(0.5, omega0, friction=dict(A=jrf.Friction(mu=5.0, radius=RADIUS), P=jrf.Friction(mu=5.0, length=0.005)))
+    ref.system.continuation = continuation
+    return ref
+
+
 def test_strong_friction_takes_the_root_on_the_branch_from_mu_0(slider):
     """Strong friction (mu = 5 on pin A and on a 5 mm slider block): the friction law has
     several roots. Newton's method from the law's value at u = 0 landed, at w = 4.6 rad/s on
@@ -354,27 +368,20 @@ def test_strong_friction_takes_the_root_on_the_branch_from_mu_0(slider):
     consistent: the motion goes on to rest, the energy balance closes, and its dw/dt at
     every moving sample is that of the joint-based reference solved the same way
     (continued in mu) in its own coordinates, where Newton's method alone finds another root."""
-    import joint_reference_friction as jrf
-
-    loads = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
-             aj.SlideFriction("slider/ground", 5.0, 0.005))  # the structure of frictions(): run()'s program
     times = np.linspace(0.0, 0.04, TIMES.size)
-    sol = aj.simulate(slider, loads=loads, q0=0.5, omega0=5.0, stop=None, t1=0.04, saveat=times, energies=True,
+    sol = aj.simulate(slider, loads=STRONG, q0=0.5, omega0=5.0, stop=None, t1=0.04, saveat=times, energies=True,
                       rtol=1e-10, atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
     assert sol.omega[-1] == 0.0  # at rest, held by the friction
     assert np.max(np.abs(sol.balance)) < 1e-9 * np.max(np.abs(sol.total))
-    ref = jrf.slider_crank(0.5, 5.0, friction=dict(A=jrf.Friction(mu=5.0, radius=RADIUS), P=jrf.Friction(mu=5.0, length=0.005)))
     state = (0.5067189849544655, 4.6)  # where Newton's method from u0 found the inconsistent root
-    plain = ref.forward(*state)["wdot"]
-    ref.system.continuation = 4
-    assert abs(ref.forward(*state)["wdot"] - plain) > 10.0  # the case has several roots
+    ref = _strong_reference(5.0, 4)
+    assert abs(ref.forward(*state)["wdot"] - _strong_reference(5.0, 1).forward(*state)["wdot"]) > 10.0  # several roots
     moving = np.flatnonzero(sol.omega != 0.0)
     assert moving.size > 10
     for k in moving:
         expected = ref.forward(float(sol.q[k]), float(sol.omega[k]))["wdot"]
         assert abs(float(sol.domega[k]) - expected) < 1e-9 * abs(expected), (k, float(sol.domega[k]), expected)
-
 
 
 def test_a_friction_jam_is_named(slider):
@@ -383,20 +390,13 @@ def test_a_friction_jam_is_named(slider):
     method finds none, from the frictionless solution or continued in mu in 4 or 16
     steps). The run stops at once, and its status says the friction jams the mechanism,
     not that the solver could not get on."""
-    import joint_reference_friction as jrf
-
-    loads = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
-             aj.SlideFriction("slider/ground", 5.0, 0.005))
-    sol = aj.simulate(slider, loads=loads, q0=0.5, omega0=20.0, stop=None, t1=T1, saveat=TIMES, energies=True,
+    sol = aj.simulate(slider, loads=STRONG, q0=0.5, omega0=20.0, stop=None, t1=T1, saveat=TIMES, energies=True,
                       rtol=1e-10, atol=1e-10)  # run()'s program
     assert not sol.successful
     assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20)"), sol.status
     for steps in (1, 4, 16):
-        ref = jrf.slider_crank(0.5, 20.0, friction=dict(A=jrf.Friction(mu=5.0, radius=RADIUS),
-                                                        P=jrf.Friction(mu=5.0, length=0.005)))
-        ref.system.continuation = steps
         with pytest.raises(RuntimeError, match="did not converge"):
-            ref.forward(0.5, 20.0)
+            _strong_reference(20.0, steps).forward(0.5, 20.0)
 
 
 @pytest.mark.slow
@@ -406,9 +406,7 @@ def test_a_jammed_member_of_a_batch_keeps_its_last_state(slider):
     start, finite, and it counts as a solver failure, not a lock-up (its final row was
     diffrax's interpolation into its NaN attempt, read where the other member's event fired:
     NaN, taken for a group that cannot assemble)."""
-    loads = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
-             aj.SlideFriction("slider/ground", 5.0, 0.005))
-    kw = dict(loads=loads, stop=None, t1=T1, saveat=TIMES, energies=True, rtol=1e-10, atol=1e-10)
+    kw = dict(loads=STRONG, stop=None, t1=T1, saveat=TIMES, energies=True, rtol=1e-10, atol=1e-10)
     batch = aj.simulate(slider, q0=np.array([0.5, 0.5]), omega0=np.array([5.0, 20.0]), **kw)
     alone = aj.simulate(slider, q0=0.5, omega0=5.0, **kw)
     assert batch.status.startswith("batch of 2: 1 reached t1, 1 solver failures"), batch.status
