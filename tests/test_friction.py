@@ -292,6 +292,7 @@ def test_friction_solve_batched(slider):
     np.testing.assert_allclose(np.asarray(u[:, 0]), -0.1 / (1.0 + 0.1 * np.asarray(b_weak)), rtol=1e-12)
 
 
+@pytest.mark.slow  # 15-22 s of compiles; the default suite ran 9:41-11:05 in CI runs on a shared machine
 def test_batch_of_starts_equals_single_runs():
     """A batch of simulations with friction (the driven press from rest: break-away, Coulomb
     switches) equals each member's own run: the friction solve's Newton fallback, taken
