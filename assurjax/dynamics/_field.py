@@ -269,7 +269,7 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     # moving, the friction of its direction; at rest, of the direction it would break away in
     # (one Newton solve per sample: the outputs' analysis is batched, see solve_friction)
     red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=False)
-    at_rest = jnp.where(consistent & (a * rest_side(red.force) > 0), a, 0.0)
+    at_rest = jnp.where(rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0, a, 0.0)
     return jnp.where(y.omega != 0, a, at_rest), red, kin
 
 

@@ -146,7 +146,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             # its accepted steps, not the saved steps' last row: with an event in the call diffrax
             # appends its final state there, an interpolation at the end of the last attempt (NaN
             # where that attempt met NaN: a member stopped by a friction jam beside one whose event fired)
-            stopped = more | ((sol.result != diffrax.RESULTS.successful) & (sol.result != diffrax.RESULTS.event_occurred))
+            stopped = more | ~finished(RESULTS.promote(sol.result))
             taken = sol.stats["num_accepted_steps"]
             end = jnp.where(stopped, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
             y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(taken > 0, s[taken - 1], z0), z),
@@ -228,7 +228,7 @@ def _expand(mask, like):
     return mask.reshape(mask.shape + (1,) * (jnp.ndim(like) - 1))
 
 
-JAM_PROBES = (0.0, 1.0, 10.0, 100.0)  # where a stopped motion's friction is tested: q moved by these x LOCKUP_RESOLUTION (1 + |q|)
+JAM_PROBES = (1.0, 10.0, 100.0)  # past a stopped motion's end, its friction is tested where q moved by these x LOCKUP_RESOLUTION (1 + |q|)
 
 
 def with_jam_status(sol: Solution, model: Model) -> Solution:
@@ -247,9 +247,9 @@ def _jams(model: Model, t, q, omega):
     """Whether the friction of the motion in sign(omega) has no consistent solution at (t, q,
     omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt at the state)."""
     direction = jnp.sign(omega)
-    alpha = frictional(model, t, State(q, omega), direction, iterate=False).alpha
+    at_end = frictional(model, t, State(q, omega), direction, iterate=False)
     h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
-    alpha = jnp.where(jnp.isfinite(alpha), alpha, 0.0)
+    alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
     ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
                                           iterate=False).consistent)(h)
-    return ~jnp.all(ahead)
+    return ~(at_end.consistent & jnp.all(ahead))
