@@ -84,9 +84,12 @@ def status_text(code: int, event: int, group: str | None, t_final: float, *, max
     return f"solver stopped at t = {t_final:.9g} s: {result_text(code, max_steps=max_steps)}"
 
 
+JAM_REMEDY = "lower the friction coefficients, lengthen the slider blocks or change the geometry"
+
+
 def jam_text(t_final: float, q_final: float, omega_final: float) -> str:
     """The status of a run stopped where the joint friction jams the mechanism."""
     return (f"the joint friction jams the mechanism at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g}): "
             "there no friction values satisfy the Coulomb law of this motion with a positive effective inertia "
             "(Painleve's paradox: the friction would drive the motion it opposes), so it cannot go on sliding; a real "
-            "mechanism wedges there. Lower the friction coefficients, lengthen the slider blocks or change the geometry")
+            f"mechanism wedges there. {JAM_REMEDY[0].upper() + JAM_REMEDY[1:]}")

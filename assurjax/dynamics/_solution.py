@@ -18,7 +18,7 @@ from .._model import Model
 from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
-from ._results import FINISHED, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, result_text, status_text
+from ._results import FINISHED, JAM_REMEDY, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, result_text, status_text
 from ._settings import Settings
 
 
@@ -232,8 +232,9 @@ def replaced(sol: Solution, **changes) -> Solution:
     return new
 
 
-def batch_summary(sols: Solution) -> Solution:
-    """A batched Solution (host arrays) with a status counting the outcomes."""
+def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
+    """A batched Solution (host arrays) with a status counting the outcomes; ``jammed``:
+    the members stopped where the joint friction jams (counted apart from solver failures)."""
     codes = result_code(sols.result)
     events, results = np.asarray(sols.event), np.where(np.isin(codes, FINISHED), 0, codes)
     parts = [f"{np.sum(events == code)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
@@ -242,6 +243,8 @@ def batch_summary(sols: Solution) -> Solution:
     parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
     unassembled = result_code(sols.result) == START_NOT_ASSEMBLED
     parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
-    failures = (events < 0) & (results != 0) & ~unassembled
+    jammed = np.zeros(codes.shape, dtype=bool) if jammed is None else jammed
+    parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []
+    failures = (events < 0) & (results != 0) & ~unassembled & ~jammed
     parts += [f"{np.sum(failures & (codes == code))} solver failures ({result_text(int(code))})" for code in np.unique(codes[failures])]
     return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))

@@ -32,7 +32,7 @@ from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, setti
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim
-from ._stick import batch_settings, stick_slip, with_jam_status
+from ._stick import batch_settings, jammed_members, stick_slip, with_jam_status
 from ._table import ReducedTable, build_table, build_table_core
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
@@ -452,7 +452,8 @@ def simulate(
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol
-    sols = batch_summary(to_host(sol))
+    sol = to_host(sol)
+    sols = batch_summary(sol, jammed_members(sol, model))
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
     return sols

@@ -39,6 +39,7 @@ import diffrax
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._friction import frictions_of
 from .._jit import jit
@@ -235,15 +236,31 @@ def with_jam_status(sol: Solution, model: Model) -> Solution:
     """A run with joint friction that stopped on NaN ahead (``dt_min_reached``, no lock-up)
     where the friction of its motion has no consistent solution at or just past its end:
     its status names the jam (on the host, compiled only for such a run)."""
-    if int(result_code(sol.result)) != DT_MIN or not frictions_of(model.loads) or sol.omega_final == 0.0:
+    if not _jam_candidates(sol, model):
         return sol
     if not bool(_jams(model, *(jnp.asarray(v, dtype=float) for v in (sol.t_final, sol.q_final, sol.omega_final)))):
         return sol
     return replaced(sol, status=jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final)))
 
 
-@jit
-def _jams(model: Model, t, q, omega):
+def jammed_members(sols: Solution, model: Model) -> np.ndarray:
+    """Which members of a batch (host arrays) stopped where the friction jams, as
+    :func:`with_jam_status` tests one run (all members in one program, compiled only
+    for a batch with such a member)."""
+    candidates = _jam_candidates(sols, model)
+    if not np.any(candidates):
+        return candidates
+    ends = (jnp.asarray(v, dtype=float) for v in (sols.t_final, sols.q_final, sols.omega_final))
+    return candidates & np.asarray(_jams_each(model, *ends))
+
+
+def _jam_candidates(sol: Solution, model: Model) -> np.ndarray:
+    """Runs with joint friction that stopped on NaN ahead while moving (host side)."""
+    stopped = (result_code(sol.result) == DT_MIN) & (np.asarray(sol.omega_final) != 0.0)
+    return stopped & bool(frictions_of(model.loads))
+
+
+def _jams_at(model: Model, t, q, omega):
     """Whether the friction of the motion in sign(omega) has no consistent solution at (t, q,
     omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt at the state)."""
     direction = jnp.sign(omega)
@@ -253,3 +270,11 @@ def _jams(model: Model, t, q, omega):
     ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
                                           iterate=False).consistent)(h)
     return ~(at_end.consistent & jnp.all(ahead))
+
+
+_jams = jit(_jams_at)
+
+
+@jit
+def _jams_each(model: Model, t, q, omega):
+    return jax.vmap(lambda t, q, omega: _jams_at(model, t, q, omega))(t, q, omega)
