@@ -41,8 +41,9 @@ and minus one on body_j; or a unit force +e on body_i at P and -e on body_j at P
 joint's relative rate is ``u_f = g_f . zd`` and the friction power is ``load_f * u_f <= 0``.
 Because Coulomb friction depends on the multipliers, every evaluation is a small nonlinear
 system in ``(zdd, lam)``, solved here by Newton from the frictionless solution to rounding
-(updates below 1e-14 relative).  Inverse dynamics solves the same equations for
-``(lam, tau)`` at a given ``(q, w, dw/dt)``.
+(updates below 1e-14 relative); a joint whose relative rate is round-off of its terms (its
+bodies turn or slide together: it never slips) carries no kinetic Coulomb friction. Inverse
+dynamics solves the same equations for ``(lam, tau)`` at a given ``(q, w, dw/dt)``.
 
 Stiction and piecewise integration (one degree of freedom)
 ----------------------------------------------------------
@@ -101,6 +102,15 @@ import joint_reference as jr  # noqa: E402
 GROUND = jr.GROUND
 _LOOK_AHEAD = 1e-6  # q step used to read the sign of a vanishing rate coefficient k_f(q)
 _TINY_RATE = 1e-9   # |k_f| below this counts as vanishing
+_ROUNDOFF = 1e-13   # a relative rate within this fraction of its terms is their round-off
+
+
+def _slip_signs(G, zd):
+    """sign(G @ zd), the Coulomb signs of the relative rates; 0 where a rate is round-off
+    of its terms: the bodies of such a joint turn (slide) together, it never slips and
+    carries no kinetic friction (its static friction is indeterminate)."""
+    u = G @ zd
+    return np.where(np.abs(u) > _ROUNDOFF * (np.abs(G) @ np.abs(zd)), np.sign(u), 0.0)
 
 
 @dataclass(frozen=True)
@@ -209,13 +219,13 @@ class FrictionSystem(jr.System):
     def rate_signs(self, z, zq, s):
         """Signs of k_f = dz/dq-rate coefficients for motion in direction s (+1/-1): sign(k_f)
         where |k_f| > 1e-9, else the sign of k_f a little further along (q + s 1e-6)."""
-        k = self.directions(z)[0] @ zq
-        sig = np.sign(k)
-        tiny = np.abs(k) <= _TINY_RATE
+        G = self.directions(z)[0]
+        sig = _slip_signs(G, zq)
+        tiny = np.abs(G @ zq) <= _TINY_RATE
         if np.any(tiny):
             q = self._full(z)[0][-1]
             z2, _, zq2 = self.track(q + s * _LOOK_AHEAD, q, z, zq)
-            sig[tiny] = np.sign(self.directions(z2)[0] @ zq2)[tiny]
+            sig[tiny] = _slip_signs(self.directions(z2)[0], zq2)[tiny]
         return sig
 
     # Newton's starts: 1 from the frictionless solution; n > 1 continued in the friction
@@ -272,7 +282,7 @@ class FrictionSystem(jr.System):
         Q, p_dampers = self.forces(z, zd, tau, Jf[-1])
         G, _ = self.directions(z)
         u = G @ zd
-        signs = np.sign(u) if signs is None else np.asarray(signs, float)
+        signs = _slip_signs(G, zd) if signs is None else np.asarray(signs, float)
         n, m = self.n, self.m
         A = np.zeros((n + m, n + m))
         A[np.arange(n), np.arange(n)] = self.Mdiag
@@ -300,7 +310,7 @@ class FrictionSystem(jr.System):
         u = G @ zd
         if signs is None:
             if w != 0.0:
-                signs = np.sign(u)
+                signs = _slip_signs(G, zd)
             else:
                 d = np.sign(wdot) if direction is None else direction
                 signs = d * self.rate_signs(z, zq, d) if d != 0 else np.zeros(len(self._fr))

@@ -39,6 +39,44 @@ mode = "left"
 q0 = 0.2
 """
 
+# the quick-return of tests/joint_reference.py (quick_return): an RPR dyad whose block slides
+# on the rotating rocker (a prismatic pair with a moving guide)
+QUICK_RETURN = """
+[scene]
+name = "quick_return_reference"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+O4 = [0.0, -0.2]
+[links.crank]
+points = { O = [0.0, 0.0], A = [0.1, 0.0] }
+com = [0.05, 0.0]
+mass = 0.3
+inertia = 0.00025
+[links.block]
+points = { A = [0.0, 0.0] }
+com = [0.0, 0.0]
+mass = 0.2
+inertia = 0.0001
+[links.rocker]
+points = { O4 = [0.0, 0.0], T = [0.5, 0.0] }
+com = [0.25, 0.0]
+mass = 1.0
+inertia = 0.020833333333333332
+[[formation]]
+group = "crank"
+link = "crank"
+pivot = "O"
+[[formation]]
+group = "RPR"
+name = "slot"
+links = ["block", "rocker"]
+joints = ["A", "O4"]
+direction = [1.0, 0.0]
+offset = 0.0
+mode = "forward"
+"""
+
 # a motor's torque-speed line, a damper on the ram and a rotary damper at the arm's pivot,
 # added to the bundled quick-return mechanism: the motor-driven shaper
 SHAPER_LOADS = """

@@ -3,8 +3,8 @@
 Independent checks: the frictionless package at mu = 0, the energy balance (T + V - W
 with W the work of the friction and the other loads outside V), a crank hanging on a
 rough pivot whose break-away time under a ramped torque is mu r m g / k in closed form,
-self-locking, and central differences for the gradient in mu. (The joint-based reference
-with Coulomb friction is compared in test_friction_reference.py.)
+self-locking, and central differences for the gradient in mu; and the joint-based reference
+with Coulomb friction (tests/joint_reference_friction.py) on four mechanisms.
 """
 
 import math
@@ -233,6 +233,29 @@ def _with_friction(scene, mu):
     return scene.with_loads(frictions(scene.mechanism, mu))
 
 
+def test_a_pin_whose_links_turn_together_has_no_coulomb_sign(slider):
+    """A pin whose two links turn at rates 1 ulp apart (round-off: the pin of a PRP dyad
+    whose sliders turn together, tests/test_friction_random.py) has relative rate exactly 0,
+    so no Coulomb sign and no friction couple, while its slope is still the difference's;
+    a real relative rate is the difference."""
+    from assurjax._friction import pairs_by_name
+    from assurjax._kinematics import coefficients
+
+    mechanism = slider.mechanism
+    pin = pairs_by_name(mechanism)["A"]
+    element = aj.JointFriction("A", MU, RADIUS)
+    c = coefficients(mechanism, jnp.asarray(0.5))
+
+    def rate(on, by):
+        return element.rate_coefficient(mechanism, c.x, (c.dx[0], c.dx[1], {**c.dx[2], pin.on: on, pin.by: by}))
+
+    turning = 0.8581982075567952
+    assert float(rate(turning, np.nextafter(turning, 1.0))) == 0.0
+    assert float(rate(0.7, 0.3)) == 0.7 - 0.3
+    _, slope = jax.jvp(rate, (jnp.asarray(turning), jnp.asarray(np.nextafter(turning, 1.0))), (jnp.asarray(1.0), jnp.asarray(0.25)))
+    assert float(slope) == 0.75
+
+
 def test_with_loads_checks_the_loads(slider):
     rough = slider.with_loads(frictions(slider.mechanism, MU))
     assert [f.pair for f in rough.loads] == [f.pair for f in frictions(slider.mechanism, MU)]
@@ -435,38 +458,62 @@ def _package_frictions(mechanism, table: dict, parts: int = 1):
     return tuple(out)
 
 
-# the split case (K = 12, the stacked law) and the Watt six-bar in the slow suite: the default one ran 9:41 in CI
-@pytest.mark.parametrize("case", ["slider_crank", pytest.param("slider_crank_split", marks=pytest.mark.slow),
-                                  pytest.param("watt_sixbar", marks=pytest.mark.slow)])
-def test_agrees_with_the_joint_based_reference(case):
-    """Friction in every joint (viscous terms too), 2 s of motion through rests, sticking
-    and sign reversals of the relative rates: q within 1e-8 rad of the reference. Split:
-    the slider-crank's friction shared by three elements per pair (K = 12, past
-    SUMMED_TERMS: the friction law takes its stacked path)."""
-    import joint_reference_friction as jrf
+def _reference_case(case):
+    """(package scene, q0, w0, constant drive, t1, friction table, the joint-based reference
+    model with that friction) of a case compared with the joint-based reference."""
+    import tomllib
 
+    import joint_reference as jr
+    import joint_reference_friction as jrf
+    from scene_texts import QUICK_RETURN, SLIDER_DRIVEN
+
+    if case == "slider_crank":
+        return aj.load_scene(case), 0.5, 0.0, 0.0, T1, jrf.SLIDER_CRANK_FRICTION, jrf.slider_crank(0.5, 0.0)
+    if case == "watt_sixbar":
+        return aj.load_scene(case), 0.3, 1.0, 0.0, T1, jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
+    slide = jrf.Friction(mu=0.2, length=0.03, damping=0.2)
+    if case == "quick_return":  # the block slides on the rotating rocker, under a constant drive
+        table = dict(O=jrf.Friction(mu=0.2, radius=0.005, damping=1e-3), A=jrf.Friction(mu=0.2, radius=0.005), P=slide,
+                     O4=jrf.Friction(mu=0.2, radius=0.01))
+        ref = jrf.with_friction(jr.quick_return(0.4, 4.0, tau=lambda t, q, w: 0.5), table)
+        return aj.scene_from_dict(tomllib.loads(QUICK_RETURN)), 0.4, 4.0, 0.5, 0.7, table, ref
+    # the driver is a slider on a rough guide: it swings once and sticks
+    table = dict(P=slide, B=jrf.Friction(mu=0.2, radius=0.005), C=jrf.Friction(mu=0.2, radius=0.005),
+                 O3=jrf.Friction(mu=0.2, radius=0.005))
+    return aj.scene_from_dict(tomllib.loads(SLIDER_DRIVEN)), 0.2, 0.1, 0.0, 0.5, table, jrf.with_friction(jr.slider_driven(0.2, 0.1), table)
+
+
+# the split case (K = 12, the stacked law), the Watt six-bar and the slider driver in the slow suite: the default one ran 9:41 in CI
+@pytest.mark.parametrize("case", ["slider_crank", pytest.param("slider_crank_split", marks=pytest.mark.slow),
+                                  pytest.param("watt_sixbar", marks=pytest.mark.slow), "quick_return",
+                                  pytest.param("slider_driven", marks=pytest.mark.slow)])
+def test_agrees_with_the_joint_based_reference(case):
+    """Friction in every joint (viscous terms too), motion through rests, sticking and sign
+    reversals of the relative rates: q within 1e-8 rad (m) of the reference. Split: the
+    slider-crank's friction shared by three elements per pair (K = 12, past SUMMED_TERMS:
+    the friction law takes its stacked path). Quick-return: the RPR's block slides on the
+    turning rocker (the pair's guide moves), under a constant drive; slider-driven: the
+    driver's own pair is rough. Then inverse dynamics along the reference's motion."""
     from assurjax._friction import SUMMED_TERMS
 
     parts = 3 if case.endswith("_split") else 1
     case = case.removesuffix("_split")
     assert parts == 1 or 4 * parts > SUMMED_TERMS
-    scene = aj.load_scene(case)
-    if case == "slider_crank":
-        q0, w0, table, ref = 0.5, 0.0, jrf.SLIDER_CRANK_FRICTION, jrf.slider_crank(0.5, 0.0)
-    else:
-        q0, w0, table, ref = 0.3, 1.0, jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
-    expected = ref.simulate(T1, t_eval=TIMES)
-    sol = aj.simulate(scene, loads=_package_frictions(scene.mechanism, table, parts), q0=q0, omega0=w0, stop=None, t1=T1,
-                      saveat=TIMES, energies=True, rtol=1e-10, atol=1e-10)
+    scene, q0, w0, drive, t1, table, ref = _reference_case(case)
+    times = np.linspace(0.0, t1, TIMES.size)
+    expected = ref.simulate(t1, t_eval=times)
+    loads = tuple(scene.loads) + ((aj.Drive(drive),) if drive else ()) + _package_frictions(scene.mechanism, table, parts)
+    sol = aj.simulate(scene, loads=loads, q0=q0, omega0=w0, stop=None, t1=t1, saveat=times, energies=True, rtol=1e-10,
+                      atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
     np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
     np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
-    # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is 0
-    moving = ~expected.stuck & (expected.w != 0.0)  # at rest the static friction is not set by the motion
-    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, _package_frictions(scene.mechanism, table, parts)),
-                     (expected.q[moving], expected.w[moving], expected.wdot[moving]))
-    np.testing.assert_allclose(r.driving, 0.0, atol=1e-7)
+    # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is
+    # the drive applied (a Drive load is the effort asked for; at rest the static friction is not set by the motion)
+    moving = ~expected.stuck & (expected.w != 0.0)
+    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, loads), (expected.q[moving], expected.w[moving], expected.wdot[moving]))
+    np.testing.assert_allclose(r.driving, drive, atol=1e-7)
 
 
 def test_inverse_dynamics_of_a_prescribed_motion_with_friction():
