@@ -71,10 +71,16 @@ class AbstractFriction(AbstractLoad):
     def wrenches(self, mechanism, kin, t):
         return []  # needs the reactions: see friction_wrenches
 
-    @abc.abstractmethod
     def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
         """The relative rate per unit driving velocity (rad or m per unit of q), from the
-        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles)."""
+        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles);
+        exactly 0 where it is round-off (see :func:`without_roundoff`)."""
+        return without_roundoff(*self.rate_terms(mechanism, x, dx))
+
+    @abc.abstractmethod
+    def rate_terms(self, mechanism: Mechanism, x, dx) -> tuple[Array, Array]:
+        """(the relative rate per unit driving velocity, the size of the terms it is the
+        difference of: its round-off scale)."""
 
     @abc.abstractmethod
     def unit_wrenches(self, mechanism: Mechanism, kin) -> list[tuple[str, Array, Array]]:
@@ -110,10 +116,10 @@ class JointFriction(AbstractFriction):
         check_value(MechanismError, "JointFriction: radius", radius, nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
-    def rate_coefficient(self, mechanism, x, dx):
+    def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         on, by = _angle(dx, p.on), _angle(dx, p.by)
-        return _without_roundoff(on - by, jnp.abs(on) + jnp.abs(by))
+        return on - by, jnp.abs(on) + jnp.abs(by)
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
@@ -150,11 +156,11 @@ class SlideFriction(AbstractFriction):
     def _direction(self, kin, p):
         return rotation(kin.angles[p.on])  # the slider's x axis lies along the guide
 
-    def rate_coefficient(self, mechanism, x, dx):
+    def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         at = _point(mechanism, x, p.point)
         (on, on_size), (by, by_size) = _material_rate(x, dx, p.on, at), _material_rate(x, dx, p.by, at)
-        return _without_roundoff(dot(on - by, rotation(x[2][p.on])), on_size + by_size)
+        return dot(on - by, rotation(x[2][p.on])), on_size + by_size
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
@@ -183,14 +189,14 @@ def pairs_by_name(mechanism: Mechanism) -> dict:
 ROUNDOFF = 1e-13  # a relative rate within this fraction of its two links' rates is their round-off
 
 
-def _without_roundoff(rate, size):
-    """A pair's relative rate per unit driving velocity, exactly 0 where it is round-off of
-    the two links' rates (``size``: their magnitude): a pair whose links turn or slide
-    together (e.g. the pin of a PRP dyad whose guides turn together) never slips, so it
-    has no Coulomb sign, where round-off gave it one (1e-16: the full friction couple, a
-    wrong motion by 0.04 rad/s^2 on a random drawing checked against the joint-based
-    reference). Its derivative stays the rate's own: a rate passing through 0 keeps the
-    slope that orders its switch."""
+def without_roundoff(rate, size):
+    """A pair's relative rate per unit driving velocity (or its slope along q), exactly 0
+    where it is round-off of the two links' rates (``size``: their terms' magnitude): a
+    pair whose links turn or slide together (e.g. the pin of a PRP dyad whose guides turn
+    together) never slips, so it has no Coulomb sign, where round-off gave it one (1e-16:
+    the full friction couple, a wrong motion by 0.04 rad/s^2 on a random drawing checked
+    against the joint-based reference). Its derivative stays the value's own: a rate
+    passing through 0 keeps the slope that orders its switch."""
     exact = jnp.where(jnp.abs(rate) <= ROUNDOFF * size, 0.0, rate)
     return rate + jax.lax.stop_gradient(exact - rate)
 

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction
+from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction, without_roundoff
 from .._jit import jit
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -179,12 +179,16 @@ def rest_side(force):
 
 
 def _rates_and_slopes(mechanism, frictions, coeffs):
-    """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients."""
+    """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients, each
+    exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
+    has neither a Coulomb sign nor a slope that would give it one just ahead)."""
     def rates_at(x, dx):
-        return jnp.stack([f.rate_coefficient(mechanism, x, dx) for f in frictions])
+        terms = [f.rate_terms(mechanism, x, dx) for f in frictions]
+        return jnp.stack([rate for rate, _ in terms]), jnp.stack([size for _, size in terms])
 
     # d/dq of the rates: along q, x moves by dx and dx by d2x
-    return jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+    (rates, sizes), (slopes, _) = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+    return without_roundoff(rates, sizes), without_roundoff(slopes, sizes)
 
 
 def rates_and_slopes(model: Model, y: State):
