@@ -75,12 +75,13 @@ class AbstractFriction(AbstractLoad):
         """The relative rate per unit driving velocity (rad or m per unit of q), from the
         positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles);
         exactly 0 where it is round-off (see :func:`without_roundoff`)."""
-        return without_roundoff(*self.rate_terms(mechanism, x, dx))
+        rate, terms = self.rate_terms(mechanism, x, dx)
+        return without_roundoff(rate, terms)
 
     @abc.abstractmethod
     def rate_terms(self, mechanism: Mechanism, x, dx) -> tuple[Array, Array]:
-        """(the relative rate per unit driving velocity, the size of the terms it is the
-        difference of: its round-off scale)."""
+        """(the relative rate per unit driving velocity, the terms it is made of: their
+        sizes are its round-off scale, and their derivatives' sizes its derivative's)."""
 
     @abc.abstractmethod
     def unit_wrenches(self, mechanism: Mechanism, kin) -> list[tuple[str, Array, Array]]:
@@ -119,7 +120,7 @@ class JointFriction(AbstractFriction):
     def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         on, by = _angle(dx, p.on), _angle(dx, p.by)
-        return on - by, jnp.abs(on) + jnp.abs(by)
+        return on - by, jnp.stack([on, by])
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
@@ -159,8 +160,8 @@ class SlideFriction(AbstractFriction):
     def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         at = _point(mechanism, x, p.point)
-        (on, on_size), (by, by_size) = _material_rate(x, dx, p.on, at), _material_rate(x, dx, p.by, at)
-        return dot(on - by, rotation(x[2][p.on])), on_size + by_size
+        (on, on_terms), (by, by_terms) = _material_rate(x, dx, p.on, at), _material_rate(x, dx, p.by, at)
+        return dot(on - by, rotation(x[2][p.on])), jnp.stack([on_terms, by_terms])
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
@@ -189,14 +190,15 @@ def pairs_by_name(mechanism: Mechanism) -> dict:
 ROUNDOFF = 1e-13  # a relative rate within this fraction of its two links' rates is their round-off
 
 
-def without_roundoff(rate, size):
+def without_roundoff(rate, terms):
     """A pair's relative rate per unit driving velocity (or its slope along q), exactly 0
-    where it is round-off of the two links' rates (``size``: their terms' magnitude): a
-    pair whose links turn or slide together (e.g. the pin of a PRP dyad whose guides turn
+    where it is round-off of the ``terms`` it is made of (the two links' rates): a pair
+    whose links turn or slide together (e.g. the pin of a PRP dyad whose guides turn
     together) never slips, so it has no Coulomb sign, where round-off gave it one (1e-16:
     the full friction couple, a wrong motion by 0.04 rad/s^2 on a random drawing checked
     against the joint-based reference). Its derivative stays the value's own: a rate
     passing through 0 keeps the slope that orders its switch."""
+    size = jnp.sum(jnp.abs(terms))
     exact = jnp.where(jnp.abs(rate) <= ROUNDOFF * size, 0.0, rate)
     return rate + jax.lax.stop_gradient(exact - rate)
 
@@ -211,11 +213,11 @@ def _point(mechanism, x, name):
 
 def _material_rate(x, dx, link, at):
     """d/dq of the material point of ``link`` now at ``at``: dG/dq + dtheta/dq (P - G) turned
-    by 90 degrees; and the size of those terms (they cancel at a point the link turns about)."""
+    by 90 degrees; and those two terms (2, 2) (they cancel at a point the link turns about)."""
     if link == GROUND:
-        return jnp.zeros(2), jnp.zeros(())
-    arm = at - x[1][link]
-    return dx[1][link] + dx[2][link] * perp(arm), jnp.sum(jnp.abs(dx[1][link])) + jnp.abs(dx[2][link]) * jnp.sum(jnp.abs(arm))
+        return jnp.zeros(2), jnp.zeros((2, 2))
+    terms = jnp.stack([dx[1][link], dx[2][link] * perp(at - x[1][link])])
+    return terms[0] + terms[1], terms
 
 
 def frictions_of(loads) -> tuple[AbstractFriction, ...]:

@@ -148,18 +148,21 @@ def test_random_drawings_of_every_kind_with_friction_in_every_pair(seed, driver)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed, driver", [(1, "crank"), (1, "slider")])
-def test_a_random_drawing_of_every_kind_moves_as_the_reference(seed, driver):
-    """0.5 s from the drawing at w = 1.3 under gravity, friction in all 25 pairs: q within
-    1e-8 of the reference at 11 times. Seed 1 (crank): the pin whose links turn together
-    also took a Coulomb sign at each segment's start from its slope's round-off (q off by
-    3.5e-4 rad at 0.5 s)."""
+@pytest.mark.parametrize("seed, driver, omega0, t1", [(1, "crank", RATES[0], 0.5), (1, "slider", RATES[0], 0.5),
+                                                      (1, "crank", 0.0, 1.0)])
+def test_a_random_drawing_of_every_kind_moves_as_the_reference(seed, driver, omega0, t1):
+    """From the drawing under gravity, friction in all 25 pairs: q within 1e-8 of the
+    reference at 11 times. Seed 1 (crank): the pin whose links turn together took a
+    Coulomb sign at each segment's start from its slope's round-off (q off by 3.5e-4 rad
+    at 0.5 s); from rest, a dead point of a sub-chain (12 rates through 0 at once, the pin's
+    rate terms with them) left that slope's round-off above the rate terms' scale (w off
+    by 8e-7 after it). That motion then reverses (a rest)."""
     model, reference, _, q0, scale = rough_drawing(seed, driver)
-    times = np.linspace(0.0, 0.5, 11)
-    start = jr.Initial(0.0, RATES[0] * scale, reference.to_frames(np.zeros(reference.n)))
-    expected = jrf.FrictionModel(reference, start).simulate(times[-1], t_eval=times)
-    sol = aj.simulate(model.mechanism, gravity=model.gravity, loads=model.loads, q0=q0, omega0=RATES[0], t1=times[-1],
+    times = np.linspace(0.0, t1, 11)
+    start = jr.Initial(0.0, omega0 * scale, reference.to_frames(np.zeros(reference.n)))
+    expected = jrf.FrictionModel(reference, start).simulate(t1, t_eval=times)
+    sol = aj.simulate(model.mechanism, gravity=model.gravity, loads=model.loads, q0=q0, omega0=omega0, t1=t1,
                       stop=None, saveat=times, rtol=1e-10, atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
     np.testing.assert_allclose(np.asarray(sol.q), q0 + expected.q / scale, rtol=0, atol=1e-8)
-    np.testing.assert_array_equal(np.asarray(sol.omega) == 0.0, expected.stuck)
+    np.testing.assert_array_equal(np.asarray(sol.omega)[1:] == 0.0, expected.stuck[1:])

@@ -183,12 +183,14 @@ def _rates_and_slopes(mechanism, frictions, coeffs):
     exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
     has neither a Coulomb sign nor a slope that would give it one just ahead)."""
     def rates_at(x, dx):
-        terms = [f.rate_terms(mechanism, x, dx) for f in frictions]
-        return jnp.stack([rate for rate, _ in terms]), jnp.stack([size for _, size in terms])
+        found = [f.rate_terms(mechanism, x, dx) for f in frictions]
+        return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
 
-    # d/dq of the rates: along q, x moves by dx and dx by d2x
-    (rates, sizes), (slopes, _) = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
-    return without_roundoff(rates, sizes), without_roundoff(slopes, sizes)
+    # d/dq of the rates and of their terms: along q, x moves by dx and dx by d2x (at a dead
+    # point of a sub-chain its rates and their terms vanish together, the slopes' terms do not)
+    (rates, terms), (slopes, dterms) = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
+    clean = lambda values, terms: jnp.stack([without_roundoff(v, t) for v, t in zip(values, terms)])  # noqa: E731
+    return clean(rates, terms), clean(slopes, dterms)
 
 
 def rates_and_slopes(model: Model, y: State):
