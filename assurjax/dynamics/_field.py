@@ -96,8 +96,8 @@ def _rates(t, y: State, args: FieldArgs):
         # the Coulomb signs of the segment (its direction of motion, the signs of the rates
         # d phi_k/dq), frozen until w returns to 0 or a rate changes sign (events end the
         # segment there): the field stays smooth inside a segment
-        red, kin, alpha, friction_power, consistent, _, slopes = frictional(model, t, y, args.direction, args.bridge,
-                                                                            args.rate_signs)
+        f = frictional(model, t, y, args.direction, args.bridge, args.rate_signs)
+        red, kin, alpha, friction_power, consistent, slopes = f.red, f.kin, f.alpha, f.power, f.consistent, f.raw_slopes
         # direction 0: held at rest by the friction (a stick segment): nothing moves;
         # no consistent friction (a jam): NaN, so that the solver stops there instead of running away
         moving = args.direction != 0
@@ -120,7 +120,9 @@ def _rates(t, y: State, args: FieldArgs):
 class Frictional(NamedTuple):
     """What :func:`frictional` gives: the reduction and its kinematics, dw/dt, the
     friction power (W, <= 0), whether the friction is consistent, and the elements'
-    rates d phi_k/dq and their slopes d2 phi_k/dq2 (K,)."""
+    rates d phi_k/dq and their slopes d2 phi_k/dq2 (K,), both without round-off (what signs
+    are read from), and the slopes as computed (what the integrated rates follow: a right-hand
+    side needs no cleaning, and then XLA drops its terms)."""
 
     red: object
     kin: object
@@ -129,6 +131,7 @@ class Frictional(NamedTuple):
     consistent: Array
     rates: Array
     slopes: Array
+    raw_slopes: Array
 
 
 def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None, *, iterate: bool = True) -> Frictional:
@@ -158,7 +161,7 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs,
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
 
-    rates, slopes = _rates_and_slopes(mechanism, frictions, coeffs)
+    rates, slopes, raw_slopes = _rates_and_slopes(mechanism, frictions, coeffs)
     signs = jnp.sign(rates) if rate_signs is None else jnp.where(rate_signs != 0, rate_signs, jnp.sign(rates))
     direction = jnp.where(direction != 0, direction, rest_side(red.force))
 
@@ -167,7 +170,7 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs,
 
     linear = _linear_reactions(model, coeffs, t, y.omega, alpha_of(jnp.zeros(len(frictions))), rates / red.inertia)
     u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, iterate=iterate)
-    return Frictional(red, kin, alpha_of(u), jnp.sum(rates * u) * y.omega, ok, rates, slopes)
+    return Frictional(red, kin, alpha_of(u), jnp.sum(rates * u) * y.omega, ok, rates, slopes, raw_slopes)
 
 
 def rest_side(force):
@@ -181,7 +184,8 @@ def rest_side(force):
 def _rates_and_slopes(mechanism, frictions, coeffs):
     """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients, each
     exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
-    has neither a Coulomb sign nor a slope that would give it one just ahead)."""
+    has neither a Coulomb sign nor a slope that would give it one just ahead); and the
+    slopes as computed."""
     def rates_at(x, dx):
         found = [f.rate_terms(mechanism, x, dx) for f in frictions]
         return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
@@ -189,14 +193,14 @@ def _rates_and_slopes(mechanism, frictions, coeffs):
     # d/dq of the rates and of their terms: along q, x moves by dx and dx by d2x (at a dead
     # point of a sub-chain its rates and their terms vanish together, the slopes' terms do not)
     (rates, terms), (slopes, dterms) = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
-    clean = lambda values, terms: jnp.stack([without_roundoff(v, t) for v, t in zip(values, terms)])  # noqa: E731
-    return clean(rates, terms), clean(slopes, dterms)
+    size = lambda terms: jnp.stack([jnp.sum(jnp.abs(t)) for t in terms])  # noqa: E731
+    return without_roundoff(rates, size(terms)), without_roundoff(slopes, size(dterms)), slopes
 
 
 def rates_and_slopes(model: Model, y: State):
     """:func:`_rates_and_slopes` at the state's q, without the friction analysis."""
     coeffs = branch_coefficients(model.mechanism, y.q, near=near(model, y))
-    return _rates_and_slopes(model.mechanism, frictions_of(model.loads), coeffs)
+    return _rates_and_slopes(model.mechanism, frictions_of(model.loads), coeffs)[:2]
 
 
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
@@ -274,7 +278,8 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
         return red.acceleration(y.omega), red, kin
     # moving, the friction of its direction; at rest, of the direction it would break away in
     # (one Newton solve per sample: the outputs' analysis is batched, see solve_friction)
-    red, kin, a, _, consistent, _, _ = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=False)
+    f = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=False)
+    red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
     at_rest = jnp.where(rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0, a, 0.0)
     return jnp.where(y.omega != 0, a, at_rest), red, kin
 
