@@ -187,18 +187,17 @@ def pairs_by_name(mechanism: Mechanism) -> dict:
     return {p.name: p for pairs in group_pairs(mechanism) for p in pairs}
 
 
-ROUNDOFF = 1e-13  # a relative rate within this fraction of its two links' rates is their round-off
+ROUNDOFF = 1e-13  # a relative rate within this fraction of its terms' size is their round-off
 
 
 def without_roundoff(rate, size):
     """A pair's relative rate per unit driving velocity (or its slope along q), exactly 0
-    where it is round-off of the terms it is made of (``size``: the sum of their magnitudes;
-    the terms: the two links' rates): a pair
-    whose links turn or slide together (e.g. the pin of a PRP dyad whose guides turn
-    together) never slips, so it has no Coulomb sign, where round-off gave it one (1e-16:
-    the full friction couple, a wrong motion by 0.04 rad/s^2 on a random drawing checked
-    against the joint-based reference). Its derivative stays the value's own: a rate
-    passing through 0 keeps the slope that orders its switch."""
+    where it is round-off of the terms it is the sum of (the two links' rates; ``size``:
+    the sum of their magnitudes). A pair whose links turn or slide together (e.g. the pin
+    of a PRP dyad whose guides turn together) never slips, so it has no Coulomb sign, where
+    round-off gave it one (1e-16: the full friction couple, a wrong motion by 0.04 rad/s^2
+    on a random drawing checked against the joint-based reference). Its derivative stays
+    the value's own: a rate passing through 0 keeps the slope that orders its switch."""
     exact = jnp.where(jnp.abs(rate) <= ROUNDOFF * size, 0.0, rate)
     return rate + jax.lax.stop_gradient(exact - rate)
 
