@@ -3,8 +3,8 @@ reference with Coulomb friction (tests/joint_reference_friction.py: absolute coo
 multipliers, the friction from the multipliers, Newton's method on the law).
 
 A drawing (tests/test_sketch_random.py) is a crank or a slider driving an RRR, RRP, RPR
-and PRP dyad, a class-III triad and a class-IV group, in a random order with random
-names; here every link also gets a random mass, inertia and centre of mass, and every
+and PRP dyad, a class-III triad and a class-IV group (the default suite: the dyads only),
+in a random order with random names; here every link also gets a random mass, inertia and centre of mass, and every
 pair friction (revolutes mu r |F|, prismatic pairs the block law, viscous terms). The
 package builds the mechanism from the drawing (its own Assur decomposition); the
 reference is built from the same drawing. Where more than two links share a point, the
@@ -18,8 +18,9 @@ either way:
 - (slow) a simulation from the drawing: q(t) is the reference's (its stick/slip segments,
   its Coulomb switches).
 
-States where the reference's Newton's method finds no friction values (strong coupling
-in these random drawings) are left out, and counted.
+Where the reference's Newton's method finds no friction values, even continued in mu
+(strong coupling in some of these drawings), the package must find no consistent ones
+either (a jam).
 """
 
 from __future__ import annotations
