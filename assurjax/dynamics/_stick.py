@@ -236,45 +236,36 @@ def with_jam_status(sol: Solution, model: Model) -> Solution:
     """A run with joint friction that stopped on NaN ahead (``dt_min_reached``, no lock-up)
     where the friction of its motion has no consistent solution at or just past its end:
     its status names the jam (on the host, compiled only for such a run)."""
-    if not _jam_candidates(sol, model):
-        return sol
-    if not bool(_jams(model, *(jnp.asarray(v, dtype=float) for v in (sol.t_final, sol.q_final, sol.omega_final)))):
+    if not jammed_members(sol, model):
         return sol
     return replaced(sol, status=jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final)))
 
 
 def jammed_members(sols: Solution, model: Model) -> np.ndarray:
-    """Which members of a batch (host arrays) stopped where the friction jams, as
-    :func:`with_jam_status` tests one run (all members in one program, compiled only
-    for a batch with such a member)."""
-    candidates = _jam_candidates(sols, model)
+    """Which runs (host arrays: one run or a batch) stopped where the joint friction jams:
+    with friction, stopped on NaN ahead while moving, and the friction of that motion has no
+    consistent solution at the end or just past it (one program for all members,
+    compiled only where some member is such a run)."""
+    candidates = (result_code(sols.result) == DT_MIN) & (np.asarray(sols.omega_final) != 0.0) & bool(frictions_of(model.loads))
     if not np.any(candidates):
         return candidates
-    ends = (jnp.asarray(v, dtype=float) for v in (sols.t_final, sols.q_final, sols.omega_final))
-    return candidates & np.asarray(_jams_each(model, *ends))
-
-
-def _jam_candidates(sol: Solution, model: Model) -> np.ndarray:
-    """Runs with joint friction that stopped on NaN ahead while moving (host side)."""
-    stopped = (result_code(sol.result) == DT_MIN) & (np.asarray(sol.omega_final) != 0.0)
-    return stopped & bool(frictions_of(model.loads))
-
-
-def _jams_at(model: Model, t, q, omega):
-    """Whether the friction of the motion in sign(omega) has no consistent solution at (t, q,
-    omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt at the state)."""
-    direction = jnp.sign(omega)
-    at_end = frictional(model, t, State(q, omega), direction, iterate=False)
-    h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
-    alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
-    ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
-                                          iterate=False).consistent)(h)
-    return ~(at_end.consistent & jnp.all(ahead))
-
-
-_jams = jit(_jams_at)
+    ends = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (sols.t_final, sols.q_final, sols.omega_final))
+    return candidates & np.asarray(_jams(model, *ends)).reshape(candidates.shape)
 
 
 @jit
-def _jams_each(model: Model, t, q, omega):
-    return jax.vmap(lambda t, q, omega: _jams_at(model, t, q, omega))(t, q, omega)
+def _jams(model: Model, t, q, omega):
+    """Per run (arrays): whether the friction of the motion in sign(omega) has no consistent
+    solution at (t, q, omega) or a little way along it (the JAM_PROBES, extrapolated with
+    dw/dt at the state)."""
+
+    def one(t, q, omega):
+        direction = jnp.sign(omega)
+        at_end = frictional(model, t, State(q, omega), direction, iterate=False)
+        h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
+        alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
+        ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
+                                              iterate=False).consistent)(h)
+        return ~(at_end.consistent & jnp.all(ahead))
+
+    return jax.vmap(one)(t, q, omega)
