@@ -297,6 +297,59 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
 
 
+def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, static_basis, u):
+    """|dlaw_k/du_j| (K, K) at a fixed driving acceleration, or bounds of them, from the
+    reactions' K tangents of that statics: on a revolute a |dF|, whatever its reaction; on a
+    prismatic pair exact at the reactions of u, b |(s1 + s2)/2 n . dF + (s2 - s1)/L dM| with
+    s1,2 = sign(N/2 -+ M/L): its block's couple counts only where one end lifts. Row by row:
+    a stacked (K, K, 2) array over 512 bytes makes XLA's CPU runtime spread a simulation's
+    step over threads (the quick-return's right-hand side with friction in its 7 pairs:
+    16 us stacked, 7.4 row by row, 6 without this test)."""
+    (forces0, couples0), (forces_b, couples_b) = reactions
+    static_forces, static_couples = static_basis
+
+    def at_u(value, tangents):
+        return value + sum(u[j] * tangents[j] for j in range(len(frictions)))
+
+    rows = []
+    for f in frictions:
+        a, b, normal, inverse_length = f.limit_terms(mechanism, kin)
+        force = static_forces[f.pair]  # (K tangents, 2)
+        if b is None:
+            rows.append(a * jnp.sqrt(jnp.sum(force * force, axis=-1)))
+            continue
+        half = 0.5 * dot(at_u(forces0[f.pair], forces_b[f.pair]), normal)
+        end = at_u(couples0[f.pair], couples_b[f.pair]) * inverse_length
+        s1, s2 = jnp.sign(half - end), jnp.sign(half + end)
+        along = jnp.sum(force * normal, axis=-1)
+        rows.append(b * jnp.abs(0.5 * (s1 + s2) * along + (s2 - s1) * inverse_length * static_couples[f.pair]))
+    return jnp.stack(rows)
+
+
+def _ostrowski(magnitudes):
+    """Ostrowski's bound of a square matrix's spectral radius from its entries' magnitudes:
+    every eigenvalue lies within sqrt(R_i C_i) of some diagonal entry (R_i, C_i: row i's and
+    column i's other entries summed)."""
+    diagonal = jnp.diagonal(magnitudes)
+    rows, columns = jnp.sum(magnitudes, axis=1) - diagonal, jnp.sum(magnitudes, axis=0) - diagonal
+    return jnp.max(diagonal + jnp.sqrt(rows * columns))
+
+
+def spectral_bound(magnitudes):
+    """A bound of the spectral radius of any matrix whose entries are at most ``magnitudes``
+    (K, K) in size (Perron-Frobenius): Ostrowski's, and for up to SUMMED_TERMS elements the
+    square root of that of the square (rho(B)^2 = rho(B^2)). Unlike the largest row sum it is
+    not spoilt by the elements' different units (a prismatic pair's force answers a pin's
+    couple per metre, the pin's couple the force times metres: their product is what counts);
+    the square's is nearer (on the quick-return with friction everywhere 0.3 against 0.5-1.1;
+    its spectral radius 0.14-0.19)."""
+    bound = _ostrowski(magnitudes)
+    if magnitudes.shape[0] <= SUMMED_TERMS:  # K^3 products
+        square = sum(jnp.outer(magnitudes[:, j], magnitudes[j]) for j in range(magnitudes.shape[0]))
+        bound = jnp.minimum(bound, jnp.sqrt(_ostrowski(square)))
+    return bound
+
+
 # Fixed-point steps before Newton takes over: within them the iteration converges to 1e-12
 # only while it contracts by ~0.4 per step or better, so its error stays below the tolerance.
 FIXED_POINT_STEPS = 32
@@ -310,10 +363,14 @@ def linearize_reactions(react, k: int):
     return reactions0, jax.vmap(linear)(jnp.eye(k))
 
 
-def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, iterate: bool = True):
+def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, static_basis=None,
+                   iterate: bool = True):
     """Friction values u with u = law(reactions(u)), the reactions being affine in u:
     ``reactions`` = (forces and couples at u = 0, their K tangents), see
-    :func:`linearize_reactions`. ``kin``: the positions the limits are read on; ``rates``:
+    :func:`linearize_reactions`. ``static_basis``: where those tangents also carry u's
+    effect through the driving acceleration (the forward dynamics), the tangents at a fixed
+    acceleration (the friction's statics alone), for the consistency test below; None
+    where the acceleration is given (a prescribed motion). ``kin``: the positions the limits are read on; ``rates``:
     (K,) relative rates per unit driving velocity (for the viscous terms); ``signs``: (K,)
     the Coulomb signs, those of the relative rates (rates times the sign of w or, at rest,
     the direction of the motion tested). Returns (u, ok); ok is False where no solution is
@@ -324,11 +381,22 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     steps (optimistix's FixedPointIteration; no Jacobian, no linear solve): the
     right-hand side with friction costs half what Newton's method did. Where it does
     not converge quickly (strong friction, a short slider block), Newton's method
-    (optimistix) from the same start, with the consistency test det(I - dlaw/du) > 0.
-    A converged iteration is consistent: it converges only where dlaw/du's spectral
-    radius is below 1, and then every eigenvalue of I - dlaw/du has a positive real part.
+    (optimistix) from the same start, with the consistency test below.
     Where Newton's root is not consistent, Newton's method once more, continued in mu from
     0 (strong friction can give the law several roots).
+
+    Consistent (Painleve): the effective inertia is positive, M_eff = J_red det(I - dlaw/du)
+    / det(I - S) with S the law's slope at a fixed acceleration (the determinant lemma: u
+    acts on the acceleration through one rank-one term), and the statics alone is not
+    self-locked, det(I - S) > 0 (at det(I - S) = 0 a prescribed motion needs an unbounded
+    drive: a slider driven through a rod steeper than its friction angle allows). Both
+    determinants are 1 at mu = 0, and both are tested: det(I - dlaw/du) > 0 alone (the test
+    until this was found) also passed roots where both are negative, a self-locked
+    slider-crank driven on with a negative effective inertia, its crank slowing the more,
+    the harder it is driven. A converged iteration has dlaw/du's spectral radius below 1,
+    so det(I - dlaw/du) > 0; it is taken where :func:`spectral_bound` of S's entries (or
+    bounds of them, :func:`_static_slopes`) is below 1 as well, which makes det(I - S) > 0;
+    elsewhere Newton's method decides, from the iteration's root.
 
     ``iterate=False``: Newton's method alone, for the solves batched within one analysis
     (the output samples, the reactions' two directions): with both loops in the batched
@@ -349,11 +417,17 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
 
         sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), u0, max_steps=64,
                              throw=False)
-        # Painleve's paradox: where det(I - dlaw/du) <= 0 the friction feeds the reactions faster
-        # than inertia resists (the effective inertia is not positive): no consistent motion has
-        # the assumed signs, the mechanism jams (K x K: a few forward passes of the linear law)
+        # Painleve's paradox: where the effective inertia is not positive the friction feeds the
+        # reactions faster than inertia resists: no consistent motion has the assumed signs, the
+        # mechanism jams (K x K Jacobians: a few forward passes of the linear law)
         consistent = determinant(jax.jacfwd(residual)(sol.value, None)) > 0
+        if static_basis is not None:  # and the statics alone not self-locked (see the docstring)
+            consistent &= determinant(jax.jacfwd(static_residual)(jnp.zeros(k), sol.value, scale)) > 0
         return sol.value, (sol.result == optx.RESULTS.successful) & consistent
+
+    def static_residual(v, u, scale):  # v - law at the reactions of u moved by v along the static tangents
+        at_u = jax.tree.map(lambda r, t: r + jnp.tensordot(u, t, axes=1), *reactions)
+        return v + scale * _coulomb_limits(mechanism, kin, frictions, at_u, static_basis)(v) * signs
 
     def robust_newton(u0):
         """Newton from u0; where its root is not consistent, Newton's method again, continued
@@ -390,12 +464,15 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
+    # det(I - S) > 0 where a bound of S's spectral radius is below 1 (S at a fixed acceleration)
+    settled = converged if static_basis is None else converged & (
+        spectral_bound(_static_slopes(mechanism, kin, frictions, reactions, static_basis, fixed.value)) < 1.0)
 
-    def fallback():  # Newton from u0 where the iteration failed
+    def fallback():  # Newton from u0 where the iteration failed, from its root where only the bound did
         u, ok = robust_newton(jnp.where(converged, fixed.value, u0))
-        return jnp.where(converged, fixed.value, u), converged | ok
+        return jnp.where(settled, fixed.value, u), settled | ok
 
     # on whether any member of a batch failed (unbatched: under vmap a cond on a per-member
     # test runs both branches for every member, and Newton's was most of a batched
     # right-hand side: slider-crank 1.55 -> 1.1 us, Watt six-bar 3.5 -> 1.6 us per state)
-    return jax.lax.cond(eqxi.unvmap_any(~converged), fallback, lambda: (fixed.value, jnp.array(True)))
+    return jax.lax.cond(eqxi.unvmap_any(~settled), fallback, lambda: (fixed.value, jnp.array(True)))

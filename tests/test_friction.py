@@ -86,6 +86,76 @@ def test_self_locking_stays_at_rest(slider):
     assert np.all(np.isfinite(locked.total))
 
 
+# A slider-crank whose rod (0.105 m, massless) is barely longer than its crank (0.1 m, J = 1e-3
+# kg m^2 about O, no mass elsewhere): the rod's pressure angle on the slider (1 kg) reaches 72
+# deg. No gravity; Coulomb friction on the slider only (mu = 0.5, friction angle 26.6 deg).
+STEEP_R, STEEP_L, STEEP_J, STEEP_M, STEEP_MU = 0.1, 0.105, 1e-3, 1.0, 0.5
+
+
+def steep_slider_crank():
+    import tomllib
+    from pathlib import Path
+
+    d = tomllib.loads(Path(aj.__file__).with_name("scenes").joinpath("slider_crank.toml").read_text())
+    d["scene"]["gravity"] = [0.0, 0.0]
+    d["links"]["crank"].update(mass=0.0, inertia=STEEP_J, com=[0.0, 0.0])
+    d["links"]["rod"].update(points={"A": [0.0, 0.0], "B": [STEEP_L, 0.0]}, mass=0.0, inertia=0.0, com=[0.0, 0.0])
+    d["links"]["slider"].update(mass=STEEP_M)
+    return aj.scene_from_dict(d)
+
+
+def steep_closed_form(q, w, tau):
+    """Both branches of the hand-solved slider: the rod pushes (P > 0) or pulls, the friction
+    -s mu |N| with N the rod's normal component, s the slider's direction of motion. Per
+    branch: (dw/dt, effective inertia, the branch's sign of P holds)."""
+    def x(q):
+        return STEEP_R * jnp.cos(q) + jnp.sqrt(STEEP_L**2 - (STEEP_R * jnp.sin(q)) ** 2)
+
+    v, a2 = float(jax.grad(x)(q)), float(jax.grad(jax.grad(x))(q))
+    ex, ey = math.sqrt(STEEP_L**2 - (STEEP_R * math.sin(q)) ** 2) / STEEP_L, STEEP_R * math.sin(q) / STEEP_L
+    out = []
+    for sigma in (1.0, -1.0):  # slider: m x'' = P ex - s mu |P ey|, crank: J dw/dt = tau - P ex v
+        d = ex - math.copysign(1.0, v * w) * sigma * STEEP_MU * abs(ey)
+        inertia = STEEP_J + STEEP_M * ex * v * v / d
+        alpha = (tau - STEEP_M * ex * v * a2 * w * w / d) / inertia
+        force = STEEP_M * (v * alpha + a2 * w * w) / d
+        out.append((alpha, inertia, math.copysign(1.0, force) == sigma))
+    return out
+
+
+def test_a_slider_driven_past_its_friction_angle_jams():
+    """Self-locking: the crank drives (tau = +1 N m) the slider through a rod steeper than
+    the friction allows. Against the hand-solved slider (independent): where the branch that
+    holds has a positive effective inertia, the package's dw/dt is its; where it is negative
+    (the crank would slow the more, the harder it is driven), the package finds no
+    consistent friction (it used to take that branch). The run from q = 1 jams where
+    ex = mu |ey|, sin q = l / (r sqrt(1 + mu^2)); from rest inside that zone no drive moves it."""
+    from assurjax.dynamics._field import State, frictional
+
+    scene = steep_slider_crank()
+    rough = aj.SlideFriction("slider/ground", STEEP_MU, 0.05)
+    negative = 0
+    for tau in (1.0, -1.0):
+        model = aj.Model(scene.mechanism, scene.gravity, (aj.Drive(tau), rough))
+        for q in (0.3, 1.0, 1.2, 1.3, 1.571, 1.9):
+            f = frictional(model, 0.0, State(jnp.asarray(q), jnp.asarray(0.5)), 1.0)
+            [(alpha, inertia, _)] = [b for b in steep_closed_form(q, 0.5, tau) if b[2]]
+            assert bool(f.consistent) == (inertia > 0), (tau, q, inertia)
+            negative += inertia < 0
+            if inertia > 0:
+                assert abs(float(f.alpha) - alpha) < 1e-9 * (1.0 + abs(alpha)), (tau, q)
+    assert negative == 3  # tau = +1 at q = 1.3, 1.571, 1.9
+    jam = math.asin(STEEP_L / (STEEP_R * math.sqrt(1.0 + STEEP_MU**2)))
+    loads = (aj.Drive(aj.Polynomial([1.0], variable="t")), rough)
+    sol = aj.simulate(scene, loads=loads, q0=1.0, omega0=0.5, stop=None, t1=0.5, samples=11, rtol=1e-10, atol=1e-10)
+    assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
+    assert abs(float(sol.q_final) - jam) < 1e-8 and float(sol.omega_final) > 1.0
+    for tau in (1.0, 100.0):
+        held = aj.simulate(scene, loads=(aj.Drive(aj.Polynomial([tau], variable="t")), rough), q0=1.4, stop=None,
+                           t1=0.5, samples=11, rtol=1e-10, atol=1e-10)
+        assert held.status.startswith("reached t1") and np.all(held.q == 1.4) and np.all(held.omega == 0.0)
+
+
 def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
     """stop='standstill' from a start the friction holds: a standstill at t0, at rest (it
     used to run with the Coulomb signs of an assumed direction, against the motion they
@@ -109,16 +179,55 @@ def test_segment_budget_is_reported(slider, monkeypatch):
     assert "segments" in sol.status and "shorten the time span" in sol.status, sol.status
 
 
-def test_lockup_with_friction_stops_at_the_limit():
-    """A triple rocker with friction in its pivots thrown into its limit position: the
-    stick-slip loop stops there (the stretched dyad, closed form), naming the dyad."""
+def triple_rocker(radius):
+    """(scene, its friction loads): test_dynamics' triple rocker (no drive, no damper) with
+    mu = 0.1 and friction-circle radius ``radius`` in its four pins, thrown at its limit."""
     import test_dynamics
 
     scene = test_dynamics.four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
-    loads = list(scene.loads) + [aj.JointFriction(j, 0.1, 0.01) for j in aj.joint_names(scene.mechanism)]
+    return scene, tuple(scene.loads) + tuple(aj.JointFriction(j, 0.1, radius) for j in aj.joint_names(scene.mechanism))
+
+
+def test_lockup_with_friction_stops_at_the_limit():
+    """A triple rocker with friction in its pivots thrown into its limit position: the
+    stick-slip loop stops there (the stretched dyad, closed form), naming the dyad. Pins of
+    0.01 mm: the friction circles lock the toggle only within 1e-10 rad of the limit (with
+    10 mm pins 5e-5 rad short of it, the test below)."""
+    import test_dynamics
+
+    scene, loads = triple_rocker(1e-5)
     sol = aj.simulate(scene, loads=loads, q0=0.9, omega0=-6.0, stop=None, t1=3.0)
     assert sol.event == aj.dynamics._results.LOCKUP and sol.failed_group == "dyad"
     assert abs(sol.q_final + test_dynamics.LIMIT) < 1e-8 and np.all(sol.q >= -test_dynamics.LIMIT - 1e-12)  # round-off
+
+
+def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
+    """The same rocker with 10 mm pins: near the stretched dyad its pins' friction circles
+    take the coupler's force line, and the motion jams 5e-5 rad short of the limit (it used
+    to run on with a negative effective inertia into the limit). Against the joint-based
+    reference: its own forward dynamics' effective inertia (d tau / d dw/dt, from two drives)
+    grows without bound as q nears the jam and is negative past it; 1 / M_eff, linear there,
+    vanishes within 1e-6 rad of where the package stopped."""
+    import joint_reference as jr
+    import joint_reference_friction as jrf
+    import test_dynamics
+
+    scene, loads = triple_rocker(0.01)
+    sol = aj.simulate(scene, loads=loads, q0=0.9, omega0=-6.0, stop=None, t1=3.0)
+    assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
+    q_jam, w_jam = float(sol.q_final), float(sol.omega_final)
+    assert 1e-5 < q_jam + test_dynamics.LIMIT < 1e-4 and w_jam < 0.0
+    reference = jrf.with_friction(jr.four_bar_motor(0.9, -6.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0), T_stall=0.0,
+                                                    damper_c=0.0), {j: jrf.Friction(mu=0.1, radius=0.01) for j in ("O2", "A", "B", "O4")})
+
+    def inertia(q):
+        drive = [reference.forward(q, w_jam, tau=lambda t, q, w, d=d: d)["wdot"] for d in (-1e-3, 1e-3)]
+        return 2e-3 / (drive[1] - drive[0])
+
+    before, nearer = inertia(q_jam + 1e-5), inertia(q_jam + 3e-6)  # the side it came from
+    assert 0.0 < before < nearer and inertia(q_jam - 1e-6) < 0.0 and inertia(q_jam - 1e-5) < 0.0
+    slope = (1.0 / before - 1.0 / nearer) / 7e-6
+    assert abs(3e-6 - (1.0 / nearer) / slope) < 1e-6
 
 
 def test_zero_friction_reproduces_the_frictionless_motion(slider):

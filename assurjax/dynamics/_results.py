@@ -91,5 +91,7 @@ def jam_text(t_final: float, q_final: float, omega_final: float) -> str:
     """The status of a run stopped where the joint friction jams the mechanism."""
     return (f"the joint friction jams the mechanism at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g}): "
             "there no friction values satisfy the Coulomb law of this motion with a positive effective inertia "
-            "(Painleve's paradox: the friction would drive the motion it opposes), so it cannot go on sliding; a real "
+            "(Painleve's paradox: the friction would drive the motion it opposes, or it self-locks: a slider driven past "
+            "its friction angle, a toggle whose force line passes within its pins' friction circles), so it cannot go on "
+            "sliding; a real "
             f"mechanism wedges there. {JAM_REMEDY[0].upper() + JAM_REMEDY[1:]}")
