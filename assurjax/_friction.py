@@ -36,7 +36,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
-from ._linalg import determinant, small_solver
+from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
 from .groups._base import GROUND
@@ -297,33 +297,44 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
 
 
-def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, static_basis, u):
+def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u):
     """|dlaw_k/du_j| (K, K) at a fixed driving acceleration, or bounds of them, from the
-    reactions' K tangents of that statics: on a revolute a |dF|, whatever its reaction; on a
+    reactions' K tangents at a fixed acceleration (the ``reactions``' tangents less their
+    part through it, ``inertial``): on a revolute a |dF|, whatever its reaction; on a
     prismatic pair exact at the reactions of u, b |(s1 + s2)/2 n . dF + (s2 - s1)/L dM| with
-    s1,2 = sign(N/2 -+ M/L): its block's couple counts only where one end lifts. Row by row:
-    a stacked (K, K, 2) array over 512 bytes makes XLA's CPU runtime spread a simulation's
-    step over threads (the quick-return's right-hand side with friction in its 7 pairs:
-    16 us stacked, 7.4 row by row, 6 without this test)."""
+    s1,2 = sign(N/2 -+ M/L): its block's couple counts only where one end lifts. Row by row
+    for up to SUMMED_TERMS elements: a stacked (K, K, 2) array over 512 bytes makes XLA's
+    CPU runtime spread a simulation's step over threads (the quick-return's right-hand side
+    with friction in its 7 pairs: 16 us stacked, 7.4 row by row, 6 without this test)."""
     (forces0, couples0), (forces_b, couples_b) = reactions
-    static_forces, static_couples = static_basis
+    (forces_a, couples_a), dalpha = inertial
+    k = len(frictions)
 
-    def at_u(value, tangents):
-        return value + sum(u[j] * tangents[j] for j in range(len(frictions)))
+    def at_pair(values, tangents, per_unit, pair):  # (value at u, tangents at a fixed acceleration)
+        tangent = tangents.get(pair, jnp.zeros(k))
+        # a chain of products for a few elements (a dot this small is a call of its own, see _coulomb_limits)
+        combined = jnp.tensordot(u, tangent, axes=1) if k > SUMMED_TERMS else sum(u[j] * tangent[j] for j in range(k))
+        return values.get(pair, 0.0) + combined, tangent - jnp.multiply.outer(dalpha, per_unit.get(pair, 0.0))
 
-    rows = []
-    for f in frictions:
-        a, b, normal, inverse_length = f.limit_terms(mechanism, kin)
-        force = static_forces[f.pair]  # (K tangents, 2)
-        if b is None:
-            rows.append(a * jnp.sqrt(jnp.sum(force * force, axis=-1)))
-            continue
-        half = 0.5 * dot(at_u(forces0[f.pair], forces_b[f.pair]), normal)
-        end = at_u(couples0[f.pair], couples_b[f.pair]) * inverse_length
-        s1, s2 = jnp.sign(half - end), jnp.sign(half + end)
-        along = jnp.sum(force * normal, axis=-1)
-        rows.append(b * jnp.abs(0.5 * (s1 + s2) * along + (s2 - s1) * inverse_length * static_couples[f.pair]))
-    return jnp.stack(rows)
+    def rows(terms, force, d_force, couple, d_couple):  # one element's (K,) or stacked (K, K)
+        a, b, normal, inverse_length = (None if v is None else jnp.asarray(v) for v in terms)
+        out = 0.0
+        if a is not None:
+            out = out + a[..., None] * jnp.sqrt(jnp.sum(d_force * d_force, axis=-1))
+        if b is not None:
+            half, end = 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+            s1, s2 = jnp.sign(half - end), jnp.sign(half + end)
+            along = jnp.sum(d_force * normal[..., None, :], axis=-1)
+            out = out + b[..., None] * jnp.abs(0.5 * (s1 + s2)[..., None] * along
+                                               + ((s2 - s1) * inverse_length)[..., None] * d_couple)
+        return out
+
+    pairs = [(at_pair(forces0, forces_b, forces_a, f.pair), at_pair(couples0, couples_b, couples_a, f.pair))
+             for f in frictions]
+    if k <= SUMMED_TERMS:
+        return jnp.stack([rows(f.limit_terms(mechanism, kin), *force, *couple) for f, (force, couple) in zip(frictions, pairs)])
+    stacked = [jnp.stack([pair[i][j] for pair in pairs]) for i in (0, 1) for j in (0, 1)]
+    return rows(_stacked_terms(mechanism, kin, frictions), *stacked)
 
 
 def _ostrowski(magnitudes):
@@ -363,14 +374,14 @@ def linearize_reactions(react, k: int):
     return reactions0, jax.vmap(linear)(jnp.eye(k))
 
 
-def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, static_basis=None,
+def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, inertial=None,
                    iterate: bool = True):
     """Friction values u with u = law(reactions(u)), the reactions being affine in u:
     ``reactions`` = (forces and couples at u = 0, their K tangents), see
-    :func:`linearize_reactions`. ``static_basis``: where those tangents also carry u's
-    effect through the driving acceleration (the forward dynamics), the tangents at a fixed
-    acceleration (the friction's statics alone), for the consistency test below; None
-    where the acceleration is given (a prescribed motion). ``kin``: the positions the limits are read on; ``rates``:
+    :func:`linearize_reactions`. ``inertial``: where those tangents also carry u's effect
+    through the driving acceleration (the forward dynamics), that part: (the reactions per
+    unit dw/dt, d(dw/dt)/du (K,)), for the consistency test below; None where the
+    acceleration is given (a prescribed motion). ``kin``: the positions the limits are read on; ``rates``:
     (K,) relative rates per unit driving velocity (for the viscous terms); ``signs``: (K,)
     the Coulomb signs, those of the relative rates (rates times the sign of w or, at rest,
     the direction of the motion tested). Returns (u, ok); ok is False where no solution is
@@ -393,10 +404,13 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     determinants are 1 at mu = 0, and both are tested: det(I - dlaw/du) > 0 alone (the test
     until this was found) also passed roots where both are negative, a self-locked
     slider-crank driven on with a negative effective inertia, its crank slowing the more,
-    the harder it is driven. A converged iteration has dlaw/du's spectral radius below 1,
-    so det(I - dlaw/du) > 0; it is taken where :func:`spectral_bound` of S's entries (or
-    bounds of them, :func:`_static_slopes`) is below 1 as well, which makes det(I - S) > 0;
-    elsewhere Newton's method decides, from the iteration's root.
+    the harder it is driven. Newton's method tests det(I - S) = det(I - dlaw/du) (1 + y),
+    y = d(dw/dt)/du . (I - dlaw/du)^-1 dlaw/d(dw/dt) (Sherman-Morrison: one solve with the
+    factors of det(I - dlaw/du), no second Jacobian). A converged iteration has dlaw/du's
+    spectral radius below 1, so det(I - dlaw/du) > 0; it is taken where
+    :func:`spectral_bound` of S's entries (or bounds of them, :func:`_static_slopes`) is
+    below 1 as well, which makes det(I - S) > 0; elsewhere Newton's method decides, from
+    the iteration's root.
 
     ``iterate=False``: Newton's method alone, for the solves batched within one analysis
     (the output samples, the reactions' two directions): with both loops in the batched
@@ -420,14 +434,16 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         # Painleve's paradox: where the effective inertia is not positive the friction feeds the
         # reactions faster than inertia resists: no consistent motion has the assumed signs, the
         # mechanism jams (K x K Jacobians: a few forward passes of the linear law)
-        consistent = determinant(jax.jacfwd(residual)(sol.value, None)) > 0
-        if static_basis is not None:  # and the statics alone not self-locked (see the docstring)
-            consistent &= determinant(jax.jacfwd(static_residual)(jnp.zeros(k), sol.value, scale)) > 0
+        factors = plain_lu_factor(jax.jacfwd(residual)(sol.value, None))
+        consistent = lu_determinant(factors) > 0
+        if inertial is not None:  # and the statics alone not self-locked (see the docstring)
+            along = jax.jvp(lambda s: law_along(sol.value, s, scale), (0.0,), (1.0,))[1]
+            consistent &= 1.0 + jnp.sum(inertial[1] * plain_lu_solve(factors, along)) > 0
         return sol.value, (sol.result == optx.RESULTS.successful) & consistent
 
-    def static_residual(v, u, scale):  # v - law at the reactions of u moved by v along the static tangents
-        at_u = jax.tree.map(lambda r, t: r + jnp.tensordot(u, t, axes=1), *reactions)
-        return v + scale * _coulomb_limits(mechanism, kin, frictions, at_u, static_basis)(v) * signs
+    def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
+        moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], inertial[0])
+        return -scale * _coulomb_limits(mechanism, kin, frictions, moved, reactions[1])(u) * signs
 
     def robust_newton(u0):
         """Newton from u0; where its root is not consistent, Newton's method again, continued
@@ -465,8 +481,8 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
     # det(I - S) > 0 where a bound of S's spectral radius is below 1 (S at a fixed acceleration)
-    settled = converged if static_basis is None else converged & (
-        spectral_bound(_static_slopes(mechanism, kin, frictions, reactions, static_basis, fixed.value)) < 1.0)
+    settled = converged if inertial is None else converged & (
+        spectral_bound(_static_slopes(mechanism, kin, frictions, reactions, inertial, fixed.value)) < 1.0)
 
     def fallback():  # Newton from u0 where the iteration failed, from its root where only the bound did
         u, ok = robust_newton(jnp.where(converged, fixed.value, u0))

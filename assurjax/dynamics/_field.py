@@ -168,8 +168,8 @@ def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs,
     def alpha_of(u):
         return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.sum(rates * u), y.omega)
 
-    linear, static = _linear_reactions(model, coeffs, t, y.omega, alpha_of(jnp.zeros(len(frictions))), rates / red.inertia)
-    u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, static_basis=static,
+    linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha_of(jnp.zeros(len(frictions))), rates / red.inertia)
+    u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, inertial=inertial,
                            iterate=iterate)
     return Frictional(red, kin, alpha_of(u), jnp.sum(rates * u) * y.omega, ok, rates, slopes, raw_slopes)
 
@@ -206,8 +206,8 @@ def rates_and_slopes(model: Model, y: State):
 
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     """The reactions affine in the friction values u: (at u = 0, their K tangents), where
-    u acts through its wrenches and through dw/dt = alpha0 + dalpha . u; and the K tangents
-    of the wrenches alone (at a fixed dw/dt: the consistency test). dw/dt enters the
+    u acts through its wrenches and through dw/dt = alpha0 + dalpha . u; and that part
+    through dw/dt (the reactions per unit dw/dt, dalpha: the consistency test). dw/dt enters the
     statics as d'Alembert wrenches (-m dG/dq, -J dtheta/dq per unit), so all K + 1
     directions are wrenches on the kinematics at dw/dt = 0: none is a K-fold copy of the
     accelerations (in a simulation such a copy over 512 bytes makes XLA's CPU runtime
@@ -226,8 +226,8 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
 
     reactions0, basis = linearize_reactions(react, len(frictions) + 1)
     at_zero = jax.tree.map(lambda r, b: r + alpha0 * b[0], reactions0, basis)
-    static = jax.tree.map(lambda b: b[1:], basis)
-    return (at_zero, jax.tree.map(lambda s, b: s + jnp.multiply.outer(dalpha, b[0]), static, basis)), static
+    per_unit = jax.tree.map(lambda b: b[0], basis)
+    return (at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)), (per_unit, dalpha)
 
 
 def rest_analysis(model: Model, t, y: State, bridge: float = 0.0):
