@@ -191,8 +191,9 @@ def triple_rocker(radius):
 def test_lockup_with_friction_stops_at_the_limit():
     """A triple rocker with friction in its pivots thrown into its limit position: the
     stick-slip loop stops there (the stretched dyad, closed form), naming the dyad. Pins of
-    0.01 mm: the friction circles lock the toggle only within 1e-10 rad of the limit (with
-    10 mm pins 5e-5 rad short of it, the test below)."""
+    0.01 mm: the friction circles would lock the toggle 5e-11 rad short of the limit, below
+    the lock-up's resolution (the distance goes with the pin radius squared: 5e-5, 5e-7 and
+    5e-9 rad with 10, 1 and 0.1 mm pins; 10 mm in the test below)."""
     import test_dynamics
 
     scene, loads = triple_rocker(1e-5)
