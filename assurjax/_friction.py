@@ -277,12 +277,9 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     if k <= SUMMED_TERMS:
         terms = [f.limit_terms(mechanism, kin) for f in frictions]
 
-        def combined(value, tangents, u):
-            return value + sum(u[j] * tangents[j] for j in range(k))
-
         def coulomb(u):
-            return jnp.stack([limits(t, combined(forces0[f.pair], forces_b[f.pair], u),
-                                     combined(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
+            return jnp.stack([limits(t, _affine(forces0[f.pair], forces_b[f.pair], u),
+                                     _affine(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
                               for f, t in zip(frictions, terms)])
 
         return coulomb
@@ -294,7 +291,15 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
 
     (force0, couple0), (force_b, couple_b) = at_elements(forces0, couples0), at_elements(forces_b, couples_b)
     terms = _stacked_terms(mechanism, kin, frictions)
-    return lambda u: limits(terms, force0 + jnp.tensordot(u, force_b, axes=1), couple0 + jnp.tensordot(u, couple_b, axes=1))
+    return lambda u: limits(terms, _affine(force0, force_b, u), _affine(couple0, couple_b, u))
+
+
+def _affine(value, tangents, u):
+    """value + sum_j u_j tangents[j]: for up to SUMMED_TERMS elements a chain of products
+    and sums (see :func:`_coulomb_limits`), past them one dot."""
+    if u.shape[0] > SUMMED_TERMS:
+        return value + jnp.tensordot(u, tangents, axes=1)
+    return value + sum(u[j] * tangents[j] for j in range(u.shape[0]))
 
 
 def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u):
@@ -312,9 +317,7 @@ def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u)
 
     def at_pair(values, tangents, per_unit, pair):  # (value at u, tangents at a fixed acceleration)
         tangent = tangents.get(pair, jnp.zeros(k))
-        # a chain of products for a few elements (a dot this small is a call of its own, see _coulomb_limits)
-        combined = jnp.tensordot(u, tangent, axes=1) if k > SUMMED_TERMS else sum(u[j] * tangent[j] for j in range(k))
-        return values.get(pair, 0.0) + combined, tangent - jnp.multiply.outer(dalpha, per_unit.get(pair, 0.0))
+        return _affine(values.get(pair, 0.0), tangent, u), tangent - jnp.multiply.outer(dalpha, per_unit.get(pair, 0.0))
 
     def rows(terms, force, d_force, couple, d_couple):  # one element's (K,) or stacked (K, K)
         a, b, normal, inverse_length = (None if v is None else jnp.asarray(v) for v in terms)
