@@ -1,6 +1,8 @@
 """Shared fixtures. Keep this small: helpers that only one test file needs live in that file."""
 
 import os
+import shutil
+import tempfile
 import textwrap
 
 import numpy as np
@@ -19,6 +21,25 @@ add_xla_flag(STALL_FREE_FLAG, "xla_cpu_enable_concurrency_optimized_scheduler")
 
 # The command line keeps compiled programs on disk by default; tests leave no files behind.
 os.environ.setdefault("ASSURJAX_NO_CACHE", "1")
+
+SHARED_CACHE = "ASSURJAX_TEST_COMPILATION_CACHE"
+
+
+def pytest_configure(config):
+    """One compilation cache for the session, shared by its workers (they inherit the
+    variable), so that a program several test files compile is compiled once; removed at the end."""
+    if SHARED_CACHE not in os.environ:
+        os.environ[SHARED_CACHE] = tempfile.mkdtemp(prefix="assurjax-tests-")
+        config.stash[_CACHE_OWNER] = True
+    assurjax.enable_compilation_cache(os.environ[SHARED_CACHE])
+
+
+def pytest_unconfigure(config):
+    if config.stash.get(_CACHE_OWNER, False):
+        shutil.rmtree(os.environ.pop(SHARED_CACHE), ignore_errors=True)
+
+
+_CACHE_OWNER = pytest.StashKey[bool]()
 
 
 @pytest.fixture

@@ -720,6 +720,7 @@ def rough_triad_reactions() -> list:
     return [found.driving.tolist()] + [found.forces[j].tolist() for j in sorted(found.forces)]
 
 
+@pytest.mark.slow  # a fresh process compiling the rough slider-crank again (~20 s)
 def test_fast_loops_give_the_same_motion(rough):
     """With assurjax.enable_fast_loops() (a fresh process: the XLA flag is read once) the
     friction's Newton fallback solves without LAPACK (plain LU): the rough slider-crank's

@@ -175,8 +175,10 @@ def _check_rejection(label: str, status: int, err: str, path: Path, key: str) ->
 # ------------------------------------------------------------------ validate: the whole corpus
 
 
-def test_validate_rejects_every_bad_scene_in_words(tmp_path):
-    mutants = corpus(600)
+@pytest.mark.parametrize("size", [200, pytest.param(600, marks=pytest.mark.slow)])
+def test_validate_rejects_every_bad_scene_in_words(tmp_path, size):
+    """``validate`` on a hostile corpus of mutated scenes (the first 200 by default, 600 in the slow suite)."""
+    mutants = corpus(size)
     statuses = []
     named = 0
     for i, (label, text, key) in enumerate(mutants):

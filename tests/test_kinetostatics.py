@@ -178,17 +178,27 @@ def _has_prismatic_dyad(scene):
     return any(g.kind in PRISMATIC_DYADS for g in scene.mechanism.groups)
 
 
-@pytest.fixture(scope="module")
-def solved():
-    """Per scene: states, kinematics, reactions and reduction."""
-    out = {}
-    for k, (name, scene) in enumerate(SCENES.items()):
-        state = _states(scene, k)
+class _Solved(dict):
+    """Per scene, computed when a test first asks for it: states, kinematics, reactions and reduction."""
+
+    def __missing__(self, name):
+        scene = SCENES[name]
+        state = _states(scene, list(SCENES).index(name))
         prismatic = _has_prismatic_dyad(scene)  # closed forms against their 6 x 6 systems
         methods = ("modular", "dense", "global") if name == "watt_sixbar" else ("modular", "dense") if prismatic else ("modular",)
         kin, found, red = evaluate(scene, state, methods)
-        out[name] = (scene, state, found, kin, red)
-    return out
+        self[name] = (scene, state, found, kin, red)
+        return self[name]
+
+
+@pytest.fixture(scope="module")
+def solved():
+    return _Solved()
+
+
+def _scene_params(names):
+    """The scenes as parameters; the strandbeest (25 groups, ~15 s of compilation) in the slow suite."""
+    return [pytest.param(n, marks=pytest.mark.slow) if n == "strandbeest" else n for n in names]
 
 
 def _single(tree, i):
@@ -226,7 +236,7 @@ def newton_euler_residuals(scene, kin, r, t):
     return np.array([[*np.asarray(f), float(m)] for f, m in res.values()])
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", _scene_params(SCENES))
 def test_every_link_in_equilibrium(solved, name):
     scene, (q, w, a, t), found, kin, _ = solved[name]
     r = found["modular"]
@@ -236,7 +246,7 @@ def test_every_link_in_equilibrium(solved, name):
         assert np.max(np.abs(residual)) < 1e-10, (name, i, residual)
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", _scene_params(SCENES))
 def test_driving_effort_is_the_virtual_work_of_the_reduction(solved, name):
     scene, (q, w, a, t), found, _, red = solved[name]
     r = found["modular"]
@@ -254,7 +264,7 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", [n for n, s in SCENES.items() if _has_prismatic_dyad(s)])
+@pytest.mark.parametrize("name", _scene_params(n for n, s in SCENES.items() if _has_prismatic_dyad(s)))
 def test_prismatic_dyad_closed_forms_equal_their_dense_solves(solved, name):
     _, _, found, _, _ = solved[name]
     r, dense = found["modular"], found["dense"]

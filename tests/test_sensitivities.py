@@ -274,6 +274,7 @@ def test_standstill_time_gradient(watt_flat):
 QUAD = dict(solver="tsit5", rtol=1e-10, atol=1e-10, max_steps=1024)
 
 
+@pytest.mark.slow  # ~35 s of compilation; test_synthesis.py checks the quadrature route against differences (standstill objective)
 def test_final_angle_gradient_quadrature_every_parameter(watt_flat):
     """theta(T) of the falling Watt six-bar: the sensitivity gradient (variation of constants, one
     batched reverse pass at Gauss nodes) w.r.t. all 50 scene parameters equals the central
