@@ -752,6 +752,41 @@ def four_bar_motor(theta0=0.0, omega0=0.0, **overrides):
     return Model(sys_, Initial(theta0, omega0, coords), motor, d)
 
 
+# ----------------------------------------------------------------------------- two dead points at once
+TWO_DEAD_POINTS = dict(O2=(0.0, 0.0), O4=(0.4, -0.25), O6=(0.6, 0.25), L2=0.1, L3=0.3, L4B=0.25, L4C=0.3, L5=0.2, L6=0.2,
+                       m=dict(crank=0.5, coupler=1.0, rocker=1.0, link5=0.5, link6=0.5),
+                       J=dict(crank=0.0005, coupler=0.0075, rocker=0.0075, link5=0.002, link6=0.002))
+
+
+def two_dead_points(theta0=0.0, omega0=0.0, tau=None):
+    """Two four-bars in series (SI) whose dead points coincide at theta0 = 0: the crank
+    O2->A (0.1) and coupler A->B (0.3) are stretched, so the rocker O4->B (0.25, C at 0.3
+    along it) stands still; and O4, C and D are in line, so the second rocker O6->D (0.2)
+    stands still to second order: its rate d theta6/dq vanishes like q^3. Coupler C->D
+    (0.2). COMs at the links' midpoints (the rocker's at 0.15). B left of A -> O4, D left
+    of C -> O6. Joints: O2 (ground, crank), A (crank, coupler), B (coupler, rocker),
+    O4 (rocker, ground), C (rocker, link5), D (link5, link6), O6 (link6, ground)."""
+    d = TWO_DEAD_POINTS
+    L = dict(crank=d["L2"], coupler=d["L3"], rocker=d["L4C"], link5=d["L5"], link6=d["L6"])
+    bodies = {b: _link(d["m"][b], L[b], d["J"][b]) for b in L}
+    bodies["rocker"]["com_local"] = (0.15, 0.0)
+    joints = [Revolute("O2", GROUND, "crank", d["O2"], (0, 0)),
+              Revolute("A", "crank", "coupler", (d["L2"], 0), (0, 0)),
+              Revolute("B", "coupler", "rocker", (d["L3"], 0), (d["L4B"], 0)),
+              Revolute("O4", "rocker", GROUND, (0, 0), d["O4"]),
+              Revolute("C", "rocker", "link5", (d["L4C"], 0), (0, 0)),
+              Revolute("D", "link5", "link6", (d["L5"], 0), (d["L6"], 0)),
+              Revolute("O6", "link6", GROUND, (0, 0), d["O6"])]
+    O2, O4, O6 = (np.array(d[k]) for k in ("O2", "O4", "O6"))
+    A = O2 + d["L2"] * np.array([np.cos(theta0), np.sin(theta0)])
+    B = circle_intersection(A, d["L3"], O4, d["L4B"], left=True)
+    C = O4 + d["L4C"] / d["L4B"] * (B - O4)
+    D = circle_intersection(C, d["L5"], O6, d["L6"], left=True)
+    coords = dict(crank=(*O2, theta0), coupler=(*A, _angle(A, B)), rocker=(*O4, _angle(O4, B)),
+                  link5=(*C, _angle(C, D)), link6=(*O6, _angle(O6, D)))
+    return Model(System(bodies, joints, ("crank", "angle")), Initial(theta0, omega0, coords), tau, d)
+
+
 # ----------------------------------------------------------------------------- slider-driven
 SLIDER_DRIVEN = dict(O3=(0.0, 0.3), L_rod=0.25, L_rocker=0.2, m_slider=0.5, m_rod=0.3,
                      m_rocker=0.4)

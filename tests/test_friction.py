@@ -231,6 +231,96 @@ def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     assert abs(3e-6 - (1.0 / nearer) / slope) < 1e-6
 
 
+# tests/joint_reference.py two_dead_points: the rocker and the second rocker at dead points together at q = 0
+TWO_DEAD_POINTS = """
+[scene]
+name = "two_dead_points"
+gravity = [0.0, -9.81]
+[ground]
+O2 = [0.0, 0.0]
+O4 = [0.4, -0.25]
+O6 = [0.6, 0.25]
+[links.crank]
+points = { O2 = [0.0, 0.0], A = [0.1, 0.0] }
+com = [0.05, 0.0]
+mass = 0.5
+inertia = 0.0005
+[links.coupler]
+points = { A = [0.0, 0.0], B = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 1.0
+inertia = 0.0075
+[links.rocker]
+points = { O4 = [0.0, 0.0], B = [0.25, 0.0], C = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 1.0
+inertia = 0.0075
+[links.link5]
+points = { C = [0.0, 0.0], D = [0.2, 0.0] }
+com = [0.1, 0.0]
+mass = 0.5
+inertia = 0.002
+[links.link6]
+points = { O6 = [0.0, 0.0], D = [0.2, 0.0] }
+com = [0.1, 0.0]
+mass = 0.5
+inertia = 0.002
+[[formation]]
+group = "crank"
+link = "crank"
+pivot = "O2"
+[[formation]]
+group = "RRR"
+name = "dyad34"
+links = ["coupler", "rocker"]
+joints = ["A", "O4", "B"]
+mode = "left"
+[[formation]]
+group = "RRR"
+name = "dyad56"
+links = ["link5", "link6"]
+joints = ["C", "O6", "D"]
+mode = "left"
+"""
+
+
+@pytest.mark.slow  # ~20 s: a new six-bar compiled, and the jam status program
+def test_a_start_on_two_dead_points_then_a_jam():
+    """Two four-bars in series whose dead points coincide at q = 0, friction in all seven
+    pins (10 mm, mu = 0.2), from q = 0 at 6 rad/s under 3 N m: at the start the rocker's pin
+    rate crosses 0 and the second rocker's pin rate vanishes like q^3 (its sign is read from
+    round-off there). The motion agrees with the joint-based reference to 1e-8 rad over the
+    first 0.1 s (q to 1.3 rad); then the second four-bar self-locks at q ~ 1.377. There the
+    reference's own forward dynamics has an effective inertia (d tau / d dw/dt) that grows
+    without bound before the package's jam and is negative past it; 1 / M_eff, linear there,
+    vanishes within 1e-6 rad of where the package stopped."""
+    import tomllib
+
+    import joint_reference as jr
+    import joint_reference_friction as jrf
+
+    scene = aj.scene_from_dict(tomllib.loads(TWO_DEAD_POINTS))
+    table = {j: jrf.Friction(mu=0.2, radius=0.01, damping=1e-3) for j in ("O2", "A", "B", "O4", "C", "D", "O6")}
+    loads = _package_frictions(scene.mechanism, table) + (aj.Drive(3.0),)
+    times = np.linspace(0.0, 0.1, 21)
+    sol = aj.simulate(scene, loads=loads, q0=0.0, omega0=6.0, stop=None, t1=0.3, saveat=times, rtol=1e-10, atol=1e-10)
+    reference = jrf.with_friction(jr.two_dead_points(0.0, 6.0, tau=lambda t, q, w: 3.0), table)
+    expected = reference.simulate(0.1, t_eval=times)
+    assert expected.q[-1] > 1.2
+    np.testing.assert_allclose(sol.q[:times.size], expected.q, rtol=0, atol=1e-8)
+    assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
+    q_jam, w_jam = float(sol.q_final), float(sol.omega_final)
+
+    def inertia(q):
+        drive = [reference.forward(q, w_jam, tau=lambda t, q, w, d=d: 3.0 + d)["wdot"] for d in (-1e-3, 1e-3)]
+        return 2e-3 / (drive[1] - drive[0])
+
+    before, nearer = inertia(q_jam - 1e-5), inertia(q_jam - 3e-6)  # the side it came from
+    assert 0.0 < before < nearer and inertia(q_jam + 1e-6) < 0.0 and inertia(q_jam + 1e-5) < 0.0
+    slope = (1.0 / before - 1.0 / nearer) / 7e-6
+    assert abs(3e-6 - (1.0 / nearer) / slope) < 1e-6
+
+
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
     """mu = 0 on every pair: with the same (fixed) steps up to the first standstill, the same
     motion as without friction to round-off; past it, the stick-slip segments (adaptive)
