@@ -230,7 +230,8 @@ def test_lockup_in_a_batch_stops_each_member_at_its_limit():
         assert abs(float(batch.q_final[k]) - alone.q_final) < 1e-9 and abs(float(batch.t_final[k]) - alone.t_final) < 1e-6
 
 
-@pytest.mark.parametrize("steps", [None, pytest.param(400, marks=pytest.mark.slow)])  # fixed steps: ~25 s of compilation
+@pytest.mark.slow  # reverse mode through a lock-up: 20-30 s of compilation for each
+@pytest.mark.parametrize("steps", [None, 400])
 def test_gradient_through_a_run_that_locks_up(steps):
     """Reverse mode through a run that ends at a lock-up, whose rejected (or, with fixed
     steps, NaN) stages met configurations that cannot assemble: d(q + T)(0.2 s) / d q0 is

@@ -1,7 +1,7 @@
 """The notebooks are part of the product: each one is executed (nbclient, kernel
 python3) and must run without error. They check their own numbers with asserts
 against closed forms and the joint-based reference. Notebooks that take more than
-about 40 s are marked slow (run with ``pytest -m slow``)."""
+about 40 s, and the joint-friction notebook (~25 s), are marked slow (run with ``pytest -m slow``)."""
 
 from pathlib import Path
 
@@ -16,6 +16,7 @@ SLOW = {
     "03_class4_kinetostatics.ipynb",
     "04_synthesis_and_sensitivities.ipynb",
     "05_vmapped_sweeps.ipynb",
+    "08_joint_friction.ipynb",  # ~25 s; the friction itself is checked in test_friction.py
 }
 
 

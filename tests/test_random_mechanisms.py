@@ -387,7 +387,9 @@ def check_family(family: str, n: int, seed: int, *, flip: bool = False):
     check_gradients(out)
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+# the iterative families' compilations (~20 s each) in the slow suite, with their many draws below;
+# tests/test_iterative_groups.py checks them by default
+@pytest.mark.parametrize("family", [f if f in ("crank", "slider") else pytest.param(f, marks=pytest.mark.slow) for f in FAMILIES])
 def test_random_mechanisms_of_every_kind(family):
     """A few random geometries and states per family (one compile each; a single test
     per family so that parallel workers never compile a family twice)."""
