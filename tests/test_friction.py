@@ -220,13 +220,22 @@ def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     assert 1e-5 < q_jam + test_dynamics.LIMIT < 1e-4 and w_jam < 0.0
     reference = jrf.with_friction(jr.four_bar_motor(0.9, -6.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0), T_stall=0.0,
                                                     damper_c=0.0), {j: jrf.Friction(mu=0.1, radius=0.01) for j in ("O2", "A", "B", "O4")})
+    assert_reference_locks_at(reference, q_jam, w_jam, drive=0.0)
+
+
+def assert_reference_locks_at(reference, q_jam, w_jam, drive):
+    """The joint-based reference's own forward dynamics at the package's jam (q_jam, reached
+    moving at w_jam under a constant ``drive``): its effective inertia (d tau / d dw/dt, from
+    two drives) is positive and grows as q nears q_jam from the side the motion came from,
+    and is negative past it; 1 / M_eff, linear there, vanishes within 1e-6 rad of q_jam."""
 
     def inertia(q):
-        drive = [reference.forward(q, w_jam, tau=lambda t, q, w, d=d: d)["wdot"] for d in (-1e-3, 1e-3)]
-        return 2e-3 / (drive[1] - drive[0])
+        wdot = [reference.forward(q, w_jam, tau=lambda t, q, w, d=d: drive + d)["wdot"] for d in (-1e-3, 1e-3)]
+        return 2e-3 / (wdot[1] - wdot[0])
 
-    before, nearer = inertia(q_jam + 1e-5), inertia(q_jam + 3e-6)  # the side it came from
-    assert 0.0 < before < nearer and inertia(q_jam - 1e-6) < 0.0 and inertia(q_jam - 1e-5) < 0.0
+    back = -np.sign(w_jam)  # towards the side it came from
+    before, nearer = inertia(q_jam + back * 1e-5), inertia(q_jam + back * 3e-6)
+    assert 0.0 < before < nearer and inertia(q_jam - back * 1e-6) < 0.0 and inertia(q_jam - back * 1e-5) < 0.0
     slope = (1.0 / before - 1.0 / nearer) / 7e-6
     assert abs(3e-6 - (1.0 / nearer) / slope) < 1e-6
 
@@ -310,16 +319,7 @@ def test_a_start_on_two_dead_points_then_a_jam():
     assert expected.q[-1] > 1.2
     np.testing.assert_allclose(sol.q[:times.size], expected.q, rtol=0, atol=5e-10)
     assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
-    q_jam, w_jam = float(sol.q_final), float(sol.omega_final)
-
-    def inertia(q):
-        drive = [reference.forward(q, w_jam, tau=lambda t, q, w, d=d: 3.0 + d)["wdot"] for d in (-1e-3, 1e-3)]
-        return 2e-3 / (drive[1] - drive[0])
-
-    before, nearer = inertia(q_jam - 1e-5), inertia(q_jam - 3e-6)  # the side it came from
-    assert 0.0 < before < nearer and inertia(q_jam + 1e-6) < 0.0 and inertia(q_jam + 1e-5) < 0.0
-    slope = (1.0 / before - 1.0 / nearer) / 7e-6
-    assert abs(3e-6 - (1.0 / nearer) / slope) < 1e-6
+    assert_reference_locks_at(reference, float(sol.q_final), float(sol.omega_final), drive=3.0)
 
 
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
