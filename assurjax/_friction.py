@@ -246,8 +246,13 @@ def limits(terms, force, couple):
     out = 0.0 if a is None else a * jnp.sqrt(jnp.sum(force * force, axis=-1) + 1e-300)
     if b is None:
         return out
-    half, end = 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+    half, end = _block_ends(force, couple, normal, inverse_length)
     return out + b * (jnp.abs(half - end) + jnp.abs(half + end))
+
+
+def _block_ends(force, couple, normal, inverse_length):
+    """N/2 and M/L of a prismatic pair: its block's two ends carry N/2 -+ M/L."""
+    return 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
 
 
 def _stacked_terms(mechanism: Mechanism, kin, frictions) -> tuple:
@@ -325,7 +330,7 @@ def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u)
         if a is not None:
             out = out + a[..., None] * jnp.sqrt(jnp.sum(d_force * d_force, axis=-1))
         if b is not None:
-            half, end = 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+            half, end = _block_ends(force, couple, normal, inverse_length)
             s1, s2 = jnp.sign(half - end), jnp.sign(half + end)
             along = jnp.sum(d_force * normal[..., None, :], axis=-1)
             out = out + b[..., None] * jnp.abs(0.5 * (s1 + s2)[..., None] * along

@@ -94,13 +94,8 @@ def plain_lu_solve(factors: tuple[Array, Array], b: Array, *, transpose: bool = 
     return jnp.zeros_like(w).at[perm].set(w)
 
 
-def determinant(a: Array) -> Array:
-    """det(a) of a small square matrix (``jnp.linalg.det`` calls LAPACK)."""
-    return lu_determinant(plain_lu_factor(a))
-
-
 def lu_determinant(factors: tuple[Array, Array]) -> Array:
-    """det(a) from ``plain_lu_factor(a)``."""
+    """det(a) from ``plain_lu_factor(a)`` (``jnp.linalg.det`` calls LAPACK)."""
     lu, perm = factors
     swaps = jnp.sum(perm[:, None] > perm[None, :], where=jnp.tri(lu.shape[0], dtype=bool, k=-1).T)
     return jnp.prod(jnp.diagonal(lu)) * jnp.where(swaps % 2 == 0, 1.0, -1.0)
