@@ -555,13 +555,16 @@ def test_gradient_in_mu_against_differences(slider):
 
 
 @pytest.mark.slow
-def test_gradient_in_mu_through_a_standstill_and_reversal(slider):
-    """d q(0.8 s) / d mu past the first standstill (0.51 s), where the motion reverses and
-    crosses more Coulomb-sign switches: reverse mode (the checkpointed segment loop) and
-    forward mode (adjoint='forward') against central differences."""
+@pytest.mark.parametrize("t1", [0.8, 1.5])
+def test_gradient_in_mu_through_a_standstill_and_reversal(slider, t1):
+    """d q(t1) / d mu past the first standstill (0.51 s), where the motion reverses and
+    crosses more Coulomb-sign switches (0.8 s), and past the last (~0.95 s), from where the
+    friction holds it (1.5 s: the segment from that rest ends at its first step, which
+    stays at rest): reverse mode (the checkpointed segment loop) and forward mode
+    (adjoint='forward') against central differences."""
 
     def q_at(mu, adjoint):
-        return aj.synthesis.final_state(_with_friction(slider, mu), 0.8, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+        return aj.synthesis.final_state(_with_friction(slider, mu), t1, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
 
     h = 1e-5
     fd = (q_at(jnp.asarray(MU + h), "recursive") - q_at(jnp.asarray(MU - h), "recursive")) / (2 * h)

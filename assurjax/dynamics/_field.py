@@ -98,10 +98,15 @@ def _rates(t, y: State, args: FieldArgs):
         # segment there): the field stays smooth inside a segment
         f = frictional(model, t, y, args.direction, args.bridge, args.rate_signs)
         red, kin, alpha, friction_power, consistent, slopes = f.red, f.kin, f.alpha, f.power, f.consistent, f.raw_slopes
-        # direction 0: held at rest by the friction (a stick segment): nothing moves;
-        # no consistent friction (a jam): NaN, so that the solver stops there instead of running away
+        # direction 0: held at rest by the friction (a stick segment): nothing moves; at rest
+        # (w = 0) an acceleration not in the direction of motion, or no consistent friction:
+        # held too (0: friction only resists, see rest_side; a segment from rest ends there at
+        # once, see _settings.LockupController); moving, no consistent friction (a jam): NaN,
+        # so that the solver stops there instead of running away
         moving = args.direction != 0
-        alpha = jnp.where(moving, jnp.where(consistent, alpha, jnp.nan), 0.0)
+        starts = consistent & (alpha * args.direction > 0)
+        alpha = jnp.where(moving, jnp.where(y.omega != 0, jnp.where(consistent, alpha, jnp.nan),
+                                            jnp.where(starts, alpha, 0.0)), 0.0)
         friction_power = jnp.where(moving, friction_power, 0.0)
     else:
         red, kin = _reduce(model, t, y, args.bridge)
@@ -198,10 +203,16 @@ def _rates_and_slopes(mechanism, frictions, coeffs):
     return without_roundoff(rates, size(terms)), without_roundoff(slopes, size(dterms)), slopes
 
 
-def rates_and_slopes(model: Model, y: State):
-    """:func:`_rates_and_slopes` at the state's q, without the friction analysis."""
-    coeffs = branch_coefficients(model.mechanism, y.q, near=near(model, y))
-    return _rates_and_slopes(model.mechanism, frictions_of(model.loads), coeffs)[:2]
+def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
+    """What a segment of stick and slip starts from, without a friction solve: the only
+    direction a motion from rest can take (:func:`rest_side` of the generalized force at
+    w = 0), and the elements' d phi_k/dq and d2 phi_k/dq2 at the state's q. Whether it does
+    start, the segment's own vector field tells (NaN at once where the friction holds it)."""
+    mechanism = model.mechanism
+    coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
+    red, _ = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, jnp.zeros_like(y.omega), t)
+    rates, slopes, _ = _rates_and_slopes(mechanism, frictions_of(model.loads), coeffs)
+    return rest_side(red.force), rates, slopes
 
 
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):

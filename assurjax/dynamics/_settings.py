@@ -353,13 +353,25 @@ class LockupController(diffrax.PIDController):
     an infinite error: it is rejected and the next one shrunk (diffrax's ``factormin``), so
     the steps close in on the lock-up, until one moves q by less than ``LOCKUP_RESOLUTION``
     (1 + |q|): the run ends there with ``dt_min_reached`` -- the lock-up, found by the steps
-    the solver takes anyway, without a position analysis of its own."""
+    the solver takes anyway, without a position analysis of its own. With joint friction,
+    a step from rest that stays at rest (w exactly 0 at its end: the friction holds the
+    mechanism, see ``_field._rates``) is rejected and ends the solve the same way, before
+    any accepted step: ``_stick`` reads that as held."""
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
         located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
-        return keep, next_t0, next_t1, jump, state, diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result)
+        held = _held_at_rest(y0, y1_candidate)
+        located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
+        return keep & ~held, next_t0, next_t1, jump, state, diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result)
+
+
+def _held_at_rest(y0, y1_candidate):
+    """With joint friction (its rates in the state): a step from rest that did not start."""
+    if getattr(y0, "friction_rates", None) is None:
+        return jnp.asarray(False)
+    return (y0.omega == 0) & (y1_candidate.omega == 0)
 
 
 class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
@@ -380,7 +392,9 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         next_t1 = jnp.where(met, t0 + 0.5 * (t1 - t0), jnp.where(on_grid, grid_next, grid_here))
         state = jax.tree.map(lambda new, old: jnp.where(~met & on_grid, new, old), grid_state, controller_state)
         shortest = 2.0**-30 * (end - start) / count
-        return ~met, jnp.where(met, t0, t1), next_t1, jump, state, _located(t0, t1, y0, met, shortest)
+        held = _held_at_rest(y0, y1_candidate)  # as LockupController
+        located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, _located(t0, t1, y0, met, shortest))
+        return ~met & ~held, jnp.where(met, t0, t1), next_t1, jump, state, located
 
 
 def _finite_norm(y) -> Array:

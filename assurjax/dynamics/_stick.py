@@ -16,9 +16,14 @@ switch of the law (its saltation) through the located switch time: a slip segmen
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
-the break-away margin s a_s crosses 0 (another Event). Each segment starts by
-deciding its direction (sign(w), or at rest the break-away test), so the test is in the
-program once. Without loads that may vary in time (and user events to watch) a mechanism
+the break-away margin s a_s crosses 0 (another Event). A segment goes in the direction
+sign(w) or, from rest, in s; there its own vector field decides whether the mechanism
+breaks away: at w = 0 an acceleration not in direction s (or no consistent friction) is
+0, so its first step ends at rest, which the step-size controller rejects and ends the
+solve with (``_settings.LockupController``) -- the mechanism is held from there
+(``refused`` below). The friction solve is in the integration program
+once, in the vector field (each segment's start solving it too made that program half
+again as large). Without loads that may vary in time (and user events to watch) a mechanism
 held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
 ends at the first rest. Each segment saves the requested times that fall inside it. A
@@ -45,7 +50,7 @@ from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, near, rates_and_slopes, rest_analysis, rest_direction, vector_field
+from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -94,9 +99,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     def segment(start, y, direction, signs, stuck, step):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly)
-        # held for good (nothing varies in time, or the run ends at the first rest): a segment of length zero
-        stop = t1 if holds else jnp.where(stuck, start, t1)
-        outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, stop), t1=True)
+        outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
         # fired is its dense output at the end of its last attempted step, which may have been rejected)
@@ -104,7 +107,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # in chunks, each call's first step is the last chunk's mean step (diffrax's own choice, made
         # afresh at every call, is small: 16 % more steps on the press)
         dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
-        kwargs = dict(t0=start, t1=stop, dt0=dt0, y0=y, args=args,
+        kwargs = dict(t0=start, t1=t1, dt0=dt0, y0=y, args=args,
                       saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
@@ -113,21 +116,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                                            stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
-    def start_analysis(start, y):
-        """rest_analysis; in chunks (a batch), only the rates unless some member is at rest:
-        most chunks start in motion, and under vmap a cond on a member's own test runs both"""
-        if chunk is None:
-            return rest_analysis(model, start, y, settings.bridge)
-        zero = jnp.zeros(())
-        return jax.lax.cond(eqxi.unvmap_any(y.omega == 0), lambda: rest_analysis(model, start, y, settings.bridge),
-                            lambda: (zero, zero, *rates_and_slopes(model, y)))
-
     def body(carry):
-        start, y, previous, _, saved, filled, steps, result, event, failed, step, _ = carry
+        start, y, previous, held, saved, filled, steps, result, event, failed, step, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
-        # break-away) the direction the mechanism accelerates in, if any (else it sticks)
-        alpha, side, rates, slopes = start_analysis(start, y)
-        go = jnp.where(y.omega != 0, jnp.sign(y.omega), rest_direction(alpha, side))
+        # break-away) the only direction it can start in; unless the last segment found it held
+        side, rates, slopes = start_kinematics(model, start, y, settings.bridge)
+        at_rest = y.omega == 0
+        go = jnp.where(at_rest, jnp.where(held, 0.0, side), jnp.sign(y.omega))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
@@ -152,34 +147,42 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             end = jnp.where(stopped, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
             y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(taken > 0, s[taken - 1], z0), z),
                                  y_end, run.ys[1], y._replace(friction_rates=start_rates))
-        inside = (ts >= start) & (ts <= end) & ~filled
-        saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
-        filled = filled | inside
-        fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
-        # a stick segment stopped by a user event (its margins are read only where there are any)
-        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
-        code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
-        steps = steps + sol.stats["num_steps"]
+        steps, accepted = steps + sol.stats["num_steps"], sol.stats["num_accepted_steps"]
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if chunk is not None:
             segment_result = RESULTS.where(more & (steps < settings.max_steps), RESULTS.successful, segment_result)
         if settings.check_assembly:
             ok_end = assembles(model.mechanism, y_end.q, y_end.omega, near(model, y_end))
             segment_event, segment_result = lockup_found(segment_event, segment_result, ok_end)
+        # a start from rest that did not start (its first step ended at rest, see LockupController):
+        # the friction holds it, from here on
+        refused = at_rest & ~stuck & (segment_result == RESULTS.dt_min_reached) & (accepted == 0)
+        segment_result = RESULTS.where(refused, RESULTS.successful, segment_result)
+        end = jnp.where(refused, start, end)
+        y_end = jax.tree.map(lambda z_end, z: jnp.where(refused, z, z_end), y_end, y._replace(friction_rates=start_rates))
+        inside = (ts >= start) & (ts <= end) & ~filled & ~refused
+        saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
+        filled = filled | inside
+        fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
+        # a stick segment stopped by a user event (its margins are read only where there are any)
+        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
+        code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
         locked = ~stuck & (segment_event == LOCKUP)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
         rest = code == STANDSTILL
         y_next = y_end._replace(omega=jnp.where(rest, jnp.zeros_like(y_end.omega), y_end.omega))
+        # held at rest: refused, or a stick segment going on in the next chunk
+        held = refused | (stuck & more)
         # the run's own end: a user event; with stop='standstill' the first rest (or a start held at rest)
-        held_start = first_rest & stuck
+        held_start = first_rest & refused
         ends = (code >= USER) | (first_rest & rest) | held_start
         event = jnp.where(locked, LOCKUP, jnp.where(ends, jnp.where(held_start, STANDSTILL, code), event))
-        done = (~fired & ~more) | locked | (end >= t1) | ~finished(segment_result) | ends
+        # held where nothing varies in time: for good (filled to t1 below); else a stick segment follows
+        done = (~fired & ~more & ~(refused & holds)) | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
-        accepted = sol.stats["num_accepted_steps"]
         # the chunk's mean step (not a stick segment's: its field is 0, its steps grow unchecked)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
-        return end, y_next, direction, stuck, saved, filled, steps, result, event, failed, step, done
+        return end, y_next, direction, held, saved, filled, steps, result, event, failed, step, done
 
     def cond(carry):
         return ~carry[-1]
@@ -191,11 +194,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                                                                                   dtype=float), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
-    end, y_end, _, stuck, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
+    end, y_end, _, held, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
-        held = stuck & (event != LOCKUP) & finished(result)
+        held = held & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
         saved = jax.tree.map(lambda old, z: jnp.where(_expand(rest, old), z, old), saved, y_end)
         filled, end = filled | rest, jnp.where(held, t1, end)
