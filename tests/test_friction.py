@@ -360,6 +360,25 @@ def test_breakaway_at_the_static_limit(write_scene):
     assert sol.omega[3] > 0.0 and sol.q[4] > scene.state["q0"] + 1e-3
 
 
+@pytest.mark.slow  # reverse and forward mode through stick segments: ~1 min of compiles
+def test_gradient_in_mu_through_a_breakaway(write_scene):
+    """d q(0.9 s) / d mu of the arm under the ramped torque: held from t0 (its first segment
+    ends at its first step, which stays at rest), a stick segment until the located
+    break-away at mu r m g / k, then the swing: reverse and forward mode against central
+    differences."""
+    scene = aj.load_scene(write_scene(HANGING))
+    ramp = tuple(load for load in scene.loads if isinstance(load, aj.Drive))
+
+    def q_at(mu, adjoint="recursive"):
+        rough = scene.with_loads(ramp + (aj.JointFriction("O", mu, 0.04),))
+        return aj.synthesis.final_state(rough, 0.9, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+
+    mu, h = jnp.asarray(0.3), 1e-6
+    fd = (q_at(mu + h) - q_at(mu - h)) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(q_at)(mu)), float(fd), rtol=1e-6)
+    np.testing.assert_allclose(float(jax.jacfwd(lambda m: q_at(m, "forward"))(mu)), float(fd), rtol=1e-6)
+
+
 def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     """The same arm under the same torque k t given as a Python function: a function is never
     assumed constant in time (the stick segment stays), so it breaks away at the same time."""
