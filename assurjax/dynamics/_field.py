@@ -207,7 +207,8 @@ def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
     """What a segment of stick and slip starts from, without a friction solve: the only
     direction a motion from rest can take (:func:`rest_side` of the generalized force at
     w = 0), and the elements' d phi_k/dq and d2 phi_k/dq2 at the state's q. Whether it does
-    start, the segment's own vector field tells (NaN at once where the friction holds it)."""
+    start, the segment's own vector field tells (its first step stays at rest where the
+    friction holds it)."""
     mechanism = model.mechanism
     coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     red, _ = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, jnp.zeros_like(y.omega), t)

@@ -23,8 +23,9 @@ breaks away: at w = 0 an acceleration not in direction s (or no consistent frict
 solve with (``_settings.LockupController``) -- the mechanism is held from there
 (``refused`` below). So the friction solve is in the integration program once, in
 the vector field (each segment's start solving it too made that program a third larger:
-the Watt six-bar's first call 9.0 s instead of 7.3). Without loads that may vary in time (and user events to watch) a mechanism
-held at rest stays held: the stick segment is left out, and the rest is filled to t1. A
+the Watt six-bar's first call 9.0 s instead of 7.3). Without loads that may vary in time
+(and user events to watch) a mechanism held at rest stays held: the stick segment is left
+out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
 ends at the first rest. Each segment saves the requested times that fall inside it. A
 batch (``simulate`` with an array of starts, ``batch_simulate``) steps its members
