@@ -137,18 +137,17 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
-        more = jnp.asarray(False)
+        more, accepted = jnp.asarray(False), sol.stats["num_accepted_steps"]
         if chunk is not None:  # a chunk that used its steps: the segment goes on in the next call, while the budget lasts
             more = sol.result == diffrax.RESULTS.max_steps_reached
             # its accepted steps, not the saved steps' last row: with an event in the call diffrax
             # appends its final state there, an interpolation at the end of the last attempt (NaN
             # where that attempt met NaN: a member stopped by a friction jam beside one whose event fired)
             stopped = more | ~finished(RESULTS.promote(sol.result))
-            taken = sol.stats["num_accepted_steps"]
-            end = jnp.where(stopped, jnp.where(taken > 0, run.ts[1][taken - 1], start), end)
-            y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(taken > 0, s[taken - 1], z0), z),
+            end = jnp.where(stopped, jnp.where(accepted > 0, run.ts[1][accepted - 1], start), end)
+            y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(accepted > 0, s[accepted - 1], z0), z),
                                  y_end, run.ys[1], y._replace(friction_rates=start_rates))
-        steps, accepted = steps + sol.stats["num_steps"], sol.stats["num_accepted_steps"]
+        steps = steps + sol.stats["num_steps"]
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if chunk is not None:
             segment_result = RESULTS.where(more & (steps < settings.max_steps), RESULTS.successful, segment_result)
