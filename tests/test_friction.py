@@ -9,10 +9,12 @@ with Coulomb friction (tests/joint_reference_friction.py) on four mechanisms.
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 import assurjax as aj
 from scene_texts import ROUGH_ARM
@@ -395,6 +397,67 @@ def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     # with a constant torque below the limit it stays at rest to t1 (no stick segment in the program)
     held = aj.simulate(scene, loads=(aj.Drive(0.5 * 0.9 * t_star),) + loads[1:], saveat=np.array([0.0, 0.5, 1.0]), stop=None)
     assert np.all(held.q == scene.state["q0"]) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
+
+
+class Forcing(eqx.Module):
+    """A torque (N m) (amp0 + amp_rate t) sin(freq t) + height exp(-((t - center) / width)^2)
+    whose numbers are traced: the tests below share one compiled program."""
+
+    amp0: jax.Array
+    amp_rate: jax.Array
+    freq: jax.Array
+    height: jax.Array
+    center: jax.Array
+    width: jax.Array
+
+    def __init__(self, amp0=0.0, amp_rate=0.0, freq=0.0, height=0.0, center=0.0, width=1.0):
+        values = (amp0, amp_rate, freq, height, center, width)
+        self.amp0, self.amp_rate, self.freq, self.height, self.center, self.width = (jnp.asarray(v, dtype=float) for v in values)
+
+    def __call__(self, q, omega, t):
+        return ((self.amp0 + self.amp_rate * t) * jnp.sin(self.freq * t)
+                + self.height * jnp.exp(-(((t - self.center) / self.width) ** 2)))
+
+
+ARM_LIMIT = 0.3 * 0.04 * 2.0 * 9.81  # mu r m g (N m): the pivot carries m g at rest
+
+
+def forced_arm(scene, forcing, times):
+    loads = tuple(load for load in scene.loads if not isinstance(load, aj.Drive)) + (aj.Drive(forcing),)
+    return aj.simulate(scene, loads=loads, saveat=times, stop=None, rtol=1e-11, atol=1e-11)
+
+
+def assert_breaks_away_at(sol, q0, direction):
+    """Saved at t* - eps, t* + eps, then later: exactly at rest, then moving in ``direction``."""
+    assert sol.q[0] == q0 and sol.omega[0] == 0.0
+    assert direction * sol.omega[1] > 0.0 and direction * (sol.q[2] - q0) > 1e-4
+
+
+def test_a_short_pulse_of_torque_breaks_the_arm_away(write_scene):
+    """A pulse 2 L exp(-((t - 0.5) / 0.05)^2) on the arm held at rest (L its static limit)
+    breaks it away where the pulse reaches L, t* = 0.5 - 0.05 sqrt(ln 2) (closed form); a
+    stick segment whose steps grew unchecked stepped over it and kept the arm at rest to t1.
+    A pulse of 0.9 L leaves it exactly at rest."""
+    scene = aj.load_scene(write_scene(HANGING))
+    q0, eps = scene.state["q0"], 1e-6
+    t_star = 0.5 - 0.05 * math.sqrt(math.log(2.0))
+    times = np.array([t_star - eps, t_star + eps, 0.6, 1.0])
+    assert_breaks_away_at(forced_arm(scene, Forcing(height=2 * ARM_LIMIT, center=0.5, width=0.05), times), q0, 1.0)
+    held = forced_arm(scene, Forcing(height=0.9 * ARM_LIMIT, center=0.5, width=0.05), times)
+    assert np.all(held.q == q0) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
+
+
+def test_a_torque_that_reverses_while_held_breaks_away_the_other_way(write_scene):
+    """L (0.5 + 2 t) sin(4 pi t): below the limit over its first half period (at most 0.76 L),
+    so the arm stays; then negative, it reaches -L at t* (found by brentq on the closed form)
+    and the arm breaks away downwards. The direction that can start flips with the torque
+    while the arm is held: the break-away margins of both directions are watched."""
+    scene = aj.load_scene(write_scene(HANGING))
+    q0, eps = scene.state["q0"], 1e-6
+    t_star = brentq(lambda t: (0.5 + 2 * t) * math.sin(4 * math.pi * t) + 1.0, 0.25, 0.375)
+    times = np.array([t_star - eps, t_star + eps, t_star + 0.1, 1.0])
+    forcing = Forcing(amp0=0.5 * ARM_LIMIT, amp_rate=2 * ARM_LIMIT, freq=4 * math.pi)
+    assert_breaks_away_at(forced_arm(scene, forcing, times), q0, -1.0)
 
 
 def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band(write_scene):

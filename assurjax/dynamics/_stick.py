@@ -16,7 +16,9 @@ switch of the law (its saltation) through the located switch time: a slip segmen
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
-the break-away margin s a_s crosses 0 (another Event). A segment goes in the direction
+a break-away margin -s a_s of either direction crosses 0 (another Event), the margins
+integrated in its state from their rates (so that its steps resolve how the loads move
+them; ``_stuck_field``). A segment goes in the direction
 sign(w) or, from rest, in s; there its own vector field decides whether the mechanism
 breaks away: at w = 0 an acceleration not in direction s (or no consistent friction) is
 0, so its first step ends at rest, which the step-size controller rejects and ends the
@@ -42,6 +44,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import diffrax
+import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
@@ -51,7 +54,7 @@ from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
+from ._field import HELD_MARGIN, FieldArgs, State, breakaway_margins, frictional, near, start_kinematics, vector_field
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -68,8 +71,21 @@ def batch_settings(settings: Settings, loads) -> Settings:
     return settings._replace(segment_steps=BATCH_SEGMENT_STEPS) if frictions_of(loads) else settings
 
 
-def _stuck_field(t, y, args):
-    return jax.tree.map(jnp.zeros_like, y)
+def _stuck_field(t, held, args):
+    """A stick segment's (State, break-away margins): the state stays, the margins move with
+    the loads (their rate by forward mode), so that the step-size controller resolves their
+    variation in time (a zero field alone let the steps grow past a short pulse of load)
+    and the break-away event reads them from the state."""
+    y, _ = held
+    rate = jax.jvp(lambda s: breakaway_margins(args.model, s, y, args.bridge), (t,), (jnp.ones_like(t),))[1]
+    return jax.tree.map(jnp.zeros_like, y), rate
+
+
+def _with_margins(run):
+    """A slip segment's solution shaped as a stick segment's (each saved row a state and
+    its margins, HELD_MARGIN), so that either comes out of one lax.cond."""
+    rows = [(ys, jnp.full(jnp.shape(ys.q) + (2,), HELD_MARGIN)) for ys in run.ys]
+    return eqx.tree_at(lambda r: r.ys, run, rows)
 
 
 def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings):
@@ -89,12 +105,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # unless user events are to be watched while it rests
     holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
 
-    def stuck_margins(t, y, args):
+    def stuck_margins(t, y, margins, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
-        alpha, side = rest_analysis(args.model, t, y, args.bridge)[:2]
-        return [-side * alpha] + user_margins(settings, t, y, args)
+        return [jnp.min(margins)] + user_margins(settings, t, y, args)
 
-    breakaway = located_event(lambda t, y, args: jnp.min(jnp.stack(stuck_margins(t, y, args))), settings)
+    breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, *held, args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
     def segment(start, y, direction, signs, stuck, step):
@@ -108,13 +123,16 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # in chunks, each call's first step is the last chunk's mean step (diffrax's own choice, made
         # afresh at every call, is small: 16 % more steps on the press)
         dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
-        kwargs = dict(t0=start, t1=t1, dt0=dt0, y0=y, args=args,
-                      saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
+        kwargs = dict(t0=start, t1=t1, args=args, saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: diffrax.diffeqsolve(diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings),  # noqa: E731
-                                           event=slip_event, **kwargs)
-        hold = lambda: diffrax.diffeqsolve(diffrax.ODETerm(_stuck_field), solver,  # noqa: E731
-                                           stepsize_controller=controller_for(settings), event=breakaway, **kwargs)
+        slip = lambda: _with_margins(diffrax.diffeqsolve(  # noqa: E731
+            diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings), event=slip_event,
+            y0=y, dt0=dt0, **kwargs))
+        # a first step of its own: diffrax's choice would put a third copy of the field in the program
+        hold = lambda: diffrax.diffeqsolve(  # noqa: E731
+            diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
+            y0=(y, breakaway_margins(model, start, y, settings.bridge)),
+            dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **kwargs)
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
@@ -133,7 +151,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
         run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step)
-        sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
+        (rows, margins), steps_saved = run.ys[0], [states for states, _ in run.ys[1:]]
+        sol = _Saved(run.ts[0], rows, run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
@@ -146,7 +165,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             stopped = more | ~finished(RESULTS.promote(sol.result))
             end = jnp.where(stopped, jnp.where(accepted > 0, run.ts[1][accepted - 1], start), end)
             y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(accepted > 0, s[accepted - 1], z0), z),
-                                 y_end, run.ys[1], y._replace(friction_rates=start_rates))
+                                 y_end, steps_saved[0], y._replace(friction_rates=start_rates))
         steps = steps + sol.stats["num_steps"]
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if chunk is not None:
@@ -165,7 +184,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         filled = filled | inside
         fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
         # a stick segment stopped by a user event (its margins are read only where there are any)
-        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
+        # (fired: the segment ended on its event, its margins are those of its last saved row)
+        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, margins[last], args)))] if holds and settings.events else NO_EVENT
         code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
         locked = ~stuck & (segment_event == LOCKUP)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
@@ -180,7 +200,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # held where nothing varies in time: for good (filled to t1 below); else a stick segment follows
         done = (~fired & ~more & ~(refused & holds)) | locked | (end >= t1) | ~finished(segment_result) | ends
         result = RESULTS.where(finished(result), segment_result, result)
-        # the chunk's mean step (not a stick segment's: its field is 0, its steps grow unchecked)
+        # the chunk's mean step (not a stick segment's: its steps follow the loads, not the motion)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
         return end, y_next, direction, held, saved, filled, steps, result, event, failed, step, done
 
