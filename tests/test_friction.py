@@ -447,6 +447,25 @@ def test_a_short_pulse_of_torque_breaks_the_arm_away(write_scene):
     assert np.all(held.q == q0) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
 
 
+def test_a_pulse_shorter_than_the_steps_needs_max_step(write_scene):
+    """A pulse of width 0.01 s: the controller's first steps grow past it, as an ODE solve
+    steps over any forcing its stages do not sample (the arm stays at rest); with
+    max_step = 2 ms the steps sample it and the arm breaks away at t* = 0.5 - 0.01 sqrt(ln 2)."""
+    scene = aj.load_scene(write_scene(HANGING))
+    q0, eps = scene.state["q0"], 1e-6
+    t_star = 0.5 - 0.01 * math.sqrt(math.log(2.0))
+    times = np.array([t_star - eps, t_star + eps, 0.6, 1.0])
+    forcing = Forcing(height=2 * ARM_LIMIT, center=0.5, width=0.01)
+    assert np.all(forced_arm(scene, forcing, times).omega == 0.0)
+    loads = tuple(load for load in scene.loads if not isinstance(load, aj.Drive)) + (aj.Drive(forcing),)
+    sol = aj.simulate(scene, loads=loads, saveat=times, stop=None, rtol=1e-11, atol=1e-11, max_step=2e-3)
+    assert_breaks_away_at(sol, q0, 1.0)
+    with pytest.raises(aj.AssurjaxError, match="'max_step' bounds the adaptive steps"):
+        aj.simulate(scene, loads=loads, dt=1e-3, max_step=2e-3)
+    with pytest.raises(aj.AssurjaxError, match="setting 'max_step': expected a positive finite step"):
+        aj.simulate(scene, loads=loads, max_step=-1.0)
+
+
 def test_a_torque_that_reverses_while_held_breaks_away_the_other_way(write_scene):
     """L (0.5 + 2 t) sin(4 pi t): below the limit over its first half period (at most 0.76 L),
     so the arm stays; then negative, it reaches -L at t* (found by brentq on the closed form)

@@ -35,6 +35,7 @@ SIMULATION_VALUES = {
     "table_nodes": [10**9, "big", 4],
     "max_steps": [10**12, "many", 0],
     "dt": ["x", math.nan, -0.1, math.inf],
+    "max_step": [math.nan, 0.0, -1e-3, 1e4, "short"],
     "rtol": [math.nan, 0.0, 2.0, "tight"],
     "atol": [math.inf, -1e-9],
     "solver": [["tsit5"], "rk99"],

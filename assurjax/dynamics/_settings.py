@@ -70,6 +70,9 @@ class Settings(NamedTuple):
     atol: float = DEFAULT_ATOL
     fixed_step: bool = False  # True: constant steps of the traced ``dt``; False: adaptive (PID controller)
     dt: float | None = None  # a static fixed step (s): compiles per value; prefer simulate_core's traced ``dt``
+    # the longest adaptive step (s; None: no limit): where a load varies faster than the motion shows (a short pulse
+    # on a mechanism held by friction, or one that the stages of a long step straddle), so that the steps sample it
+    max_step: float | None = None
     max_steps: int = DEFAULT_MAX_STEPS
     standstill: bool = False
     check_assembly: bool = True
@@ -128,6 +131,7 @@ SIMULATION_KEYS: dict[str, tuple[Callable, str]] = {
     "rtol": (lambda v: _positive_number(v) and v < 1, "a positive finite number below 1"),
     "atol": (lambda v: _positive_number(v) and v < 1, "a positive finite number below 1"),
     "dt": (lambda v: _positive_number(v) and v <= 1e3, "a positive finite step (s), at most 1000"),
+    "max_step": (lambda v: _positive_number(v) and v <= 1e3, "a positive finite step (s), at most 1000"),
     "max_steps": (_bounded("max_steps", _positive_int), f"a positive integer, at most {WORK_LIMITS['max_steps'][0]}"),
     "samples": (_bounded("samples", lambda v: _positive_int(v) and v >= 2), f"an integer from 2 to {WORK_LIMITS['samples'][0]}"),
     "stop": (lambda v: isinstance(v, str) and v in STOPS, f"one of {list(STOPS)}"),
@@ -237,7 +241,7 @@ def settings_from(scene=None, **overrides) -> Settings:
         max_steps=sim.get("max_steps", DEFAULT_MAX_STEPS), samples=sim.get("samples", DEFAULT_SAMPLES),
         branch=sim.get("branch", "fixed"), reduction=sim.get("reduction", "auto"),
         table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
-        save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", 0.0),
+        save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", 0.0), max_step=sim.get("max_step", None),
         fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
         points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
         velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
@@ -289,6 +293,13 @@ def check(settings: Settings) -> None:
         raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
     if settings.steps is not None and (problem := setting_problem("steps", settings.steps)) is not None:
         raise AssurjaxError(f"setting 'steps': {problem}")
+    if settings.max_step is not None:
+        if (problem := setting_problem("max_step", settings.max_step)) is not None:
+            raise AssurjaxError(f"setting 'max_step': {problem}")
+        fixed = [what for what, on in (("'dt'", not adaptive(settings)), ("'steps'", settings.steps is not None),
+                                       (f"the baseline solver {settings.solver!r}", settings.solver in BASELINES)) if on]
+        if fixed:
+            raise AssurjaxError(f"setting 'max_step' bounds the adaptive steps; with {fixed[0]} every step is fixed")
     for cond in settings.events:
         if not callable(cond):
             raise AssurjaxError(f"events must be functions cond(t, q, omega), got {type(cond).__name__}")
@@ -317,7 +328,8 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
     if not adaptive(settings):
         return diffrax.ConstantStepSize()
     kwargs = {} if norm is None else {"norm": norm}
-    return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, **kwargs)
+    return diffrax.PIDController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
+                                 **kwargs)
 
 
 def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
@@ -327,7 +339,8 @@ def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
     (:class:`LockupController`, :class:`ConstantStepsUntilLockup`)."""
     if not adaptive(settings):
         return ConstantStepsUntilLockup()
-    return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, norm=_finite_norm)
+    return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
+                            norm=_finite_norm)
 
 
 def _met_unassembled(y1_candidate, y_error):

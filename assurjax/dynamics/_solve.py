@@ -343,6 +343,7 @@ def simulate(
     steps: int | None = None,
     save_steps: bool | None = None,
     bridge: float | None = None,
+    max_step: float | None = None,
     throw: bool = False,
 ) -> Solution:
     """Simulate a mechanism's motion from its initial state (Durango et al.'s (2014) forward dynamics).
@@ -357,7 +358,9 @@ def simulate(
     runs to t1), ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the
     baseline ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
     over seconds of motion; pass 1e-10 or tighter for reference-quality runs), ``dt`` (a
-    fixed step, s), ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per
+    fixed step, s), ``max_step`` (the longest adaptive step, s; default: no limit -- set it
+    where a load varies in time faster than the motion shows, e.g. a short pulse on a
+    mechanism held at rest by friction, which longer steps could pass over), ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per
     doubling of the span), ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
@@ -412,7 +415,7 @@ def simulate(
     options = dict(stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
                    events=events, check_assembly=check_assembly, points=points, angles=angles, energies=energies,
                    velocities=velocities, accelerations=accelerations, coms=coms, branch=branch, reduction=reduction,
-                   table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge)
+                   table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge, max_step=max_step)
     prepared = _PREPARED.get(
         (scene, getattr(scene, "simulation", None), getattr(scene, "outputs", None), mechanism, gravity, loads, table,
          *options.values()),
