@@ -764,8 +764,8 @@ def _package_frictions(mechanism, table: dict, parts: int = 1):
 
 
 def _reference_case(case):
-    """(package scene, q0, w0, constant drive, t1, friction table, the joint-based reference
-    model with that friction) of a case compared with the joint-based reference."""
+    """(package scene, q0, w0, drive (N m: a number or a function of t), t1, friction table, the
+    joint-based reference model with that friction) of a case compared with the joint-based reference."""
     import tomllib
 
     import joint_reference as jr
@@ -774,6 +774,9 @@ def _reference_case(case):
 
     if case == "slider_crank":
         return aj.load_scene(case), 0.5, 0.0, 0.0, T1, jrf.SLIDER_CRANK_FRICTION, jrf.slider_crank(0.5, 0.0)
+    if case == "slider_crank_driven":  # 0.3 sin 5t N m: held twice, each time until the drive breaks it away
+        ref = jrf.slider_crank(0.5, 3.0, tau=lambda t, q, w: 0.3 * np.sin(5 * t))
+        return aj.load_scene("slider_crank"), 0.5, 3.0, lambda t: 0.3 * jnp.sin(5 * t), T1, jrf.SLIDER_CRANK_FRICTION, ref
     if case == "watt_sixbar":
         return aj.load_scene(case), 0.3, 1.0, 0.0, T1, jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
     slide = jrf.Friction(mu=0.2, length=0.03, damping=0.2)
@@ -788,8 +791,10 @@ def _reference_case(case):
     return aj.scene_from_dict(tomllib.loads(SLIDER_DRIVEN)), 0.2, 0.1, 0.0, 0.5, table, jrf.with_friction(jr.slider_driven(0.2, 0.1), table)
 
 
-# the split case (K = 12, the stacked law), the Watt six-bar and the slider driver in the slow suite: the default one ran 9:41 in CI
-@pytest.mark.parametrize("case", ["slider_crank", pytest.param("slider_crank_split", marks=pytest.mark.slow),
+# the split case (K = 12, the stacked law), the Watt six-bar, the slider driver and the undriven slider-crank (its
+# motion through rests is in the driven one's) in the slow suite: the default one ran 9:41 in CI
+@pytest.mark.parametrize("case", [pytest.param("slider_crank", marks=pytest.mark.slow),
+                                  pytest.param("slider_crank_split", marks=pytest.mark.slow), "slider_crank_driven",
                                   pytest.param("watt_sixbar", marks=pytest.mark.slow), "quick_return",
                                   pytest.param("slider_driven", marks=pytest.mark.slow)])
 def test_agrees_with_the_joint_based_reference(case):
@@ -798,7 +803,9 @@ def test_agrees_with_the_joint_based_reference(case):
     slider-crank's friction shared by three elements per pair (K = 12, past SUMMED_TERMS:
     the friction law takes its stacked path). Quick-return: the RPR's block slides on the
     turning rocker (the pair's guide moves), under a constant drive; slider-driven: the
-    driver's own pair is rough. Then inverse dynamics along the reference's motion."""
+    driver's own pair is rough. Driven: a drive 0.3 sin 5t holds the slider-crank at rest twice and
+    breaks it away twice (stick segments, their break-away located on the integrated margins).
+    Then inverse dynamics along the reference's motion."""
     from assurjax._friction import SUMMED_TERMS
 
     parts = 3 if case.endswith("_split") else 1
@@ -807,7 +814,9 @@ def test_agrees_with_the_joint_based_reference(case):
     scene, q0, w0, drive, t1, table, ref = _reference_case(case)
     times = np.linspace(0.0, t1, TIMES.size)
     expected = ref.simulate(t1, t_eval=times)
-    loads = tuple(scene.loads) + ((aj.Drive(drive),) if drive else ()) + _package_frictions(scene.mechanism, table, parts)
+    in_time = callable(drive)
+    drives = (aj.Drive(lambda q, w, t: drive(t)),) if in_time else (aj.Drive(drive),) if drive else ()
+    loads = tuple(scene.loads) + drives + _package_frictions(scene.mechanism, table, parts)
     sol = aj.simulate(scene, loads=loads, q0=q0, omega0=w0, stop=None, t1=t1, saveat=times, energies=True, rtol=1e-10,
                       atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
@@ -818,7 +827,9 @@ def test_agrees_with_the_joint_based_reference(case):
     # the drive applied (a Drive load is the effort asked for; at rest the static friction is not set by the motion)
     moving = ~expected.stuck & (expected.w != 0.0)
     r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, loads), (expected.q[moving], expected.w[moving], expected.wdot[moving]))
-    np.testing.assert_allclose(r.driving, drive, atol=1e-7)
+    np.testing.assert_allclose(r.driving, drive(times[moving]) if in_time else drive, atol=1e-7)
+    if in_time:
+        assert np.count_nonzero(np.diff(expected.stuck.astype(int)) == 1) == 2  # held twice (and released)
 
 
 def test_inverse_dynamics_of_a_prescribed_motion_with_friction():

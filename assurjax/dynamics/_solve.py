@@ -360,8 +360,9 @@ def simulate(
     over seconds of motion; pass 1e-10 or tighter for reference-quality runs), ``dt`` (a
     fixed step, s), ``max_step`` (the longest adaptive step, s; default: no limit -- set it
     where a load varies in time faster than the motion shows, e.g. a short pulse on a
-    mechanism held at rest by friction, which longer steps could pass over), ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per
-    doubling of the span), ``samples`` from ``[simulation]``; ``points``,
+    mechanism held at rest by friction, which longer steps could pass over),
+    ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per doubling of the
+    span), ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
     loaded mechanisms); ``coms`` (links whose centres of mass to save), ``velocities``,
