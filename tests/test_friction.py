@@ -381,6 +381,15 @@ def test_gradient_in_mu_through_a_breakaway(write_scene):
     np.testing.assert_allclose(float(jax.jacfwd(lambda m: q_at(m, "forward"))(mu)), float(fd), rtol=1e-6)
 
 
+def test_backsolve_with_friction_is_a_clear_error(write_scene):
+    """diffrax's backsolve adjoint cannot save a segment's outputs as the segments do: an
+    error that names the adjoint and the ones to use, not diffrax's NotImplementedError."""
+    scene = aj.load_scene(write_scene(HANGING))
+    with pytest.raises(aj.AssurjaxError, match="adjoint 'backsolve' is not available with joint friction"):
+        jax.grad(lambda mu: aj.synthesis.final_state(
+            scene.with_loads(scene.loads[:1] + (aj.JointFriction("O", mu, 0.04),)), 0.9, adjoint="backsolve")[0])(0.3)
+
+
 def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     """The same arm under the same torque k t given as a Python function: a function is never
     assumed constant in time (the stick segment stays), so it breaks away at the same time."""

@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._errors import AssurjaxError
 from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
@@ -92,6 +93,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     """The motion with joint friction in segments (see the module docstring): to t1, or
     with ``settings.standstill`` to the first rest (a start held at rest: a standstill at t0).
     Returns (the Solution without outputs, the tracked branch's saved link angles or None)."""
+    if settings.adjoint == "backsolve":  # diffrax's backsolve cannot save a segment's times and steps apart
+        raise AssurjaxError("adjoint 'backsolve' is not available with joint friction (the motion runs in segments "
+                            "that save their outputs as they go): use 'recursive' (reverse mode) or 'forward'")
     first_rest = settings.standstill
     solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     # a batch of runs steps together: diffrax's loop runs until its slowest member ends its segment; in chunks
