@@ -35,9 +35,6 @@ from .._values import all_finite
 from ._table import ReducedTable
 
 
-HELD_MARGIN = 1e30  # rad/s^2 or m/s^2: the break-away margin of a direction that cannot start (finite: it is integrated)
-
-
 class State(NamedTuple):
     """The integrated state: ``q`` (rad or m), ``omega`` (rad/s or m/s), and optional
     quadratures ``work`` (J, loads outside V), ``dissipated`` (J), the tracked
@@ -256,23 +253,6 @@ def rest_analysis(model: Model, t, y: State, bridge: float = 0.0):
     unset = jnp.zeros(len(frictions_of(model.loads)))
     f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
-
-
-def breakaway_margins(model: Model, t, y: State, bridge: float = 0.0):
-    """Per direction s = (+1, -1) of a start from rest at the state's q: -s dw/dt of the
-    motion that would start that way (the friction of a motion in direction s), positive
-    while the friction holds the mechanism. Each is continuous in t (the direction is
-    fixed; :func:`rest_analysis` reads the only direction that can start, which flips
-    with the frictionless generalized force); a direction whose friction has no
-    consistent solution cannot start: ``HELD_MARGIN``."""
-    at_rest = y._replace(omega=jnp.zeros_like(y.omega))
-    unset = jnp.zeros(len(frictions_of(model.loads)))
-
-    def margin(s):
-        f = frictional(model, t, at_rest, s, bridge, unset)
-        return jnp.where(f.consistent, -s * f.alpha, HELD_MARGIN)
-
-    return jax.lax.map(margin, jnp.asarray([1.0, -1.0]))  # a loop of two: one copy in the program, traced once
 
 
 def rest_direction(alpha, side):

@@ -16,9 +16,9 @@ switch of the law (its saltation) through the located switch time: a slip segmen
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
-a break-away margin -s a_s of either direction crosses 0 (another Event), the margins
-integrated in its state from their rates (so that its steps resolve how the loads move
-them; ``_stuck_field``). A segment goes in the direction
+the break-away margin -s a_s crosses 0 (another Event), its steps controlled on the
+margin's integral, carried in its state so that they resolve how the loads move the
+margin (``_stuck_field``). A segment goes in the direction
 sign(w) or, from rest, in s; there its own vector field decides whether the mechanism
 breaks away: at w = 0 an acceleration not in direction s (or no consistent friction) is
 0, so its first step ends at rest, which the step-size controller rejects and ends the
@@ -55,7 +55,7 @@ from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import HELD_MARGIN, FieldArgs, State, breakaway_margins, frictional, near, start_kinematics, vector_field
+from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -72,20 +72,26 @@ def batch_settings(settings: Settings, loads) -> Settings:
     return settings._replace(segment_steps=BATCH_SEGMENT_STEPS) if frictions_of(loads) else settings
 
 
+def breakaway_margin(model: Model, t, y: State, bridge: float = 0.0):
+    """-s dw/dt of the only direction s that can start from rest (with that direction's
+    friction; 0 where it has no consistent solution): > 0 while the friction holds."""
+    alpha, side = rest_analysis(model, t, y, bridge)[:2]
+    return -side * alpha
+
+
 def _stuck_field(t, held, args):
-    """A stick segment's (State, break-away margins): the state stays, the margins move with
-    the loads (their rate by forward mode), so that the step-size controller resolves their
-    variation in time (a zero field alone let the steps grow past a short pulse of load)
-    and the break-away event reads them from the state."""
+    """A stick segment's (State, integral of the break-away margin): the state stays; the
+    integral is there for the step-size controller, whose error estimate of it resolves how
+    the loads move the margin in time (with a zero field alone the steps grew tenfold each,
+    past any short pulse of load)."""
     y, _ = held
-    rate = jax.jvp(lambda s: breakaway_margins(args.model, s, y, args.bridge), (t,), (jnp.ones_like(t),))[1]
-    return jax.tree.map(jnp.zeros_like, y), rate
+    return jax.tree.map(jnp.zeros_like, y), breakaway_margin(args.model, t, y, args.bridge)
 
 
-def _with_margins(run):
-    """A slip segment's solution shaped as a stick segment's (each saved row a state and
-    its margins, HELD_MARGIN), so that either comes out of one lax.cond."""
-    rows = [(ys, jnp.full(jnp.shape(ys.q) + (2,), HELD_MARGIN)) for ys in run.ys]
+def _with_integral(run):
+    """A slip segment's solution shaped as a stick segment's (each saved row a state and a
+    margin's integral, 0), so that either comes out of one lax.cond."""
+    rows = [(ys, jnp.zeros(jnp.shape(ys.q))) for ys in run.ys]
     return eqx.tree_at(lambda r: r.ys, run, rows)
 
 
@@ -109,11 +115,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # unless user events are to be watched while it rests
     holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
 
-    def stuck_margins(t, y, margins, args):
+    def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
-        return [jnp.min(margins)] + user_margins(settings, t, y, args)
+        return [breakaway_margin(args.model, t, y, args.bridge)] + user_margins(settings, t, y, args)
 
-    breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, *held, args))), settings)
+    # read afresh at each step's end (not integrated: the direction that can start flips with the
+    # frictionless force, and that direction's friction may gain or lose a consistent solution)
+    breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
     def segment(start, y, direction, signs, stuck, step):
@@ -129,13 +137,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
         kwargs = dict(t0=start, t1=t1, args=args, saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: _with_margins(diffrax.diffeqsolve(  # noqa: E731
+        slip = lambda: _with_integral(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings), event=slip_event,
             y0=y, dt0=dt0, **kwargs))
         # a first step of its own: diffrax's choice would put a third copy of the field in the program
         hold = lambda: diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
-            y0=(y, breakaway_margins(model, start, y, settings.bridge)),
+            y0=(y, jnp.zeros(())),
             dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **kwargs)
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
@@ -155,7 +163,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
         run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step)
-        (rows, margins), steps_saved = run.ys[0], [states for states, _ in run.ys[1:]]
+        rows, steps_saved = run.ys[0][0], [states for states, _ in run.ys[1:]]
         sol = _Saved(run.ts[0], rows, run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -188,8 +196,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         filled = filled | inside
         fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
         # a stick segment stopped by a user event (its margins are read only where there are any)
-        # (fired: the segment ended on its event, its margins are those of its last saved row)
-        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, margins[last], args)))] if holds and settings.events else NO_EVENT
+        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
         code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
         locked = ~stuck & (segment_event == LOCKUP)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
