@@ -479,7 +479,7 @@ def test_a_torque_that_reverses_while_held_breaks_away_the_other_way(write_scene
     """L (0.5 + 2 t) sin(4 pi t): below the limit over its first half period (at most 0.76 L),
     so the arm stays; then negative, it reaches -L at t* (found by brentq on the closed form)
     and the arm breaks away downwards. The direction that can start flips with the torque
-    while the arm is held: the break-away margins of both directions are watched."""
+    while the arm is held, and the break-away margin with it."""
     scene = aj.load_scene(write_scene(HANGING))
     q0, eps = scene.state["q0"], 1e-6
     t_star = brentq(lambda t: (0.5 + 2 * t) * math.sin(4 * math.pi * t) + 1.0, 0.25, 0.375)
@@ -855,7 +855,7 @@ def test_agrees_with_the_joint_based_reference(case):
     the friction law takes its stacked path). Quick-return: the RPR's block slides on the
     turning rocker (the pair's guide moves), under a constant drive; slider-driven: the
     driver's own pair is rough. Driven: a drive 0.3 sin 5t holds the slider-crank at rest twice and
-    breaks it away twice (stick segments, their break-away located on the integrated margins).
+    breaks it away twice (stick segments under a load in time).
     Then inverse dynamics along the reference's motion."""
     from assurjax._friction import SUMMED_TERMS
 

@@ -23,11 +23,11 @@ sign(w) or, from rest, in s; there its own vector field decides whether the mech
 breaks away: at w = 0 an acceleration not in direction s (or no consistent friction) is
 0, so its first step ends at rest, which the step-size controller rejects and ends the
 solve with (``_settings.LockupController``) -- the mechanism is held from there
-(``refused`` below). So the friction solve is in the integration program once, in
-the vector field (each segment's start solving it too made that program a third larger:
-the Watt six-bar's first call 9.0 s instead of 7.3). Without loads that may vary in time
-(and user events to watch) a mechanism held at rest stays held: the stick segment is left
-out, and the rest is filled to t1. A
+(``refused`` below). So a segment's start solves no friction of its own (doing so made
+the integration program a third larger: the Watt six-bar's first call 9.0 s instead of
+7.3). Without loads that may vary in time (and user events to watch) a mechanism held at
+rest stays held: the stick segment, whose field and event each solve the friction, is
+left out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
 ends at the first rest. Each segment saves the requested times that fall inside it. A
 batch (``simulate`` with an array of starts, ``batch_simulate``) steps its members
@@ -140,7 +140,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         slip = lambda: _with_integral(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings), event=slip_event,
             y0=y, dt0=dt0, **kwargs))
-        # a first step of its own: diffrax's choice would put a third copy of the field in the program
+        # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
         hold = lambda: diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
             y0=(y, jnp.zeros(())),
