@@ -394,13 +394,12 @@ def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     """The same arm under the same torque k t given as a Python function: a function is never
     assumed constant in time (the stick segment stays), so it breaks away at the same time."""
     scene = aj.load_scene(write_scene(HANGING))
-    ramp = aj.Drive(lambda q, w, t: 0.5 * t)
+    ramp = aj.Drive(Forcing(ramp=0.5))  # a callable module (its numbers traced: forced_arm's program)
     loads = (ramp,) + tuple(load for load in scene.loads if not isinstance(load, aj.Drive))
     assert ramp.may_depend_on_time() and not any(load.may_depend_on_time() for load in loads[1:])
     t_star = 0.3 * 0.04 * 2.0 * 9.81 / 0.5
     eps = 1e-6
-    sol = aj.simulate(scene, loads=loads, saveat=np.array([0.0, t_star - eps, t_star + eps, 0.9]), stop=None,
-                      rtol=1e-11, atol=1e-11)
+    sol = forced_arm(scene, Forcing(ramp=0.5), np.array([0.0, t_star - eps, t_star + eps, 0.9]))
     assert np.all(sol.q[:2] == scene.state["q0"]) and np.all(sol.omega[:2] == 0.0)
     assert sol.omega[2] > 0.0 and sol.q[3] > scene.state["q0"] + 1e-3
     # with a constant torque below the limit it stays at rest to t1 (no stick segment in the program)
@@ -409,8 +408,8 @@ def test_breakaway_under_a_torque_given_as_a_function(write_scene):
 
 
 class Forcing(eqx.Module):
-    """A torque (N m) (amp0 + amp_rate t) sin(freq t) + height exp(-((t - center) / width)^2)
-    whose numbers are traced: the tests below share one compiled program."""
+    """A torque (N m) ramp t + (amp0 + amp_rate t) sin(freq t) + height exp(-((t - center) / width)^2)
+    whose numbers are traced: the tests on the arm share one compiled program."""
 
     amp0: jax.Array
     amp_rate: jax.Array
@@ -418,13 +417,15 @@ class Forcing(eqx.Module):
     height: jax.Array
     center: jax.Array
     width: jax.Array
+    ramp: jax.Array
 
-    def __init__(self, amp0=0.0, amp_rate=0.0, freq=0.0, height=0.0, center=0.0, width=1.0):
-        values = (amp0, amp_rate, freq, height, center, width)
-        self.amp0, self.amp_rate, self.freq, self.height, self.center, self.width = (jnp.asarray(v, dtype=float) for v in values)
+    def __init__(self, amp0=0.0, amp_rate=0.0, freq=0.0, height=0.0, center=0.0, width=1.0, ramp=0.0):
+        values = (amp0, amp_rate, freq, height, center, width, ramp)
+        self.amp0, self.amp_rate, self.freq, self.height, self.center, self.width, self.ramp = (
+            jnp.asarray(v, dtype=float) for v in values)
 
     def __call__(self, q, omega, t):
-        return ((self.amp0 + self.amp_rate * t) * jnp.sin(self.freq * t)
+        return (self.ramp * t + (self.amp0 + self.amp_rate * t) * jnp.sin(self.freq * t)
                 + self.height * jnp.exp(-(((t - self.center) / self.width) ** 2)))
 
 
