@@ -88,11 +88,10 @@ def _stuck_field(t, held, args):
     return jax.tree.map(jnp.zeros_like, y), breakaway_margin(args.model, t, y, args.bridge)
 
 
-def _with_integral(run):
-    """A slip segment's solution shaped as a stick segment's (each saved row a state and a
-    margin's integral, 0), so that either comes out of one lax.cond."""
-    rows = [(ys, jnp.zeros(jnp.shape(ys.q))) for ys in run.ys]
-    return eqx.tree_at(lambda r: r.ys, run, rows)
+def _states_only(run):
+    """A stick segment's solution without the margin's integral (only its steps read it), so
+    that it comes out of one lax.cond with a slip segment's."""
+    return eqx.tree_at(lambda r: r.ys, run, [states for states, _ in run.ys])
 
 
 def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Settings):
@@ -137,14 +136,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
         kwargs = dict(t0=start, t1=t1, args=args, saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: _with_integral(diffrax.diffeqsolve(  # noqa: E731
+        slip = lambda: diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings), event=slip_event,
-            y0=y, dt0=dt0, **kwargs))
+            y0=y, dt0=dt0, **kwargs)
         # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
-        hold = lambda: diffrax.diffeqsolve(  # noqa: E731
+        hold = lambda: _states_only(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
-            y0=(y, jnp.zeros(())),
-            dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **kwargs)
+            y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **kwargs))
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
@@ -163,8 +161,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
         run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step)
-        rows, steps_saved = run.ys[0][0], [states for states, _ in run.ys[1:]]
-        sol = _Saved(run.ts[0], rows, run.event_mask, run.result, run.stats)
+        sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
         y_end = jax.tree.map(lambda z: z[last], sol.ys)
@@ -177,7 +174,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             stopped = more | ~finished(RESULTS.promote(sol.result))
             end = jnp.where(stopped, jnp.where(accepted > 0, run.ts[1][accepted - 1], start), end)
             y_end = jax.tree.map(lambda z, s, z0: jnp.where(stopped, jnp.where(accepted > 0, s[accepted - 1], z0), z),
-                                 y_end, steps_saved[0], y._replace(friction_rates=start_rates))
+                                 y_end, run.ys[1], y._replace(friction_rates=start_rates))
         steps = steps + sol.stats["num_steps"]
         segment_event, segment_result = jnp.asarray(NO_EVENT), RESULTS.promote(sol.result)
         if chunk is not None:
