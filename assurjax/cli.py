@@ -262,7 +262,8 @@ def _with_solver_steps(scene) -> bool:
 class _Along(NamedTuple):
     """Reactions along a simulated motion, as numpy arrays: forces (N) per joint, the
     driving effort, whether every group solved, the friction value and friction power (W)
-    per element (empty without friction), and the seconds they took."""
+    per element (empty without friction), the seconds they took, and whether the friction
+    had a consistent solution (see Reactions.friction_ok)."""
 
     forces: dict
     driving: object
@@ -270,6 +271,7 @@ class _Along(NamedTuple):
     friction: dict
     friction_power: dict
     seconds: float
+    friction_ok: object
 
 
 def _reactions_along(scene, sol, joints) -> _Along:
@@ -281,7 +283,7 @@ def _reactions_along(scene, sol, joints) -> _Along:
     r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
     arrays = lambda d: {k: np.asarray(v) for k, v in d.items()}  # noqa: E731
     return _Along(arrays(r.forces), np.asarray(r.driving), np.asarray(r.ok).all(axis=-1), arrays(r.friction),
-                  arrays(r.friction_power), time.perf_counter() - t0)
+                  arrays(r.friction_power), time.perf_counter() - t0, np.asarray(r.friction_ok))
 
 
 def _friction_unit(pair: str) -> str:
@@ -302,6 +304,11 @@ def _friction_lines(t, along: _Along) -> list[str]:
     lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
     peaks = ", ".join(f"{k} {np.max(np.abs(v)):.4g} {_friction_unit(k)}" for k, v in along.friction.items())
     lines.append(f"  peak |friction| (at the samples): {peaks}")
+    locked = int(np.count_nonzero(~along.friction_ok))
+    if locked:
+        lines.append(f"  the friction self-locks the mechanism (no consistent solution) at {locked} of {along.friction_ok.size} "
+                     "samples: the driving effort there is not a drive that gives the motion or just holds it "
+                     "(friction_ok in reactions.csv)")
     return lines
 
 
@@ -607,7 +614,8 @@ def cmd_reactions(args) -> int:
     peaks = _peaks(scene, sol, joints, forces, driving)
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
-                        | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))})]
+                        | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))}
+                        | ({"friction_ok": along.friction_ok} if along.friction else {}))]
     import matplotlib.pyplot as plt
 
     panels = 3 if along.friction else 2

@@ -331,3 +331,16 @@ def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsy
     assert summary["energy_drift_before_lockup_J"] <= summary["energy_drift_J"]
     printed = capsys.readouterr().out
     assert "s before the lock-up" in printed and "no longer resolves T" in printed
+
+
+def test_summary_names_samples_held_where_the_friction_self_locks():
+    """The reactions summary counts the samples whose friction has no consistent solution
+    (Reactions.friction_ok False), and says nothing where every one has."""
+    from assurjax.cli import _Along, _friction_lines
+
+    t = np.linspace(0.0, 1.0, 5)
+    along = lambda ok: _Along({}, np.zeros(5), np.ones(5, bool), {"A": np.ones(5)}, {"A": -np.ones(5)}, 0.0, ok)  # noqa: E731
+    lines = _friction_lines(t, along(np.array([True, False, False, True, True])))
+    assert lines[0].startswith("  friction: 1 J lost over the motion")
+    assert "self-locks the mechanism (no consistent solution) at 2 of 5 samples" in lines[-1]
+    assert not any("self-locks" in line for line in _friction_lines(t, along(np.ones(5, bool))))

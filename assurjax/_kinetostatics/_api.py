@@ -72,6 +72,13 @@ class Reactions(eqx.Module):
     guide on the slider of a prismatic pair (at its sliding point; not part of
     ``forces``, which is normal to the guide); ``friction_power[name]`` (W, <= 0) the
     power it takes out of the motion. Both are empty without friction; at rest the power is 0.
+    ``friction_ok``: (...,) False where the joint friction has no consistent solution with
+    the motion's Coulomb signs: the friction self-locks the mechanism against that motion
+    (no finite drive gives it: the statics' friction law has no root with det(I - S) > 0,
+    S its slope), and the values reported there are not a drive that produces it. Held
+    at rest, False where either break-away limit has none: the friction alone holds the
+    mechanism against any drive that way, and ``driving`` is not the band's edge.
+    True without friction.
     """
 
     forces: dict[str, Array]
@@ -81,6 +88,7 @@ class Reactions(eqx.Module):
     pairs: tuple[Pair, ...] = eqx.field(static=True)
     friction: dict[str, Array] = eqx.field(default_factory=dict)
     friction_power: dict[str, Array] = eqx.field(default_factory=dict)
+    friction_ok: Array | None = None
 
     def __getitem__(self, name: str) -> Array:
         if name not in self.forces:
@@ -162,18 +170,19 @@ def _static_kinematics(mechanism, q):
 
 
 def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool):
-    """(forces, couples, driving, ok, friction, friction power) at one state."""
+    """(forces, couples, driving, ok, friction, friction power, friction ok) at one state."""
     if static:
-        return from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups) + ({}, {})
+        statics = from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups)
+        return statics + ({}, {}, jnp.array(True))
     coeffs = coefficients(model.mechanism, q, order=2)
     if not frictions_of(model.loads):
-        return reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups) + ({}, {})
-    *reaction, u, rates = reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups, friction=True)
+        return reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups) + ({}, {}, jnp.array(True))
+    *reaction, u, rates, consistent = reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups, friction=True)
     friction, power = {}, {}
     for k, element in enumerate(frictions_of(model.loads)):  # two elements on one pair add up
         friction[element.pair] = friction.get(element.pair, 0.0) + u[k]
         power[element.pair] = power.get(element.pair, 0.0) + u[k] * rates[k] * omega
-    return tuple(reaction) + (friction, power)
+    return tuple(reaction) + (friction, power, consistent)
 
 
 def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method: str = "modular", groups=None,
@@ -187,8 +196,9 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     between the two break-away limits keeps the mechanism there: the one nearest 0 is
     reported, with the friction values between those of the two limits in proportion
     (how static friction shares out between the pairs is not determined by statics).
-    ``friction=True`` (a model with friction): also the friction values u and the
-    elements' relative rates per unit driving velocity (K,)."""
+    ``friction=True`` (a model with friction): also the friction values u, the
+    elements' relative rates per unit driving velocity (K,) and whether the friction has a
+    consistent solution (held: both limits)."""
     kin = coeffs.kinematics(omega, alpha)
     frictions = frictions_of(model.loads)
     if not frictions:
@@ -202,10 +212,11 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     linear = linearize_reactions(react, len(frictions))
 
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        u = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)[0]
-        return u, from_kinematics(model, kin, t, method=method, groups=groups, extra=friction_wrenches(mechanism, kin, frictions, u))
+        u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)
+        return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
+                                              extra=friction_wrenches(mechanism, kin, frictions, u))
 
-    us, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
+    us, consistent, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
     width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
     share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
@@ -214,10 +225,12 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         held = share * x[0] + (1.0 - share) * x[1]
         return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], held))
 
+    def pick_flag(x):  # moving: that direction's; held: both limits'
+        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], x[0] & x[1]))
+
     u = pick(us)
-    found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving),
-             jnp.where(direction > 0, ok[0], jnp.where(direction < 0, ok[1], ok[0] & ok[1])))
-    return found + (u, rates) if friction else found
+    found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving), pick_flag(ok))
+    return found + (u, rates, pick_flag(consistent)) if friction else found
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None):
@@ -383,14 +396,14 @@ def _run(scene, state, joints, method, check, *, static):
     q = jnp.asarray(state[0], dtype=float)
     shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
-    forces, couples, driving, ok, friction, friction_power = _batch(model, q, omega, alpha, t, method, groups, static)
+    forces, couples, driving, ok, friction, friction_power, friction_ok = _batch(model, q, omega, alpha, t, method, groups, static)
     if joints is not None:
         names = (joints,) if isinstance(joints, str) else tuple(joints)
         forces = {k: forces[k] for k in names}
         couples = {k: v for k, v in couples.items() if k in names}
     pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
     result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs, friction=friction,
-                       friction_power=friction_power)
+                       friction_power=friction_power, friction_ok=friction_ok)
     if check:
         raise_if_singular(mechanism, ok, q)
     return result
