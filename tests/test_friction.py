@@ -552,7 +552,7 @@ def assert_moves_as_the_drive_accelerates_it(model, q, w, dw, t, applied):
     np.testing.assert_array_less(np.abs(np.asarray(found.driving) - applied) / inertia, 1e-9 * (1.0 + np.abs(dw)))
 
 
-@pytest.mark.slow  # seven programs with stick segments: ~6 min
+@pytest.mark.slow  # seven programs with stick segments: ~7 min
 @pytest.mark.parametrize("seed, name, mu_range", [(0, "slider_crank", (0.1, 0.5)), (1, "watt_sixbar", (0.1, 0.5)),
                                                   (2, "quick_return", (0.1, 0.5)), (3, "tangent_drive", (0.1, 0.5)),
                                                   (4, "triad_mechanism", (0.1, 0.5)), (3, "tangent_drive", (0.5, 1.3)),
@@ -585,7 +585,8 @@ def test_stick_slip_under_random_varying_drives_agrees_with_inverse_dynamics(see
         valid = np.asarray(sol.valid)
         t, q, w, dw = (np.asarray(v)[valid] for v in (sol.t, sol.q, sol.omega, sol.domega))
         held, applied = (w == 0.0) & (dw == 0.0), np.asarray(forcing(None, None, jnp.asarray(t)))
-        moving = ~held
+        # a jam's end state is where the friction loses its consistent solution: the motion up to it
+        moving = ~held & ~(jammed & (t == float(sol.t_final)))
         assert not jammed or np.any(moving)
         if np.any(moving):
             assert_moves_as_the_drive_accelerates_it(rough, q[moving], w[moving], dw[moving], t[moving], applied[moving])

@@ -62,6 +62,7 @@ class FieldArgs(eqx.Module):
     q0: Array
     user_signs: tuple | None
     rate_signs: Array | None = None
+    coeffs: object = None  # a stick segment's kinematic coefficients (its q stays; see frictional)
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
     nan_unassembled: bool = eqx.field(static=True, default=False)
@@ -139,7 +140,8 @@ class Frictional(NamedTuple):
     raw_slopes: Array
 
 
-def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None, *, iterate: bool = True) -> Frictional:
+def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_signs=None, *, iterate: bool = True,
+               coeffs=None) -> Frictional:
     """The reduction, its kinematics, dw/dt and the friction power of a model with
     friction in its joints: the reduced equation with the friction's generalized force
     sum_k u_k dphi_k/dq, u from ``solve_friction`` with the Coulomb signs
@@ -147,10 +149,19 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_s
     ``direction`` of motion (sign(w); 0: at rest, the direction of the frictionless
     generalized force, see :func:`rest_analysis`), and whether the friction has a
     consistent solution with those signs (see ``solve_friction``). ``iterate=False``:
-    Newton's method alone (batched analyses, see ``solve_friction``)."""
+    Newton's method alone (batched analyses, see ``solve_friction``). ``coeffs``: the
+    kinematic coefficients at y.q, where the caller has them (a stick segment, whose q stays:
+    its field and events then leave the position analysis out)."""
     # arrays: the nested jit below would take Python numbers as static and trace per value
-    return _frictional(model, jnp.asarray(t, dtype=float), y, jnp.asarray(direction, dtype=float), bridge, rate_signs,
-                       iterate)
+    t, direction = jnp.asarray(t, dtype=float), jnp.asarray(direction, dtype=float)
+    if coeffs is not None:
+        return _frictional_at(model, t, y, direction, coeffs, rate_signs, iterate)
+    return _frictional(model, t, y, direction, bridge, rate_signs, iterate)
+
+
+def kinematic_coefficients(model: Model, y: State, bridge: float = 0.0):
+    """The kinematic coefficients at y.q that :func:`frictional` reads (``coeffs``)."""
+    return branch_coefficients(model.mechanism, y.q, near=near(model, y), bridge=bridge)
 
 
 # A nested jit: a simulation with friction solves it in several places (the solver's stages,
@@ -158,8 +169,16 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_s
 # each trace costs ~0.4 s (XLA inlines it: the compiled program is unchanged).
 @jit
 def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs, iterate: bool) -> Frictional:
+    return _friction_analysis(model, t, y, direction, kinematic_coefficients(model, y, bridge), rate_signs, iterate)
+
+
+@jit
+def _frictional_at(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> Frictional:
+    return _friction_analysis(model, t, y, direction, coeffs, rate_signs, iterate)
+
+
+def _friction_analysis(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> Frictional:
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
     # statics) would otherwise make XLA compute each point apart (Watt six-bar RHS 4.2 -> 3.8 us)
     coeffs = eqx.tree_at(lambda c: c.stacked, coeffs, jax.lax.optimization_barrier(coeffs.stacked))
@@ -242,16 +261,17 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     return (at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)), (per_unit, dalpha)
 
 
-def rest_analysis(model: Model, t, y: State, bridge: float = 0.0):
+def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     """(dw/dt of the motion a mechanism at rest would start, the direction s of that motion
     (:func:`rest_side`), the elements' d phi_k/dq and d2 phi_k/dq2) at the state's q: what a
     segment of stick and slip starts from. It breaks away where s dw/dt > 0, with the
     friction of a motion in direction s; dw/dt is 0 where that friction has no consistent
-    solution (jammed). One friction solve: the other direction cannot start."""
+    solution (jammed). One friction solve: the other direction cannot start. ``coeffs``: see
+    :func:`frictional`."""
     # the signs as an array of zeros (read at the state): a simulation's right-hand side passes
     # an array there, so that both calls share one trace (~0.3 s of a first call)
     unset = jnp.zeros(len(frictions_of(model.loads)))
-    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset)
+    f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset, coeffs=coeffs)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
 
 

@@ -55,7 +55,7 @@ from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
+from ._field import FieldArgs, State, frictional, kinematic_coefficients, near, rest_analysis, start_kinematics, vector_field
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -72,10 +72,11 @@ def batch_settings(settings: Settings, loads) -> Settings:
     return settings._replace(segment_steps=BATCH_SEGMENT_STEPS) if frictions_of(loads) else settings
 
 
-def breakaway_margin(model: Model, t, y: State, bridge: float = 0.0):
+def breakaway_margin(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     """-s dw/dt of the only direction s that can start from rest (with that direction's
-    friction; 0 where it has no consistent solution): > 0 while the friction holds."""
-    alpha, side = rest_analysis(model, t, y, bridge)[:2]
+    friction; 0 where it has no consistent solution): > 0 while the friction holds.
+    ``coeffs``: the kinematic coefficients at y.q, where the caller has them."""
+    alpha, side = rest_analysis(model, t, y, bridge, coeffs)[:2]
     return -side * alpha
 
 
@@ -85,7 +86,16 @@ def _stuck_field(t, held, args):
     the loads move the margin in time (with a zero field alone the steps grew tenfold each,
     past any short pulse of load)."""
     y, _ = held
-    return jax.tree.map(jnp.zeros_like, y), breakaway_margin(args.model, t, y, args.bridge)
+    return jax.tree.map(jnp.zeros_like, y), breakaway_margin(args.model, t, y, args.bridge, args.coeffs)
+
+
+def held_kwargs(kwargs: dict, y: State) -> dict:
+    """A stick segment's diffeqsolve keywords: its field and events read the kinematic
+    coefficients at its q, computed once here (q stays), instead of a position analysis at
+    each of their call sites (the field and diffrax's three event sites)."""
+    args = kwargs["args"]
+    coeffs = kinematic_coefficients(args.model, y, args.bridge)
+    return kwargs | dict(args=eqx.tree_at(lambda a: a.coeffs, args, coeffs, is_leaf=lambda x: x is None))
 
 
 def _states_only(run):
@@ -116,7 +126,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
     def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
-        return [breakaway_margin(args.model, t, y, args.bridge)] + user_margins(settings, t, y, args)
+        return [breakaway_margin(args.model, t, y, args.bridge, args.coeffs)] + user_margins(settings, t, y, args)
 
     # read afresh at each step's end (not integrated: the direction that can start flips with the
     # frictionless force, and that direction's friction may gain or lose a consistent solution)
@@ -142,7 +152,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
         hold = lambda: _states_only(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
-            y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **kwargs))
+            y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **held_kwargs(kwargs, y)))
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
