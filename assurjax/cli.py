@@ -306,9 +306,9 @@ def _friction_lines(t, along: _Along) -> list[str]:
     lines.append(f"  peak |friction| (at the samples): {peaks}")
     locked = int(np.count_nonzero(~along.friction_ok))
     if locked:
-        lines.append(f"  the friction self-locks the mechanism (no consistent solution) at {locked} of {along.friction_ok.size} "
-                     "samples: the driving effort there is not a drive that gives the motion or just holds it "
-                     "(friction_ok in reactions.csv)")
+        lines.append(f"  the joint friction self-locks the mechanism at {locked} of {along.friction_ok.size} samples (no consistent "
+                     "friction for a motion that way: no drive moves it so): the driving effort and friction values there "
+                     "are not friction limits (friction_ok in reactions.csv)")
     return lines
 
 
@@ -327,11 +327,17 @@ def _print_peaks(peaks: dict, units: dict, scene):
     forces = [p for name, p in peaks.items() if name != "driving"]
     print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
     drive = peaks["driving"]
-    if _round_off(drive.value, max((p.value for p in forces), default=0.0), scene, units):
+    if _driving_is_round_off(peaks, scene, units):
         print(f"  driving effort: none needed (the loads alone drive this motion; largest value {drive.value:.1e} "
               f"{units['driving']} is round-off)")
     else:
         print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
+
+
+def _driving_is_round_off(peaks: dict, scene, units: dict) -> bool:
+    """Whether the peak driving effort is at the rounding level of the peak reactions."""
+    forces = [p.value for name, p in peaks.items() if name != "driving"]
+    return _round_off(peaks["driving"].value, max(forces, default=0.0), scene, units)
 
 
 def _round_off(driving: float, force: float, scene, units: dict) -> bool:
@@ -622,6 +628,9 @@ def cmd_reactions(args) -> int:
     fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), layout="constrained")
     viz.plot_reactions(sol.t, forces, ax=axes[0])
     viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
+    if _driving_is_round_off(peaks, scene, units):  # as the summary says: not magnified into a curve of noise
+        axes[1].set_ylim(-1.0, 1.0)
+        axes[1].set_title("driving effort needed: none (round-off)")
     if along.friction:
         viz.plot_time_histories(sol.t, {f"at {k}": -p for k, p in along.friction_power.items()}, ylabel="power lost (W)",
                                 ax=axes[2], title="power lost to friction")
