@@ -227,12 +227,13 @@ def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
     direction a motion from rest can take (:func:`rest_side` of the generalized force at
     w = 0), and the elements' d phi_k/dq and d2 phi_k/dq2 at the state's q. Whether it does
     start, the segment's own vector field tells (its first step stays at rest where the
-    friction holds it)."""
+    friction holds it). Also the kinematic coefficients at q, which a stick segment's field
+    and events read (:func:`frictional`'s ``coeffs``)."""
     mechanism = model.mechanism
-    coeffs = branch_coefficients(mechanism, y.q, near=near(model, y), bridge=bridge)
+    coeffs = kinematic_coefficients(model, y, bridge)
     red, _ = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, jnp.zeros_like(y.omega), t)
     rates, slopes, _ = _rates_and_slopes(mechanism, frictions_of(model.loads), coeffs)
-    return rest_side(red.force), rates, slopes
+    return rest_side(red.force), rates, slopes, coeffs
 
 
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):

@@ -55,7 +55,7 @@ from .._friction import frictions_of
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, kinematic_coefficients, near, rest_analysis, start_kinematics, vector_field
+from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -89,13 +89,11 @@ def _stuck_field(t, held, args):
     return jax.tree.map(jnp.zeros_like, y), breakaway_margin(args.model, t, y, args.bridge, args.coeffs)
 
 
-def held_kwargs(kwargs: dict, y: State) -> dict:
-    """A stick segment's diffeqsolve keywords: its field and events read the kinematic
-    coefficients at its q, computed once here (q stays), instead of a position analysis at
-    each of their call sites (the field and diffrax's three event sites)."""
-    args = kwargs["args"]
-    coeffs = kinematic_coefficients(args.model, y, args.bridge)
-    return kwargs | dict(args=eqx.tree_at(lambda a: a.coeffs, args, coeffs, is_leaf=lambda x: x is None))
+def _held(args: FieldArgs, coeffs) -> FieldArgs:
+    """A stick segment's arguments: held, q stays, so its field and events (diffrax's three
+    sites) read the kinematic coefficients of its start instead of each redoing the
+    position analysis."""
+    return eqx.tree_at(lambda a: a.coeffs, args, coeffs, is_leaf=lambda x: x is None)
 
 
 def _states_only(run):
@@ -133,7 +131,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck, step):
+    def segment(start, y, direction, signs, stuck, step, coeffs):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly)
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
@@ -152,14 +150,15 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
         hold = lambda: _states_only(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
-            y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0, **held_kwargs(kwargs, y)))
+            y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0,
+            **(kwargs | dict(args=_held(args, coeffs)))))
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
         start, y, previous, held, saved, filled, steps, result, event, failed, step, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the only direction it can start in; unless the last segment found it held
-        side, rates, slopes = start_kinematics(model, start, y, settings.bridge)
+        side, rates, slopes, coeffs = start_kinematics(model, start, y, settings.bridge)
         at_rest = y.omega == 0
         go = jnp.where(at_rest, jnp.where(held, 0.0, side), jnp.sign(y.omega))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
@@ -170,7 +169,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
-        run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step)
+        run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step, coeffs)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -203,7 +202,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         filled = filled | inside
         fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
         # a stick segment stopped by a user event (its margins are read only where there are any)
-        hold_code = hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, args)))] if holds and settings.events else NO_EVENT
+        hold_code = (hold_codes[jnp.argmin(jnp.stack(stuck_margins(end, y_end, _held(args, coeffs))))]
+                     if holds and settings.events else NO_EVENT)
         code = jnp.where(fired, jnp.where(stuck, hold_code, which_event(sol, slip_settings, args, last)), NO_EVENT)
         locked = ~stuck & (segment_event == LOCKUP)
         failed = jnp.where(locked, jnp.argmin(ok_end), failed) if settings.check_assembly else failed
