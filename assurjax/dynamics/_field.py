@@ -239,7 +239,8 @@ def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
 def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     """The reactions affine in the friction values u: (at u = 0, their K tangents), where
     u acts through its wrenches and through dw/dt = alpha0 + dalpha . u; and that part
-    through dw/dt (the reactions per unit dw/dt, dalpha: the consistency test). dw/dt enters the
+    through dw/dt (the reactions' K + 1 tangents, the first per unit dw/dt, and dalpha: the
+    consistency test; the tangents whole, see ``solve_friction``). dw/dt enters the
     statics as d'Alembert wrenches (-m dG/dq, -J dtheta/dq per unit), so all K + 1
     directions are wrenches on the kinematics at dw/dt = 0: none is a K-fold copy of the
     accelerations (in a simulation such a copy over 512 bytes makes XLA's CPU runtime
@@ -258,8 +259,7 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
 
     reactions0, basis = linearize_reactions(react, len(frictions) + 1)
     at_zero = jax.tree.map(lambda r, b: r + alpha0 * b[0], reactions0, basis)
-    per_unit = jax.tree.map(lambda b: b[0], basis)
-    return (at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)), (per_unit, dalpha)
+    return (at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)), (basis, dalpha)
 
 
 def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
