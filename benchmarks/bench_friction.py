@@ -8,7 +8,7 @@ state after another inside one program (as a simulation's steps call it: there e
 small operation is a call of its own, and a while loop's iterations cost more than their
 arithmetic); and per simulation (the user's call ``assurjax.simulate``: steps, time,
 time per step; and, on the driven press, the marginal cost of one more step, alone and
-per member of a batch of 16).
+per member of a batch of 16, and the kernel calls per step that explain it).
 
     python benchmarks/bench_friction.py            # writes results/friction.json
 """
@@ -16,10 +16,13 @@ per member of a batch of 16).
 from __future__ import annotations
 
 import argparse
+import glob
+import gzip
 import json
 import os
 import platform
 import sys
+import tempfile
 import time
 
 import jax
@@ -91,6 +94,29 @@ def marginal_per_step(scene, loads, t1=2.0, repeats=5, **options) -> dict:
     return dict(steps=[n_short, n_long], run_s=[short, long], us_per_step=1e6 * (long - short) / (n_long - n_short))
 
 
+def kernels_per_step(scene, loads, t1=0.2) -> dict:
+    """XLA's CPU kernel calls (fusions, copies, loops, conditionals: the runtime's thunks) per
+    integration step of one ``simulate()``, counted in profiler traces of warm calls: runs to
+    t1 and 2 t1, the difference in calls over the difference in steps (as
+    :func:`marginal_per_step`). A single run's step costs about its kernel calls times a few
+    tens of ns each (the arithmetic inside is small), and the count, unlike a time, is the
+    same on every run of the same program."""
+    runs = []
+    for t in (t1, 2 * t1):
+        kwargs = dict(loads=loads, stop=None, t1=t, samples=2)
+        steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))
+        with tempfile.TemporaryDirectory() as folder:
+            with jax.profiler.trace(folder, create_perfetto_trace=True):
+                jax.block_until_ready(assurjax.simulate(scene, **kwargs).q)
+            (path,) = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
+            with gzip.open(path) as f:
+                events = json.load(f)["traceEvents"]
+        # the compiled program's own events (not Python's, marked "$", nor the ends of async ones)
+        runs.append((steps, sum(1 for e in events if e.get("ph") == "X" and not e["name"].startswith(("$", "end:")))))
+    (n_short, short), (n_long, long) = runs
+    return dict(steps=[n_short, n_long], kernels=[short, long], per_step=(long - short) / (n_long - n_short))
+
+
 def batch_marginal_per_step(scene, loads, n=16) -> dict:
     """:func:`marginal_per_step` of a batch of n simulations (exact reduction), runs of 1 and 2 s."""
     starts = np.linspace(0.0, 6.0, n)
@@ -121,6 +147,8 @@ def main():
     case = dict(elements=len(press.loads) - len(plain), plain=marginal_per_step(press, plain),
                 friction=marginal_per_step(press, press.loads))
     case["step_ratio"] = case["friction"]["us_per_step"] / case["plain"]["us_per_step"]
+    case["kernels"] = dict(plain=kernels_per_step(press, plain), friction=kernels_per_step(press, press.loads))
+    case["kernel_ratio"] = case["kernels"]["friction"]["per_step"] / case["kernels"]["plain"]["per_step"]
     out["cases"]["press_marginal"] = case
     print("press_marginal", json.dumps(case, indent=1))
     # the same as a batch of 16 starts (a sweep): per member and step
