@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
@@ -92,7 +93,22 @@ class Table(eqx.Module):
         x = {"q": q, "omega": omega, "t": t}[self.variable]
         if self.period is not None:
             x = self.x[0] + jnp.mod(x - self.x[0], self.period)
-        return jnp.interp(x, self.x, self.values)
+        return _interp(x, self.x, self.values)
+
+
+SMALL_TABLE = 64  # up to this many points a table's interval is found by comparing with each point
+
+
+def _interp(x, xp, fp):
+    """``jnp.interp(x, xp, fp)`` (constant beyond the ends; the same formula), its interval
+    found without a loop: jnp.interp searches with a while loop, a call of its own at
+    every right-hand side."""
+    method = "compare_all" if xp.shape[0] <= SMALL_TABLE else "scan_unrolled"
+    i = jnp.clip(jnp.searchsorted(xp, x, side="right", method=method), 1, xp.shape[0] - 1)
+    dx, delta = xp[i] - xp[i - 1], x - xp[i - 1]
+    flat = jnp.abs(dx) <= np.spacing(np.finfo(xp.dtype).eps)  # no NaN gradient on a zero-length interval
+    f = jnp.where(flat, fp[i - 1], fp[i - 1] + (delta / jnp.where(flat, 1.0, dx)) * (fp[i] - fp[i - 1]))
+    return jnp.where(x < xp[0], fp[0], jnp.where(x > xp[-1], fp[-1], f))
 
 
 class Vector(eqx.Module):

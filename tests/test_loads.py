@@ -113,6 +113,29 @@ def test_driving_efforts():
     assert float(aj.driver_effort(mech, (), 0.0, 0.0)) == 0.0
 
 
+@pytest.mark.parametrize("n", [2, 7, 64, 65, 300])  # both of the interval searches (_loads.SMALL_TABLE)
+def test_table_interpolates_as_numpy_does(n):
+    """A Table against numpy's np.interp: inside, at and beyond its points (one repeated:
+    a jump), with its gradient finite everywhere and the slope of its interval inside."""
+    import jax
+
+    rng = np.random.default_rng(n)
+    x = np.sort(rng.uniform(-3.0, 3.0, n))
+    if n > 2:
+        x[n // 2] = x[n // 2 - 1]
+    values = rng.normal(size=n)
+    table = aj.Table(x, values)
+    at = np.concatenate([rng.uniform(-4.0, 4.0, 200), x, [x[0] - 1.0, x[-1] + 1.0]])
+    found = np.asarray(jax.jit(jax.vmap(lambda v: table(v, 0.0, 0.0)))(jnp.asarray(at)))
+    np.testing.assert_allclose(found, np.interp(at, x, values), rtol=0, atol=1e-14)
+    slopes = np.asarray(jax.vmap(jax.grad(lambda v: table(v, 0.0, 0.0)))(jnp.asarray(at)))
+    assert np.all(np.isfinite(slopes))
+    inside = at[:200][(at[:200] > x[0]) & (at[:200] < x[-1])]
+    k = np.searchsorted(x, inside, side="right")
+    expected = (values[k] - values[k - 1]) / (x[k] - x[k - 1])
+    np.testing.assert_allclose(slopes[:200][(at[:200] > x[0]) & (at[:200] < x[-1])], expected, rtol=1e-12)
+
+
 def test_unknown_point_or_link_is_a_clear_error(watt):
     from assurjax._loads import check_loads
 
