@@ -30,12 +30,14 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
+from ._kinematics import by_name
 from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
@@ -219,6 +221,39 @@ def _material_rate(x, dx, link, at):
     return terms[0] + terms[1], terms
 
 
+def stacked_rate_terms(mechanism: Mechanism, frictions, names):
+    """For many elements: stacked (x, dx) (the kinematic coefficients' arrays, rows named
+    by ``names``, see :class:`assurjax.Coefficients`) -> the elements' relative rates per
+    unit driving velocity (K,) and their terms (K, m), zero-padded (see
+    :meth:`AbstractFriction.rate_terms`). The revolutes' by gathering from the link angles,
+    the others element by element: a rate each was a call of its own (the strandbeest with
+    friction in its 73 joints: 146 calls per right-hand side, with the terms' sizes)."""
+    pairs, links = pairs_by_name(mechanism), {name: i for i, name in enumerate(names[1])}
+    revolute = [k for k, f in enumerate(frictions) if f.kind == "R"]
+    others = [k for k, f in enumerate(frictions) if f.kind != "R"]
+
+    def rows(side):  # link rows of the revolutes' on / by links; the ground's: a zero appended
+        return np.array([len(links) if link == GROUND else links[link]
+                         for link in (getattr(pairs[frictions[k].pair], side) for k in revolute)], dtype=int)
+
+    on, by, order = rows("on"), rows("by"), np.argsort(revolute + others)
+
+    def rate_terms(x, dx):
+        angles = jnp.concatenate([dx[2], jnp.zeros(1)])
+        terms, rates = jnp.stack([angles[on], angles[by]], axis=-1), angles[on] - angles[by]
+        if not others:
+            return rates, terms
+        x_named, dx_named = by_name(x, names), by_name(dx, names)
+        found = [frictions[k].rate_terms(mechanism, x_named, dx_named) for k in others]
+        width = max([terms.shape[1]] + [t.size for _, t in found])
+        padded = [jnp.pad(terms, ((0, 0), (0, width - terms.shape[1])))] + [
+            jnp.pad(t.ravel(), (0, width - t.size))[None] for _, t in found]
+        return (jnp.concatenate([rates, jnp.stack([r for r, _ in found])])[order],
+                jnp.concatenate(padded)[order])
+
+    return rate_terms
+
+
 def frictions_of(loads) -> tuple[AbstractFriction, ...]:
     """The loads that need the joint reactions (the friction elements)."""
     return tuple(load for load in loads if load.needs_reactions)
@@ -271,32 +306,34 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents); only the
     elements' own pairs are read.
 
-    For a few elements, element by element with u . basis as a chain of products and sums:
-    XLA fuses it with its neighbours, where a dot this small is a call of its own (~0.3 us
-    on a CPU, at each Newton step), and stacked arrays cost more per step (Watt six-bar
-    +12-14 %). For many, stacked, one dot and one vectorised formula: element by element
-    the program grows with K (the strandbeest with friction in its 73 joints: 333 s to a
-    first simulate() with chains over every pair, 35 s element by element, 22 s stacked)."""
+    For a few elements, element by element (the reactions by pair) with u . basis as a
+    chain of products and sums: XLA fuses it with its neighbours, where a dot this small is
+    a call of its own (~0.3 us on a CPU, at each Newton step), and stacked arrays cost more
+    per step (Watt six-bar +12-14 %). For many, stacked (the reactions come stacked at the
+    elements' pairs, :func:`linearize_reactions`), one dot and one vectorised formula:
+    element by element the program grows with K (the strandbeest with friction in its 73
+    joints: 333 s to a first simulate() with chains over every pair, 35 s element by
+    element, 22 s stacked)."""
     (forces0, couples0), (forces_b, couples_b) = reactions0, basis
-    k = len(frictions)
-    if k <= SUMMED_TERMS:
-        terms = [f.limit_terms(mechanism, kin) for f in frictions]
+    if len(frictions) > SUMMED_TERMS:  # already at the elements' pairs (see linearize_reactions)
+        terms = _stacked_terms(mechanism, kin, frictions)
+        return lambda u: limits(terms, _affine(forces0, forces_b, u), _affine(couples0, couples_b, u))
+    terms = [f.limit_terms(mechanism, kin) for f in frictions]
 
-        def coulomb(u):
-            return jnp.stack([limits(t, _affine(forces0[f.pair], forces_b[f.pair], u),
-                                     _affine(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
-                              for f, t in zip(frictions, terms)])
+    def coulomb(u):
+        return jnp.stack([limits(t, _affine(forces0[f.pair], forces_b[f.pair], u),
+                                 _affine(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
+                          for f, t in zip(frictions, terms)])
 
-        return coulomb
+    return coulomb
 
-    def at_elements(forces: dict, couples: dict):
-        force = jnp.stack([forces[f.pair] for f in frictions], axis=-2)
-        zero = jnp.zeros(force.shape[:-2])
-        return force, jnp.stack([couples.get(f.pair, zero) for f in frictions], axis=-1)
 
-    (force0, couple0), (force_b, couple_b) = at_elements(forces0, couples0), at_elements(forces_b, couples_b)
-    terms = _stacked_terms(mechanism, kin, frictions)
-    return lambda u: limits(terms, _affine(force0, force_b, u), _affine(couple0, couple_b, u))
+def at_elements(frictions, forces: dict, couples: dict) -> tuple[Array, Array]:
+    """The reactions at the elements' pairs, stacked: forces (..., K, 2), couples (..., K)
+    (0 on a revolute)."""
+    force = jnp.stack([forces[f.pair] for f in frictions], axis=-2)
+    zero = jnp.zeros(force.shape[:-2])
+    return force, jnp.stack([couples.get(f.pair, zero) for f in frictions], axis=-1)
 
 
 def _affine(value, tangents, u):
@@ -337,12 +374,15 @@ def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u)
                                                + ((s2 - s1) * inverse_length)[..., None] * d_couple)
         return out
 
+    if k > SUMMED_TERMS:  # stacked at the elements' pairs (see linearize_reactions); rows: the elements
+        def at_u(value, tangents, per_unit):  # (value at u (K, ...), tangents at a fixed acceleration (K, K, ...))
+            return _affine(value, tangents, u), jnp.moveaxis(tangents - jnp.multiply.outer(dalpha, per_unit), 0, 1)
+
+        force, couple = at_u(forces0, forces_b, forces_a), at_u(couples0, couples_b, couples_a)
+        return rows(_stacked_terms(mechanism, kin, frictions), *force, *couple)
     pairs = [(at_pair(forces0, forces_b, forces_a, f.pair), at_pair(couples0, couples_b, couples_a, f.pair))
              for f in frictions]
-    if k <= SUMMED_TERMS:
-        return jnp.stack([rows(f.limit_terms(mechanism, kin), *force, *couple) for f, (force, couple) in zip(frictions, pairs)])
-    stacked = [jnp.stack([pair[i][j] for pair in pairs]) for i in (0, 1) for j in (0, 1)]
-    return rows(_stacked_terms(mechanism, kin, frictions), *stacked)
+    return jnp.stack([rows(f.limit_terms(mechanism, kin), *force, *couple) for f, (force, couple) in zip(frictions, pairs)])
 
 
 def per_unit_acceleration(tangents):
@@ -381,11 +421,18 @@ FIXED_POINT_STEPS = 32
 CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_friction's robust_newton)
 
 
-def linearize_reactions(react, k: int):
-    """(reactions at u = 0, their K tangents) of ``react(u)`` -> (forces, couples), affine
-    in the K friction values u: one kinetostatic solve and one more per tangent."""
-    reactions0, linear = jax.linearize(react, jnp.zeros(k))
-    return reactions0, jax.vmap(linear)(jnp.eye(k))
+def linearize_reactions(react, frictions, directions: int):
+    """(reactions at v = 0, their tangents along the ``directions`` unit vectors) of
+    ``react(v)`` -> (forces, couples) by pair, affine in v (the friction values, and in the
+    forward dynamics dw/dt first): one kinetostatic solve and one more per tangent. For more
+    than SUMMED_TERMS ``frictions``, read at their pairs and stacked (:func:`at_elements`):
+    the sums made of them afterwards are then one operation each, where by pair they were one
+    each per pair (the strandbeest with friction in its 73 joints: 146 calls per right-hand side)."""
+    if len(frictions) > SUMMED_TERMS:
+        by_pair = react
+        react = lambda v: at_elements(frictions, *by_pair(v))  # noqa: E731
+    reactions0, linear = jax.linearize(react, jnp.zeros(directions))
+    return reactions0, jax.vmap(linear)(jnp.eye(directions))
 
 
 def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, inertial=None,

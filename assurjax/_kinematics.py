@@ -141,7 +141,7 @@ class Coefficients(eqx.Module):
 
     def named(self, order: int) -> tuple | None:
         """The order's (points, coms, angles) as dicts by name (leading batch axes kept)."""
-        return _by_name(self.stacked[order], self.names)
+        return by_name(self.stacked[order], self.names)
 
     def link_angles(self, order: int) -> dict | None:
         """The order's link angles (or their derivatives) alone as a dict by link name."""
@@ -159,7 +159,7 @@ class Coefficients(eqx.Module):
             vel = jax.tree.map(lambda d: d * omega, dx)
         if alpha is not None:
             acc = jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
-        named = lambda arrays: (None, None, None) if arrays is None else _by_name(arrays, self.names)  # noqa: E731
+        named = lambda arrays: (None, None, None) if arrays is None else by_name(arrays, self.names)  # noqa: E731
         (points, coms, angles), v, a = named(x), named(vel), named(acc)
         return Kinematics(
             q=self.q, omega=omega, alpha=jnp.zeros_like(self.q) if alpha is None else jnp.asarray(alpha, dtype=float),
@@ -170,7 +170,7 @@ class Coefficients(eqx.Module):
         )
 
 
-def _by_name(arrays, names) -> tuple | None:
+def by_name(arrays, names) -> tuple | None:
     """(points (..., P, 2), coms (..., L, 2), angles (..., L)) as three dicts by name."""
     if arrays is None:
         return None

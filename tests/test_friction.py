@@ -708,7 +708,7 @@ def _closed_form_solve(slider):
 
     def solve(a, b):
         react = lambda u: ({"O": jnp.stack([a + b * u[0], 0.0])}, {})  # noqa: E731
-        return solve_friction(slider.mechanism, (element,), linearize_reactions(react, 1), None, jnp.zeros(1), jnp.ones(1), 0.0)
+        return solve_friction(slider.mechanism, (element,), linearize_reactions(react, (element,), 1), None, jnp.zeros(1), jnp.ones(1), 0.0)
 
     return solve
 
@@ -952,6 +952,39 @@ def test_agrees_with_the_joint_based_reference(case):
     np.testing.assert_allclose(r.driving, drive(times[moving]) if in_time else drive, atol=1e-7)
     if in_time:
         assert np.count_nonzero(np.diff(expected.stuck.astype(int)) == 1) == 2  # held twice (and released)
+
+
+def test_many_elements_take_the_stacked_path_to_the_same_friction():
+    """Past SUMMED_TERMS elements the friction takes its stacked path (the reactions stacked
+    at the elements' pairs, the revolutes' rates gathered from the link angles, the prismatic
+    pair's element by element, put back in order): the slider-crank's friction split into
+    three elements per pair (K = 12) against one element per pair (K = 4, element by element)
+    at states moving either way and at rest: the same dw/dt and friction power to
+    round-off, each element's rate and slope that of its pair."""
+    import joint_reference_friction as jrf
+    from assurjax._friction import SUMMED_TERMS
+    from assurjax.dynamics._field import State, frictional
+
+    scene = aj.load_scene("slider_crank")
+    q = jnp.linspace(0.2, 6.0, 8)
+    w = jnp.array([1.5, -2.0, 0.7, -0.3, 3.0, -1.0, 0.0, 2.0])
+
+    def analysis(parts, order):
+        frictions = _package_frictions(scene.mechanism, jrf.SLIDER_CRANK_FRICTION, parts)[::order]
+        model = aj.Model(scene.mechanism, scene.gravity, tuple(scene.loads) + frictions)
+        f = jax.jit(jax.vmap(lambda q, w: frictional(model, 0.0, State(q, w), jnp.where(w != 0, jnp.sign(w), 1.0))))(q, w)
+        return len(frictions), f
+
+    # the split elements in reverse: the prismatic pair's first, its revolutes' after
+    (k, one), (k_split, split) = analysis(1, 1), analysis(3, -1)
+    assert k <= SUMMED_TERMS < k_split
+    assert np.all(one.consistent) and np.all(split.consistent)
+    np.testing.assert_allclose(split.alpha, one.alpha, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(split.power, one.power, rtol=1e-12, atol=1e-12)
+    for name in ("rates", "slopes", "raw_slopes"):
+        per_pair = getattr(split, name)[:, ::-1].reshape(-1, k, 3)
+        np.testing.assert_allclose(per_pair, np.repeat(getattr(one, name)[..., None], 3, -1), rtol=1e-15, atol=1e-15,
+                                   err_msg=name)
 
 
 def test_inverse_dynamics_of_a_prescribed_motion_with_friction():

@@ -209,7 +209,7 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     def react(u):  # every pair's reaction, for the friction law
         return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[:2]
 
-    linear = linearize_reactions(react, len(frictions))
+    linear = linearize_reactions(react, frictions, len(frictions))
 
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
         u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)

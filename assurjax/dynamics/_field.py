@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction, without_roundoff
+from .._friction import (SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction,
+                         stacked_rate_terms, without_roundoff)
 from .._jit import jit
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -211,14 +212,20 @@ def _rates_and_slopes(mechanism, frictions, coeffs):
     exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
     has neither a Coulomb sign nor a slope that would give it one just ahead); and the
     slopes as computed."""
-    def rates_at(x, dx):
-        found = [f.rate_terms(mechanism, x, dx) for f in frictions]
-        return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
+    if len(frictions) > SUMMED_TERMS:  # one array of terms: one sum, where one per element was a call each
+        rates_at, inputs = stacked_rate_terms(mechanism, frictions, coeffs.names), coeffs.stacked
+        size = lambda terms: jnp.sum(jnp.abs(terms), axis=-1)  # noqa: E731
+    else:
+        def rates_at(x, dx):
+            found = [f.rate_terms(mechanism, x, dx) for f in frictions]
+            return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
+
+        inputs = (coeffs.x, coeffs.dx, coeffs.d2x)
+        size = lambda terms: jnp.stack([jnp.sum(jnp.abs(t)) for t in terms])  # noqa: E731
 
     # d/dq of the rates and of their terms: along q, x moves by dx and dx by d2x (at a dead
     # point of a sub-chain its rates and their terms vanish together, the slopes' terms do not)
-    (rates, terms), (slopes, dterms) = jax.jvp(rates_at, (coeffs.x, coeffs.dx), (coeffs.dx, coeffs.d2x))
-    size = lambda terms: jnp.stack([jnp.sum(jnp.abs(t)) for t in terms])  # noqa: E731
+    (rates, terms), (slopes, dterms) = jax.jvp(rates_at, inputs[:2], inputs[1:])
     return without_roundoff(rates, size(terms)), without_roundoff(slopes, size(dterms)), slopes
 
 
@@ -257,7 +264,7 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
             extra[name] = (f0 + v[0] * f, m0 + v[0] * m)
         return from_kinematics(model, base, t, extra=extra)[:2]
 
-    reactions0, basis = linearize_reactions(react, len(frictions) + 1)
+    reactions0, basis = linearize_reactions(react, frictions, len(frictions) + 1)
     at_zero = jax.tree.map(lambda r, b: r + alpha0 * b[0], reactions0, basis)
     return (at_zero, jax.tree.map(lambda b: b[1:] + jnp.multiply.outer(dalpha, b[0]), basis)), (basis, dalpha)
 
