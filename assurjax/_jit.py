@@ -4,8 +4,9 @@ compiler options chosen by measurement.
 XLA's CPU backend has two code generators for fused elementwise loops; the newer
 ("fusion emitters") compiles this package's programs -- thousands of scalar operations
 of the position analysis and its derivatives -- more slowly, and runs them no faster
-(vmapped simulations 2.5x slower). Measured by ``benchmarks/bench_compile_options.py``
-(results/compile_options.json). The options apply to these programs only: the rest of
+(vmapped simulations 2.5x slower); and it hands larger operations to a library
+(YNNPACK), whose calls cost more than these programs' small arrays gain. Measured by
+``benchmarks/bench_compile_options.py`` (results/compile_options.json). The options apply to these programs only: the rest of
 a user's JAX session is left as it is.
 """
 
@@ -21,7 +22,18 @@ import jax
 import numpy as np
 from jax._src import core as _jax_core
 
-COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+try:
+    from jax._src.lib import version as _jaxlib_version
+except ImportError:  # a JAX without it: take it as older than the library fusions below
+    _jaxlib_version = (0, 0, 0)
+
+# From jaxlib 0.8.1 on, XLA's CPU backend hands some larger elementwise operations and
+# reductions to the YNNPACK library, each a call costing ~10-20 us more than XLA's own loop:
+# the friction law's (K, K, 2) arrays in a mechanism with many friction elements (the
+# strandbeest with friction in its 73 joints: one step 1.2-1.3 -> 1.0 ms). Turned off (an
+# empty list of library fusion kinds); before 0.8.1 there is no such option.
+NO_LIBRARY_FUSIONS = {"xla_cpu_experimental_ynn_fusion_type": ""} if tuple(_jaxlib_version) >= (0, 8, 1) else {}
+COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False, **NO_LIBRARY_FUSIONS}
 
 # Machine code optimized less (LLVM at -O0: fast instruction selection, no IR passes): XLA's
 # code generation of the L-BFGS synthesis program 2.0 -> 0.7 s, its runs 4-5x slower. For
