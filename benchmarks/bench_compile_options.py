@@ -80,7 +80,8 @@ def measure(fn, args, options):
 
 def max_difference(*outs) -> float:
     """Largest difference between the floating-point outputs of the first compile and the others."""
-    pairs = [(np.asarray(x), np.asarray(y)) for other in outs[1:] for x, y in zip(jax.tree.leaves(outs[0]), jax.tree.leaves(other))]
+    first = jax.tree.leaves(outs[0])
+    pairs = [(np.asarray(x), np.asarray(y)) for other in outs[1:] for x, y in zip(first, jax.tree.leaves(other))]
     return float(max(np.max(np.abs(x - y), initial=0.0) for x, y in pairs if np.issubdtype(x.dtype, np.floating)))
 
 

@@ -708,7 +708,8 @@ def _closed_form_solve(slider):
 
     def solve(a, b):
         react = lambda u: ({"O": jnp.stack([a + b * u[0], 0.0])}, {})  # noqa: E731
-        return solve_friction(slider.mechanism, (element,), linearize_reactions(react, (element,), 1), None, jnp.zeros(1), jnp.ones(1), 0.0)
+        linear = linearize_reactions(react, (element,), 1)
+        return solve_friction(slider.mechanism, (element,), linear, None, jnp.zeros(1), jnp.ones(1), 0.0)
 
     return solve
 
