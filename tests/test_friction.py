@@ -922,7 +922,8 @@ def _reference_case(case):
                                   pytest.param("slider_driven", marks=pytest.mark.slow)])
 def test_agrees_with_the_joint_based_reference(case):
     """Friction in every joint (viscous terms too), motion through rests, sticking and sign
-    reversals of the relative rates: q within 1e-8 rad (m) of the reference. Split: the
+    reversals of the relative rates: q within 1e-8 rad (m) of the reference, and dw/dt of the
+    output samples (their own friction solve) within 1e-7 relative. Split: the
     slider-crank's friction shared by three elements per pair (K = 12, past SUMMED_TERMS:
     the friction law takes its stacked path). Quick-return: the RPR's block slides on the
     turning rocker (the pair's guide moves), under a constant drive; slider-driven: the
@@ -946,6 +947,7 @@ def test_agrees_with_the_joint_based_reference(case):
     np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
     np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
+    np.testing.assert_allclose(sol.domega[1:], expected.wdot[1:], rtol=1e-7, atol=1e-6)  # the outputs' own friction solve
     # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is
     # the drive applied (a Drive load is the effort asked for; at rest the static friction is not set by the motion)
     moving = ~expected.stuck & (expected.w != 0.0)
