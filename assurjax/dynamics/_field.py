@@ -320,10 +320,8 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
     # moving, the friction of its direction; at rest, of the direction it would break away in.
-    # One solve per sample, the outputs' analysis batched: Newton's method alone (see
-    # solve_friction) up to SUMMED_TERMS elements; past them the iteration, where Newton's K x K
-    # Jacobian and LU dominate (the strandbeest with friction in its 73 joints: ~0.43 -> ~0.11 ms
-    # a sample, a 201-sample run 148-156 -> 88-93 ms; 6 of 6 fresh processes ran without a stall)
+    # One solve per sample, batched: Newton's method alone up to SUMMED_TERMS elements (see
+    # solve_friction); past them the iteration, 4x cheaper than Newton's K x K Jacobian and LU
     many = len(frictions_of(model.loads)) > SUMMED_TERMS
     f = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=many)
     red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
