@@ -121,8 +121,7 @@ class JointFriction(AbstractFriction):
 
     def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
-        on, by = _angle(dx, p.on), _angle(dx, p.by)
-        return on - by, jnp.stack([on, by])
+        return _relative_turn(_angle(dx, p.on), _angle(dx, p.by))
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
@@ -204,6 +203,12 @@ def without_roundoff(rate, size):
     return rate + jax.lax.stop_gradient(exact - rate)
 
 
+def _relative_turn(on, by):
+    """A revolute's relative rate d(theta_on - theta_by)/dq and its terms (..., 2), from its
+    links' dtheta/dq (scalars, or one per element: see :func:`stacked_rate_terms`)."""
+    return on - by, jnp.stack([on, by], axis=-1)
+
+
 def _angle(dx, link):
     return jnp.zeros(()) if link == GROUND else dx[2][link]
 
@@ -240,7 +245,7 @@ def stacked_rate_terms(mechanism: Mechanism, frictions, names):
 
     def rate_terms(x, dx):
         angles = jnp.concatenate([dx[2], jnp.zeros(1)])
-        terms, rates = jnp.stack([angles[on], angles[by]], axis=-1), angles[on] - angles[by]
+        rates, terms = _relative_turn(angles[on], angles[by])
         if not others:
             return rates, terms
         x_named, dx_named = by_name(x, names), by_name(dx, names)
@@ -428,10 +433,8 @@ def linearize_reactions(react, frictions, directions: int):
     than SUMMED_TERMS ``frictions``, read at their pairs and stacked (:func:`at_elements`):
     the sums made of them afterwards are then one operation each, where by pair they were one
     each per pair (the strandbeest with friction in its 73 joints: 146 calls per right-hand side)."""
-    if len(frictions) > SUMMED_TERMS:
-        by_pair = react
-        react = lambda v: at_elements(frictions, *by_pair(v))  # noqa: E731
-    reactions0, linear = jax.linearize(react, jnp.zeros(directions))
+    read = (lambda v: at_elements(frictions, *react(v))) if len(frictions) > SUMMED_TERMS else react
+    reactions0, linear = jax.linearize(read, jnp.zeros(directions))
     return reactions0, jax.vmap(linear)(jnp.eye(directions))
 
 

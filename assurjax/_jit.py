@@ -6,8 +6,8 @@ XLA's CPU backend has two code generators for fused elementwise loops; the newer
 of the position analysis and its derivatives -- more slowly, and runs them no faster
 (vmapped simulations 2.5x slower); and it hands larger operations to a library
 (YNNPACK), whose calls cost more than these programs' small arrays gain. Measured by
-``benchmarks/bench_compile_options.py`` (results/compile_options.json). The options apply to these programs only: the rest of
-a user's JAX session is left as it is.
+``benchmarks/bench_compile_options.py`` (results/compile_options.json). The options apply
+to these programs only: the rest of a user's JAX session is left as it is.
 """
 
 from __future__ import annotations

@@ -316,14 +316,14 @@ def acceleration_at(model: Model, t, y: State):
 def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
     """(:func:`acceleration_at`, the reduction and the Kinematics it was computed on): one
     analysis for dw/dt and the energies of an output sample."""
-    if not frictions_of(model.loads):
+    frictions = frictions_of(model.loads)
+    if not frictions:
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
     # moving, the friction of its direction; at rest, of the direction it would break away in.
     # One solve per sample, batched: Newton's method alone up to SUMMED_TERMS elements (see
     # solve_friction); past them the iteration, 4x cheaper than Newton's K x K Jacobian and LU
-    many = len(frictions_of(model.loads)) > SUMMED_TERMS
-    f = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=many)
+    f = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=len(frictions) > SUMMED_TERMS)
     red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
     at_rest = jnp.where(rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0, a, 0.0)
     return jnp.where(y.omega != 0, a, at_rest), red, kin
