@@ -10,6 +10,7 @@ from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -332,15 +333,21 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
                                  **kwargs)
 
 
-def lockup_controller(settings: Settings) -> diffrax.AbstractStepSizeController:
+def lockup_controller(settings: Settings, packing=None) -> diffrax.AbstractStepSizeController:
     """The step-size controller of :func:`controller_for` for the reduced link's state
     when its vector field may turn NaN (where a group cannot assemble, a friction jam, a
     load): it rejects the steps that meet NaN and closes in on where it starts
-    (:class:`LockupController`, :class:`ConstantStepsUntilLockup`)."""
+    (:class:`LockupController`, :class:`ConstantStepsUntilLockup`). ``packing``: the
+    ``dynamics._packed.Packing`` of a state stepped packed into one array (None: as it is)."""
     if not adaptive(settings):
-        return ConstantStepsUntilLockup()
+        return ConstantStepsUntilLockup(packing=packing)
     return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
-                            norm=_finite_norm)
+                            norm=FiniteNorm(packing), packing=packing)
+
+
+def _viewed(packing, y):
+    """A state as the controllers read it: unpacked where it was packed (see :func:`lockup_controller`)."""
+    return y if packing is None else packing.view(y)
 
 
 def _met_unassembled(y1_candidate, y_error):
@@ -371,9 +378,12 @@ class LockupController(diffrax.PIDController):
     mechanism, see ``_field._rates``) is rejected and ends the solve the same way, before
     any accepted step: ``_stick`` reads that as held."""
 
+    packing: object = None
+
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        y0, y1_candidate = _viewed(self.packing, y0), _viewed(self.packing, y1_candidate)
         located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
         held = _held_at_rest(y0, y1_candidate)
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
@@ -394,9 +404,12 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
     control the steps may find no sane motion near a limit position: halving ends 30
     times below dt0."""
 
+    packing: object = None
+
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         _, _, grid_next, jump, grid_state, _ = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        y0, y1_candidate = _viewed(self.packing, y0), _viewed(self.packing, y1_candidate)
         met = _met_unassembled(y1_candidate, y_error)
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
@@ -410,11 +423,17 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         return ~met & ~held, jnp.where(met, t0, t1), next_t1, jump, state, located
 
 
-def _finite_norm(y) -> Array:
+class FiniteNorm(eqx.Module):
     """diffrax's RMS norm, infinite where the error is not finite (NaN stages: rejected).
     The friction elements' integrated rates (``State.friction_rates``) only mark where a
-    segment ends: they do not steer the steps (mu = 0 steps as without friction)."""
-    if getattr(y, "friction_rates", None) is not None:
-        y = y._replace(friction_rates=None)
-    n = optx.rms_norm(y)
-    return jnp.where(jnp.isfinite(n), n, jnp.inf)
+    segment ends: they do not steer the steps (mu = 0 steps as without friction).
+    ``packing``: as :func:`lockup_controller`'s."""
+
+    packing: object = None
+
+    def __call__(self, y) -> Array:
+        y = _viewed(self.packing, y)
+        if getattr(y, "friction_rates", None) is not None:
+            y = y._replace(friction_rates=None)
+        n = optx.rms_norm(y)
+        return jnp.where(jnp.isfinite(n), n, jnp.inf)

@@ -28,6 +28,7 @@ from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
+from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
@@ -156,21 +157,23 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     checked = settings.check_assembly and table is None
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs,
                      bridge=settings.bridge, nan_unassembled=checked)
+    packing = packing_of(y0)
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(vector_field),
+        packed_term(packing, vector_field),
         solver_for(settings),
         t0=t0,
         t1=t1,
         dt0=_initial_step(settings, dt),
-        y0=y0,
+        y0=packing.pack(y0),
         args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
-        stepsize_controller=lockup_controller(settings),
-        event=stop_event(settings),
+        stepsize_controller=lockup_controller(settings, packing),
+        event=packed_event(packing, stop_event(settings)),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),
         throw=False,
     )
+    sol = unpacked(packing, sol)
     return _package(model, sol, ts, args, settings, y0)
 
 
@@ -201,12 +204,13 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     unphysically."""
     check_steps(settings)
     tabulated = table is not None
-    term = diffrax.ODETerm(vector_field)
+    y0 = State(q0, omega0)
+    packing = packing_of(y0)
+    term = packed_term(packing, vector_field)
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None,
                      nan_unassembled=settings.check_assembly and not tabulated)
     solver = solver_for(settings)
     h = (t1 - t0) / settings.steps
-    y0 = State(q0, omega0)
 
     def step(carry, k):
         y, state = carry
@@ -214,7 +218,9 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
         y1, _, _, state, _ = solver.step(term, t, t + h, y, args, state, False)
         return (y1, state), y1
 
-    _, ys = jax.lax.scan(step, (y0, solver.init(term, t0, t0 + h, y0, args)), jnp.arange(settings.steps))
+    z0 = packing.pack(y0)
+    _, zs = jax.lax.scan(step, (z0, solver.init(term, t0, t0 + h, z0, args)), jnp.arange(settings.steps))
+    ys = packing.unpack(zs)
     t = t0 + h * jnp.arange(settings.steps + 1)
     q, w = jnp.concatenate([q0[None], ys.q]), jnp.concatenate([omega0[None], ys.omega])
     n = settings.steps

@@ -56,6 +56,7 @@ from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
+from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, no_outputs, replaced
@@ -144,9 +145,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         dt0 = step if chunk is not None else None if dt is None else jnp.asarray(dt, dtype=float)
         kwargs = dict(t0=start, t1=t1, args=args, saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
-        slip = lambda: diffrax.diffeqsolve(  # noqa: E731
-            diffrax.ODETerm(vector_field), solver, stepsize_controller=lockup_controller(settings), event=slip_event,
-            y0=y, dt0=dt0, **kwargs)
+        slip = lambda: unpacked(packing, diffrax.diffeqsolve(  # noqa: E731
+            packed_term(packing, vector_field), solver, stepsize_controller=lockup_controller(settings, packing),
+            event=packed_event(packing, slip_event), y0=packing.pack(y), dt0=dt0, **kwargs))
         # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
         hold = lambda: _states_only(diffrax.diffeqsolve(  # noqa: E731
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
@@ -226,6 +227,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return ~carry[-1]
 
     y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
+    packing = packing_of(y0)
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
