@@ -1,18 +1,18 @@
-"""The integrated state as one array where diffrax steps it.
+"""The integrated state's scalars as one array where diffrax steps it.
 
-diffrax steps a PyTree leaf by leaf: each leaf's share of a stage (its combination of
-the stages, its slot in their buffer, its part of the error estimate) is an operation of
-its own, and on a CPU XLA runs each as a call of its own (~20 ns each, a few per leaf and
-stage). The reduced link's state is a handful of scalars and short vectors (q, w, the
-quadratures, the tracked angles, the friction elements' rates), so it goes to diffrax
-packed into one array, and is unpacked wherever the package reads it (the vector field,
-the events, the step-size controller, the saved states). The press's step: 318 -> 288
-calls without friction, 778 -> 673 with it (benchmarks/README.md).
+diffrax steps a PyTree leaf by leaf: each leaf's share of a stage (its combination of the
+stages, its slot in their buffer, its part of the error estimate) is an operation of its
+own, and on a CPU XLA runs each as a call of its own (~20 ns each, a few per leaf and
+stage), where a scalar's arithmetic is a few flops. So the state's scalars (q, w, and the
+work and dissipated work when asked for) go to diffrax as one array, the vectors (the
+tracked angles, the friction elements' rates) as they are, and the state is unpacked
+wherever the package reads it (the vector field, the events, the step-size controller, the
+saved states). The vectors stay apart: in one array with the scalars, the stages' buffer
+of a mechanism with 7 friction elements passed 512 bytes, over which XLA's CPU runtime
+runs a loop's calls across threads (the Watt six-bar with friction: 3.4 -> 5.8 ms a run).
 """
 
 from __future__ import annotations
-
-import math
 
 import diffrax
 import equinox as eqx
@@ -23,40 +23,41 @@ from jaxtyping import Array
 from ._field import State
 
 
+class Packed(eqx.Module):
+    """A state as diffrax steps it: its scalars stacked (..., n), its other fields as
+    they are (None where absent), see :class:`Packing`."""
+
+    scalars: Array
+    vectors: tuple | None
+
+
 class Packing(eqx.Module):
-    """The layout of a :class:`State` packed into one array: each field's shape (None
-    where the field is absent), in the order of the fields."""
+    """Which of a :class:`State`'s fields are scalars (packed together), which vectors
+    (kept apart) and which absent: ``kinds`` per field, in the order of the fields."""
 
-    shapes: tuple = eqx.field(static=True)
+    kinds: tuple = eqx.field(static=True)  # "scalar", "vector" or None
 
-    @property
-    def size(self) -> int:
-        return sum(math.prod(shape) for shape in self.shapes if shape is not None)
+    def pack(self, y: State) -> Packed:
+        scalars = [v for v, kind in zip(y, self.kinds) if kind == "scalar"]
+        # None, not (), without vectors: diffrax's backsolve cannot pass an empty tuple (design notes)
+        vectors = tuple(v for v, kind in zip(y, self.kinds) if kind == "vector") or None
+        return Packed(jnp.stack(scalars, axis=-1), vectors)
 
-    def pack(self, y: State) -> Array:
-        """One state -> its array (size,)."""
-        return jnp.concatenate([jnp.ravel(v) for v in y if v is not None])
-
-    def unpack(self, z: Array) -> State:
-        """An array (..., size) -> its state(s), any leading axes kept (saved states)."""
-        lead, start, fields = z.shape[:-1], 0, []
-        for shape in self.shapes:
-            if shape is None:
-                fields.append(None)
-                continue
-            n = math.prod(shape)
-            fields.append(z[..., start:start + n].reshape(lead + shape))
-            start += n
+    def unpack(self, z: Packed) -> State:
+        """A packed state, or a stack of them (saved states: leading axes kept), as a State."""
+        scalars, vectors, fields = iter(range(z.scalars.shape[-1])), iter(z.vectors or ()), []
+        for kind in self.kinds:
+            fields.append(z.scalars[..., next(scalars)] if kind == "scalar" else next(vectors) if kind == "vector" else None)
         return State(*fields)
 
     def view(self, y):
-        """``y`` as a State where it is a packed state (or a stack of them); anything else
-        as it is (the augmented state of a backward solve, which the controllers also step)."""
-        return self.unpack(y) if isinstance(y, jax.Array) and y.ndim >= 1 and y.shape[-1] == self.size else y
+        """``y`` as a State where it is packed; anything else as it is (the augmented state
+        of a backward solve, which the controllers also step)."""
+        return self.unpack(y) if isinstance(y, Packed) else y
 
 
 def packing_of(y: State) -> Packing:
-    return Packing(tuple(None if v is None else tuple(jnp.shape(v)) for v in y))
+    return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else "vector" for v in y))
 
 
 def packed_term(packing: Packing, field) -> diffrax.ODETerm:
