@@ -19,6 +19,7 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._values import MAGNITUDE_LIMIT, all_finite, concrete, value_problem
+from ._packed import Packing
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -333,12 +334,13 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
                                  **kwargs)
 
 
-def lockup_controller(settings: Settings, packing=None) -> diffrax.AbstractStepSizeController:
+def lockup_controller(settings: Settings, packing: Packing | None = None) -> diffrax.AbstractStepSizeController:
     """The step-size controller of :func:`controller_for` for the reduced link's state
     when its vector field may turn NaN (where a group cannot assemble, a friction jam, a
     load): it rejects the steps that meet NaN and closes in on where it starts
     (:class:`LockupController`, :class:`ConstantStepsUntilLockup`). ``packing``: the
-    ``dynamics._packed.Packing`` of a state stepped packed into one array (None: as it is)."""
+    :class:`Packing` of a state whose scalars diffrax steps as one array (None:
+    a state stepped as it is)."""
     if not adaptive(settings):
         return ConstantStepsUntilLockup(packing=packing)
     return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
@@ -378,7 +380,7 @@ class LockupController(diffrax.PIDController):
     mechanism, see ``_field._rates``) is rejected and ends the solve the same way, before
     any accepted step: ``_stick`` reads that as held."""
 
-    packing: object = None
+    packing: Packing | None = None
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
@@ -404,7 +406,7 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
     control the steps may find no sane motion near a limit position: halving ends 30
     times below dt0."""
 
-    packing: object = None
+    packing: Packing | None = None
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         _, _, grid_next, jump, grid_state, _ = super().adapt_step_size(
@@ -429,7 +431,7 @@ class FiniteNorm(eqx.Module):
     segment ends: they do not steer the steps (mu = 0 steps as without friction).
     ``packing``: as :func:`lockup_controller`'s."""
 
-    packing: object = None
+    packing: Packing | None = None
 
     def __call__(self, y) -> Array:
         y = _viewed(self.packing, y)
