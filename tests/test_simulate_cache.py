@@ -170,3 +170,21 @@ def test_simulate_agrees_with_the_single_program_of_simulate_core():
     closed = [ref.watt_sixbar_points(q)[0] for q in sol.q]  # the end checks' rows must not shift the outputs
     for point in ("A", "B", "E"):
         np.testing.assert_allclose(sol.points[point], np.array([c[point] for c in closed]), rtol=0, atol=1e-12)
+
+
+def test_a_simulation_not_jitted_as_a_whole_compiles_once():
+    """simulate_core (here through final_state) called outside any jit, as jax.grad(final_state)
+    is: diffrax's own jit must find its program from the second call on. Its term and
+    events are Modules, equal from call to call; closures made at each call compiled the
+    whole simulation again at every call (~14 s per gradient of the Watt six-bar)."""
+    scene = aj.load_scene("watt_sixbar")
+    COMPILES.counts, COMPILES.active = {}, True
+    try:
+        first = aj.synthesis.final_state(scene, 0.05, samples=2)
+        after_first = dict(COMPILES.counts)
+        second = aj.synthesis.final_state(with_gravity([0.0, -3.0])(scene), 0.05, samples=2)
+    finally:
+        COMPILES.active = False
+    assert after_first.get("jit(diffeqsolve)") == 1, after_first
+    assert COMPILES.counts["jit(diffeqsolve)"] == 1, "the second call compiled the simulation again"
+    assert float(first[0]) != float(second[0])

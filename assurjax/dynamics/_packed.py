@@ -10,6 +10,10 @@ wherever the package reads it (the vector field, the events, the step-size contr
 saved states). The vectors stay apart: in one array with the scalars, the stages' buffer
 of a mechanism with 7 friction elements passed 512 bytes, over which XLA's CPU runtime
 runs a loop's calls across threads (the Watt six-bar with friction: 3.4 -> 5.8 ms a run).
+
+At the same boundary diffrax gets the vector field's arguments as their leaves
+(:func:`flattened`: no empty tuple for its backsolve) and the term and events as Modules
+(:class:`_OnState`: the same callables from call to call, for its jit's cache).
 """
 
 from __future__ import annotations
@@ -60,20 +64,60 @@ def packing_of(y: State) -> Packing:
     return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else "vector" for v in y))
 
 
-def packed_term(packing: Packing, field) -> diffrax.ODETerm:
-    """diffrax's term of ``field(t, State, args) -> State`` on packed states."""
-    return diffrax.ODETerm(lambda t, z, args: packing.pack(field(t, packing.unpack(z), args)))
+class Rebuilt(eqx.Module):
+    """The args from their leaves (see :func:`flattened`)."""
+
+    treedef: object = eqx.field(static=True)
+
+    def __call__(self, leaves):
+        return jax.tree.unflatten(self.treedef, leaves)
 
 
-def packed_event(packing: Packing, event: diffrax.Event | None) -> diffrax.Event | None:
-    """``event``, its conditions read on the unpacked state."""
+def flattened(args) -> tuple[list, Rebuilt]:
+    """(diffrax's args: the leaves of ``args``, what rebuilds ``args`` from them). diffrax's
+    backsolve stops the gradient of its augmented state, which holds the args, with
+    ``eqx.tree_at``, and that cannot pass an empty tuple (a Model without loads failed
+    there); a list of leaves holds none."""
+    leaves, treedef = jax.tree.flatten(args)
+    return leaves, Rebuilt(treedef)
+
+
+class _OnState(eqx.Module):
+    """``fn(t, State, args, ...)`` called by diffrax with a packed state (and the args'
+    leaves where ``rebuild`` is given). Modules, not closures: diffrax's jit then sees the
+    same callable from call to call (a closure made at each call compiled the simulation
+    again at every call of a function not jitted as a whole, ``jax.grad(final_state)``)."""
+
+    packing: Packing
+    fn: object = eqx.field(static=True)
+    rebuild: Rebuilt | None = None
+
+    def args(self, args):
+        return args if self.rebuild is None else self.rebuild(args)
+
+
+class _PackedField(_OnState):
+    def __call__(self, t, z, args):
+        return self.packing.pack(self.fn(t, self.packing.unpack(z), self.args(args)))
+
+
+class _PackedCondition(_OnState):
+    def __call__(self, t, y, args, **kwargs):
+        return self.fn(t, self.packing.unpack(y), self.args(args), **kwargs)
+
+
+def packed_term(packing: Packing, field, rebuild: Rebuilt | None = None) -> diffrax.ODETerm:
+    """diffrax's term of ``field(t, State, args) -> State`` on packed states (``rebuild``:
+    the args from what diffrax passes, see :func:`flattened`)."""
+    return diffrax.ODETerm(_PackedField(packing, field, rebuild))
+
+
+def packed_event(packing: Packing, event: diffrax.Event | None, rebuild: Rebuilt | None = None) -> diffrax.Event | None:
+    """``event``, its conditions read on the unpacked state (``rebuild``: as :func:`packed_term`'s)."""
     if event is None:
         return None
-
-    def on_state(cond):
-        return lambda t, y, args, **kwargs: cond(t, packing.unpack(y), args, **kwargs)
-
-    return diffrax.Event(jax.tree.map(on_state, event.cond_fn), event.root_finder, event.direction)
+    return diffrax.Event(jax.tree.map(lambda cond: _PackedCondition(packing, cond, rebuild), event.cond_fn),
+                         event.root_finder, event.direction)
 
 
 def unpacked(packing: Packing, sol):

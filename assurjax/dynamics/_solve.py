@@ -28,7 +28,7 @@ from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
-from ._packed import packed_event, packed_term, packing_of, unpacked
+from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
@@ -157,18 +157,18 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     checked = settings.check_assembly and table is None
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs,
                      bridge=settings.bridge, nan_unassembled=checked)
-    packing = packing_of(y0)
+    packing, (leaves, rebuild) = packing_of(y0), flattened(args)
     sol = diffrax.diffeqsolve(
-        packed_term(packing, vector_field),
+        packed_term(packing, vector_field, rebuild),
         solver_for(settings),
         t0=t0,
         t1=t1,
         dt0=_initial_step(settings, dt),
         y0=packing.pack(y0),
-        args=args,
+        args=leaves,
         saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
         stepsize_controller=lockup_controller(settings, packing),
-        event=packed_event(packing, stop_event(settings)),
+        event=packed_event(packing, stop_event(settings), rebuild),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),
         throw=False,
