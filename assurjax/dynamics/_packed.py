@@ -65,6 +65,9 @@ class Packing(eqx.Module):
         return self.unpack(y) if isinstance(y, Packed) else y
 
 
+UNPACKED = Packing(None)
+
+
 def packing_of(y: State, adjoint: str) -> Packing:
     """The packing of states like ``y`` for a solve with that ``adjoint`` setting: packed
     for diffrax's forward mode (``simulate``'s; jvp and jacfwd cost the same either way),
@@ -72,7 +75,7 @@ def packing_of(y: State, adjoint: str) -> Packing:
     packing's slices and stacks than the steps save (the Watt six-bar's gradient by the
     recursive adjoint 2.5 -> 3.0 ms packed)."""
     if adjoint != "forward":
-        return Packing(None)
+        return UNPACKED
     return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else "vector" for v in y))
 
 

@@ -19,7 +19,7 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._values import MAGNITUDE_LIMIT, all_finite, concrete, value_problem
-from ._packed import Packing
+from ._packed import UNPACKED, Packing
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -334,22 +334,16 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
                                  **kwargs)
 
 
-def lockup_controller(settings: Settings, packing: Packing | None = None) -> diffrax.AbstractStepSizeController:
+def lockup_controller(settings: Settings, packing: Packing = UNPACKED) -> diffrax.AbstractStepSizeController:
     """The step-size controller of :func:`controller_for` for the reduced link's state
     when its vector field may turn NaN (where a group cannot assemble, a friction jam, a
     load): it rejects the steps that meet NaN and closes in on where it starts
-    (:class:`LockupController`, :class:`ConstantStepsUntilLockup`). ``packing``: the
-    :class:`Packing` of a state whose scalars diffrax steps as one array (None:
-    a state stepped as it is)."""
+    (:class:`LockupController`, :class:`ConstantStepsUntilLockup`). ``packing``: how
+    diffrax gets the state (:class:`Packing`; by default as it is)."""
     if not adaptive(settings):
         return ConstantStepsUntilLockup(packing=packing)
     return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
                             norm=FiniteNorm(packing), packing=packing)
-
-
-def _viewed(packing, y):
-    """A state as the controllers read it: unpacked where it was packed (see :func:`lockup_controller`)."""
-    return y if packing is None else packing.view(y)
 
 
 def _met_unassembled(y1_candidate, y_error):
@@ -380,12 +374,12 @@ class LockupController(diffrax.PIDController):
     mechanism, see ``_field._rates``) is rejected and ends the solve the same way, before
     any accepted step: ``_stick`` reads that as held."""
 
-    packing: Packing | None = None
+    packing: Packing = UNPACKED
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
-        y0, y1_candidate = _viewed(self.packing, y0), _viewed(self.packing, y1_candidate)
+        y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
         held = _held_at_rest(y0, y1_candidate)
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
@@ -406,12 +400,12 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
     control the steps may find no sane motion near a limit position: halving ends 30
     times below dt0."""
 
-    packing: Packing | None = None
+    packing: Packing = UNPACKED
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
         _, _, grid_next, jump, grid_state, _ = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
-        y0, y1_candidate = _viewed(self.packing, y0), _viewed(self.packing, y1_candidate)
+        y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         met = _met_unassembled(y1_candidate, y_error)
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
@@ -431,10 +425,10 @@ class FiniteNorm(eqx.Module):
     segment ends: they do not steer the steps (mu = 0 steps as without friction).
     ``packing``: as :func:`lockup_controller`'s."""
 
-    packing: Packing | None = None
+    packing: Packing = UNPACKED
 
     def __call__(self, y) -> Array:
-        y = _viewed(self.packing, y)
+        y = self.packing.view(y)
         if getattr(y, "friction_rates", None) is not None:
             y = y._replace(friction_rates=None)
         n = optx.rms_norm(y)
