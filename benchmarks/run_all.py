@@ -29,6 +29,7 @@ BENCHMARKS = {
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
+    "step_calls": ("bench_step_calls.py", []),
     "friction_precision": ("bench_friction_precision.py", ["--quick"]),
     "fast_loops": ("bench_fast_loops.py", []),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
