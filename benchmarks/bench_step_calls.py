@@ -6,10 +6,10 @@ the hot path moves, and unlike a time it is the same on every run of the same pr
 counts them (profiler traces of warm runs to t1 and 2 t1, the difference over the difference
 in steps, as ``bench_friction.kernels_per_step``) and attributes each to the source line it
 was traced from (the stack frames XLA keeps with every instruction of its optimized program):
-the innermost line of this package (and the library where the call is made in one), and the area of the
-package its stack passes through (kinetostatics, friction law and solve, kinematics, reduction
-and loads, the vector field; else diffrax's step, the events and the outputs). A
-fusion is named after its root, so the attribution is that of each call's last operation.
+the innermost line of this package (and the library, where the call is made in one), and the
+area of the package its stack passes through (kinetostatics, friction law and solve,
+kinematics, reduction and loads, the vector field; else diffrax's step, the events and the
+outputs). A fusion is named after its root, so each call is attributed to its last operation.
 
 The bundled press (``press_with_friction``) without and with its four friction elements, each
 in a process of its own (XLA reads its dump flag once per process).
@@ -156,7 +156,9 @@ def main():
             flags = f"--xla_dump_to={dump} --xla_dump_hlo_as_text --xla_dump_hlo_module_re=.*_integrate.*"
             env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip())
             run = subprocess.run([sys.executable, __file__, "--variant", variant, "--dump", dump], env=env,
-                                 capture_output=True, text=True, check=True)
+                                 capture_output=True, text=True)
+        if run.returncode != 0:
+            raise SystemExit(f"the {variant} run failed:\n{run.stderr}")
         out["variants"][variant] = result = json.loads(run.stdout.strip().splitlines()[-1])
         print(variant, json.dumps(dict(calls_per_step=result["calls_per_step"], by_area=result["by_area"]), indent=1))
     with open(args.out, "w") as f:
