@@ -16,6 +16,7 @@ per member of a batch of 16, and the kernel calls per step that explain it).
 from __future__ import annotations
 
 import argparse
+import collections
 import glob
 import gzip
 import json
@@ -101,20 +102,24 @@ def kernels_per_step(scene, loads, t1=0.2) -> dict:
     :func:`marginal_per_step`). A single run's step costs about its kernel calls times a few
     tens of ns each (the arithmetic inside is small), and the count, unlike a time, is the
     same on every run of the same program."""
-    runs = []
-    for t in (t1, 2 * t1):
-        kwargs = dict(loads=loads, stop=None, t1=t, samples=2)
-        steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))
-        with tempfile.TemporaryDirectory() as folder:
-            with jax.profiler.trace(folder, create_perfetto_trace=True):
-                jax.block_until_ready(assurjax.simulate(scene, **kwargs).q)
-            (path,) = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
-            with gzip.open(path) as f:
-                events = json.load(f)["traceEvents"]
-        # the compiled program's own events (not Python's, marked "$", nor the ends of async ones)
-        runs.append((steps, sum(1 for e in events if e.get("ph") == "X" and not e["name"].startswith(("$", "end:")))))
-    (n_short, short), (n_long, long) = runs
+    runs = [kernel_calls(scene, loads, t) for t in (t1, 2 * t1)]
+    (n_short, short), (n_long, long) = ((steps, sum(calls.values())) for steps, calls in runs)
     return dict(steps=[n_short, n_long], kernels=[short, long], per_step=(long - short) / (n_long - n_short))
+
+
+def kernel_calls(scene, loads, t1) -> tuple[int, collections.Counter]:
+    """(steps, XLA's kernel calls by instruction name) of one warm ``simulate()`` to t1: the
+    compiled program's own events in a profiler trace (not Python's, marked "$", nor the
+    ends of async ones)."""
+    kwargs = dict(loads=loads, stop=None, t1=t1, samples=2)
+    steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder, create_perfetto_trace=True):
+            jax.block_until_ready(assurjax.simulate(scene, **kwargs).q)
+        (path,) = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
+        with gzip.open(path) as f:
+            events = json.load(f)["traceEvents"]
+    return steps, collections.Counter(e["name"] for e in events if e.get("ph") == "X" and not e["name"].startswith(("$", "end:")))
 
 
 def batch_marginal_per_step(scene, loads, n=16) -> dict:

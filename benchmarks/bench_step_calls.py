@@ -4,7 +4,7 @@ On a CPU a step of ``simulate`` costs about its kernel calls (XLA's thunks: fusi
 loops, conditionals) times a few tens of ns each, so the count per step is what a change to
 the hot path moves, and unlike a time it is the same on every run of the same program. This
 counts them (profiler traces of warm runs to t1 and 2 t1, the difference over the difference
-in steps, as ``bench_friction.kernels_per_step``) and attributes each to the source line it
+in steps, ``bench_friction.kernel_calls``) and attributes each to the source line it
 was traced from (the stack frames XLA keeps with every instruction of its optimized program):
 the innermost line of this package (and the library, where the call is made in one), and the
 area of the package its stack passes through (kinetostatics, friction law and solve,
@@ -22,13 +22,14 @@ from __future__ import annotations
 import argparse
 import collections
 import glob
-import gzip
 import json
 import os
 import re
 import subprocess
 import sys
 import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TOP_LINES = 30
@@ -95,24 +96,9 @@ def _library(path):
 
 def _calls_per_step(scene, loads, t1):
     """Per-step kernel calls by instruction name, from warm runs to t1 and 2 t1."""
-    import jax
-    import numpy as np
+    from bench_friction import kernel_calls
 
-    import assurjax
-
-    counts = []
-    for t in (t1, 2 * t1):
-        kwargs = dict(loads=loads, stop=None, t1=t, samples=2)
-        steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))
-        with tempfile.TemporaryDirectory() as folder:
-            with jax.profiler.trace(folder):
-                jax.block_until_ready(assurjax.simulate(scene, **kwargs).q)
-            (path,) = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
-            with gzip.open(path) as f:
-                events = json.load(f)["traceEvents"]
-        names = collections.Counter(e["name"] for e in events if e.get("ph") == "X" and not e["name"].startswith(("$", "end:")))
-        counts.append((steps, names))
-    (n_short, short), (n_long, long) = counts
+    (n_short, short), (n_long, long) = (kernel_calls(scene, loads, t) for t in (t1, 2 * t1))
     return {name: (long[name] - short[name]) / (n_long - n_short) for name in long if long[name] != short[name]}
 
 

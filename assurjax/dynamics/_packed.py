@@ -7,9 +7,10 @@ stage), where a scalar's arithmetic is a few flops. So in diffrax's forward mode
 :func:`packing_of`) the state's scalars (q, w, and the work and dissipated work when asked
 for) go to diffrax as one array, the vectors (the tracked angles, the friction elements'
 rates) as they are, and the state is unpacked wherever the package reads it (the vector
-field, the events, the step-size controller, the saved states). The vectors stay apart: in one array with the scalars, the stages' buffer
-of a mechanism with 7 friction elements passed 512 bytes, over which XLA's CPU runtime
-runs a loop's calls across threads (the Watt six-bar with friction: 3.4 -> 5.8 ms a run).
+field, the events, the step-size controller, the saved states). The vectors stay apart: in
+one array with the scalars, the stages' buffer of a mechanism with 7 friction elements
+passed 512 bytes, over which XLA's CPU runtime runs a loop's calls across threads (the Watt
+six-bar with friction: 3.4 -> 5.8 ms a run).
 
 At the same boundary diffrax gets the vector field's arguments as their leaves
 (:func:`flattened`: no empty tuple for its backsolve) and the term and events as Modules
