@@ -7,8 +7,10 @@ the sample spacing elsewhere can still be missed, so keep the grid fine enough t
 every peak (the command line uses 2001 samples). Each peak is bracketed by the largest sample and its two neighbours;
 the motion is then evaluated again at a few times inside the bracket
 (``simulate(..., saveat=...)`` interpolates the solver's dense output), and the bracket
-shrinks around the new largest value; every round uses the same number of times, so the
-compiled simulation and reactions are reused.
+shrinks around the new largest value. A round refines every quantity at once, in one
+simulation and one reactions analysis that save as many times as the run being refined:
+they run that run's compiled programs (a program of their own cost a trace and compile
+as long as the run's, the bulk of the command's peak search).
 """
 
 from __future__ import annotations
@@ -43,17 +45,40 @@ def _bracket(t: np.ndarray, i: int) -> tuple[float, float]:
     return float(t[max(i - 1, 0)]), float(t[min(i + 1, len(t) - 1)])
 
 
+def _largest_within(t: np.ndarray, values: np.ndarray, lo: float, hi: float):
+    """(the largest value among the samples in [lo, hi], its time, the bracket around it:
+    its neighbours among the distinct sample times there; a time saved twice, a save time
+    at a solver step's end, counts once)."""
+    inside = (t >= lo) & (t <= hi)
+    times, first = np.unique(t[inside], return_index=True)
+    values = values[inside][first]
+    j = int(np.nanargmax(values))
+    return float(values[j]), float(times[j]), _bracket(times, j)
+
+
+def _refinement_times(template: np.ndarray, reached: int, fine: np.ndarray) -> list[np.ndarray]:
+    """Save times for the refinement runs, each as many as ``template`` (the run's own, of
+    which it reached the first ``reached``): the ``fine`` times in place of the template's
+    earliest ones, so that as many times are reached and saved as in the run (its
+    reactions' program fits too); in several runs where there are more fine times than that."""
+    per_run = max(reached, 1)
+    return [np.sort(np.concatenate([fine[i:i + per_run], template[len(fine[i:i + per_run]):]]))
+            for i in range(0, len(fine), per_run)]
+
+
 def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points: int = 33, rounds: int = 4,
-                   **simulate_options) -> dict[str, Peak]:
+                   saveat=None, **simulate_options) -> dict[str, Peak]:
     """Peak |F| of every joint (``joints``: default all) and the peak |driving effort|
     (key ``"driving"``) along the motion ``sol`` of ``scene``, each refined on the dense
     output around the largest sample of ``sol`` (see the module docstring).
 
-    ``sol`` comes from ``assurjax.simulate(scene, **simulate_options)``; each refinement
-    simulates again with those options and ``points`` save times inside the bracket
-    (``rounds`` rounds per quantity, each dividing the bracket by (points - 1) / 2).
-    ``grid``: the magnitudes at the samples of ``sol`` when already computed
-    (as :func:`magnitudes` returns them).
+    ``sol`` comes from ``assurjax.simulate(scene, saveat=saveat, **simulate_options)``;
+    each refinement round simulates again with those options, saving ``points`` times
+    inside each quantity's bracket (``rounds`` rounds, each dividing the brackets by
+    (points - 1) / 2). ``saveat``: that run's save times (default: the times of ``sol``,
+    which are those where it saved no solver steps), so that the refinements run its
+    compiled programs. ``grid``: the magnitudes at the samples of ``sol`` when already
+    computed (as :func:`magnitudes` returns them).
 
     **Example:**
     >>> sol = assurjax.simulate(scene, saveat=np.linspace(0.0, 2.0, 201))
@@ -62,20 +87,24 @@ def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points:
     import assurjax
 
     t = np.asarray(sol.t, dtype=float)
-    peaks = {}
+    template = t if saveat is None else np.asarray(saveat, dtype=float)
+    reached = int(np.count_nonzero((template - template[0]) * (t[-1] - template) >= 0)) if len(t) else 0
+    best, brackets = {}, {}
     for name, values in (magnitudes(scene, sol, joints) if grid is None else grid).items():
         values = np.asarray(values, dtype=float)
         i = int(np.nanargmax(values))
-        best, (lo, hi) = (float(values[i]), float(t[i])), _bracket(t, i)
-        for _ in range(rounds if len(t) > 1 else 0):
-            if not hi > lo:
-                break
-            fine = assurjax.simulate(scene, saveat=np.linspace(lo, hi, points), t1=hi, **simulate_options)
-            fine_t = np.asarray(fine.t, dtype=float)
-            fine_values = magnitudes(scene, fine, joints)[name]
-            j = int(np.nanargmax(fine_values))
-            if fine_values[j] > best[0]:
-                best = (float(fine_values[j]), float(fine_t[j]))
-            lo, hi = _bracket(fine_t, j)
-        peaks[name] = Peak(name, *best)
-    return peaks
+        best[name], brackets[name] = (float(values[i]), float(t[i])), _bracket(t, i)
+    for _ in range(rounds if len(t) > 1 else 0):
+        brackets = {name: (lo, hi) for name, (lo, hi) in brackets.items() if hi > lo}
+        if not brackets:
+            break
+        fine = np.sort(np.concatenate([np.linspace(lo, hi, points) for lo, hi in brackets.values()]))
+        runs = [assurjax.simulate(scene, saveat=times, **simulate_options)
+                for times in _refinement_times(template, reached, fine)]
+        fine_t = np.concatenate([np.asarray(run.t, dtype=float) for run in runs])
+        found = [magnitudes(scene, run, joints) for run in runs]
+        for name, (lo, hi) in brackets.items():
+            value, at, brackets[name] = _largest_within(fine_t, np.concatenate([f[name] for f in found]), lo, hi)
+            if value > best[name][0]:
+                best[name] = (value, at)
+    return {name: Peak(name, *value) for name, value in best.items()}

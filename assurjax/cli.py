@@ -312,15 +312,17 @@ def _friction_lines(t, along: _Along) -> list[str]:
     return lines
 
 
-def _peaks(scene, sol, joints, forces: dict, driving) -> dict:
+def _peaks(scene, sol, samples: int, joints, forces: dict, driving) -> dict:
     """Peak |F| per joint and peak |driving effort|, located on the dense output around
-    the largest of the ``forces`` and ``driving`` already computed at the samples."""
+    the largest of the ``forces`` and ``driving`` already computed at the samples of
+    ``sol`` (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
     import numpy as np
 
     from ._peaks import peak_reactions
 
     grid = {k: np.hypot(f[:, 0], f[:, 1]) for k, f in forces.items()} | {"driving": np.abs(driving)}
-    return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid)
+    return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
+                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
 
 
 def _print_peaks(peaks: dict, units: dict, scene):
@@ -540,7 +542,7 @@ def cmd_run(args) -> int:
         if joints:
             along = _reactions_along(scene, sol, joints)
             forces, driving, rx_time = along.forces, along.driving, along.seconds
-            peaks = _peaks(scene, sol, joints, forces, driving)
+            peaks = _peaks(scene, sol, samples, joints, forces, driving)
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
@@ -617,7 +619,7 @@ def cmd_reactions(args) -> int:
     sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
     along = _reactions_along(scene, sol, joints)
     forces, driving, elapsed = along.forces, along.driving, along.seconds
-    peaks = _peaks(scene, sol, joints, forces, driving)
+    peaks = _peaks(scene, sol, samples, joints, forces, driving)
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
                         | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))}

@@ -24,6 +24,7 @@ BENCHMARKS = {
     "kinematics": ("bench_kinematics.py", ["--n", "10000", "--repeats", "3"]),
     "dynamics": ("bench_dynamics.py", ["--quick"]),
     "overhead": ("bench_overhead.py", ["--quick"]),
+    "command": ("bench_command.py", ["--repeats", "1"]),
     "profile": ("bench_profile.py", []),
     "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),

@@ -85,6 +85,42 @@ def test_cli_reactions_samples_and_peaks(shaper, shaper_peaks, tmp_path, capsys)
     assert len(rows) == reported + 1
 
 
+def test_peak_search_reruns_the_programs_of_the_run_it_refines():
+    """Given the run's save times, every refinement round saves as many times with the same
+    options: it runs the run's compiled simulation and reactions (no trace of its own; a
+    program per refinement shape cost the command seconds), and what it finds is the
+    largest value around it (the magnitudes at 41 times within 1.25 ms of it, where the run
+    saved every 50 ms, are not above it) and no sample of the run is above it."""
+    import jax
+
+    from assurjax._peaks import magnitudes
+
+    traced, active = [], [False]
+
+    def listen(event, duration, **kwargs):
+        if active[0] and event == "/jax/core/compile/jaxpr_trace_duration":
+            traced.append(kwargs.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    scene = assurjax.load_scene("slider_crank")
+    ts = np.linspace(0.0, 2.0, 41)
+    sol = assurjax.simulate(scene, saveat=ts)
+    grid = magnitudes(scene, sol)
+    active[0] = True
+    try:
+        peaks = peak_reactions(scene, sol, grid=grid, saveat=ts)
+    finally:
+        active[0] = False
+    assert traced == []
+    for name, peak in peaks.items():
+        assert peak.value >= np.max(grid[name]), name
+        if name == "driving":  # round-off (no drive in this scene)
+            continue
+        near = np.clip(peak.t + np.linspace(-1.25e-3, 1.25e-3, 41), 0.0, 2.0)
+        finer = magnitudes(scene, assurjax.simulate(scene, saveat=near))[name]
+        assert peak.value >= np.max(finer) * (1 - 1e-12), (name, peak.value, np.max(finer))
+
+
 def test_reduced_figure_spans_one_crank_turn(shaper):
     """The motion covers about four turns; J_red is plotted over exactly one, where it
     starts and ends on the same value (one period)."""
