@@ -1,4 +1,4 @@
-"""Peaks of joint reactions and driving effort along a simulated motion, located on the
+"""Peaks of joint reactions, driving effort and joint friction along a simulated motion, located on the
 solver's dense output rather than read off the saved samples.
 
 A grid of samples misses narrow peaks (a quick-return ram reverses in a few
@@ -30,15 +30,19 @@ class Peak:
     t: float
 
 
+FRICTION = "friction "  # the key prefix of a friction element's |value|: "friction <pair>"
+
+
 def magnitudes(scene, sol, joints=None) -> dict[str, np.ndarray]:
-    """|F| (N) of each joint (default: all) and |driving effort| (key ``"driving"``) at
-    every sample of ``sol``."""
+    """|F| (N) of each joint (default: all), |driving effort| (key ``"driving"``) and, with
+    joint friction, |friction| of each pair's element (N m, or N on a prismatic pair; key
+    ``"friction <pair>"``) at every sample of ``sol``."""
     import assurjax
 
     r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
     out = {k: np.hypot(*np.moveaxis(np.asarray(v), -1, 0)) for k, v in r.forces.items()}
     out["driving"] = np.abs(np.asarray(r.driving))
-    return out
+    return out | {FRICTION + k: np.abs(np.asarray(v)) for k, v in r.friction.items()}
 
 
 def _bracket(t: np.ndarray, i: int) -> tuple[float, float]:
@@ -68,8 +72,9 @@ def _refinement_times(template: np.ndarray, reached: int, fine: np.ndarray) -> l
 
 def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points: int = 33, rounds: int = 4,
                    saveat=None, **simulate_options) -> dict[str, Peak]:
-    """Peak |F| of every joint (``joints``: default all) and the peak |driving effort|
-    (key ``"driving"``) along the motion ``sol`` of ``scene``, each refined on the dense
+    """Peak |F| of every joint (``joints``: default all), the peak |driving effort|
+    (key ``"driving"``) and with joint friction the peak |friction| of every element (key
+    ``"friction <pair>"``) along the motion ``sol`` of ``scene``, each refined on the dense
     output around the largest sample of ``sol`` (see the module docstring).
 
     ``sol`` comes from ``assurjax.simulate(scene, saveat=saveat, **simulate_options)``;

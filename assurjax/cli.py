@@ -291,10 +291,13 @@ def _friction_unit(pair: str) -> str:
     return "N" if "/" in pair else "N m"
 
 
-def _friction_lines(t, along: _Along) -> list[str]:
+def _friction_lines(t, along: _Along, peaks: dict) -> list[str]:
     """The friction's energy loss over the motion per element (trapezoidal rule on the
-    samples) and its largest value, for the summary; none without friction."""
+    samples) and its largest value (``peaks``, located on the dense output), for the
+    summary; none without friction."""
     import numpy as np
+
+    from ._peaks import FRICTION
 
     if not along.friction:
         return []
@@ -302,8 +305,9 @@ def _friction_lines(t, along: _Along) -> list[str]:
     total = sum(lost.values())
     shares = ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(lost.items(), key=lambda kv: -kv[1])) if total > 0 else ""
     lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
-    peaks = ", ".join(f"{k} {np.max(np.abs(v)):.4g} {_friction_unit(k)}" for k, v in along.friction.items())
-    lines.append(f"  peak |friction| (at the samples): {peaks}")
+    located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {peaks[FRICTION + k].t:.4f} s"
+                        for k in along.friction)
+    lines.append(f"  peak |friction| (located on the dense output): {located}")
     locked = int(np.count_nonzero(~along.friction_ok))
     if locked:
         lines.append(f"  the joint friction self-locks the mechanism at {locked} of {along.friction_ok.size} samples (no consistent "
@@ -312,21 +316,29 @@ def _friction_lines(t, along: _Along) -> list[str]:
     return lines
 
 
-def _peaks(scene, sol, samples: int, joints, forces: dict, driving) -> dict:
-    """Peak |F| per joint and peak |driving effort|, located on the dense output around
-    the largest of the ``forces`` and ``driving`` already computed at the samples of
-    ``sol`` (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
+def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
+    """Peak |F| per joint, peak |driving effort| and peak |friction| per element, located on
+    the dense output around the largest of the values ``along`` the samples of ``sol``
+    (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
     import numpy as np
 
-    from ._peaks import peak_reactions
+    from ._peaks import FRICTION, peak_reactions
 
-    grid = {k: np.hypot(f[:, 0], f[:, 1]) for k, f in forces.items()} | {"driving": np.abs(driving)}
+    grid = ({k: np.hypot(f[:, 0], f[:, 1]) for k, f in along.forces.items()} | {"driving": np.abs(along.driving)}
+            | {FRICTION + k: np.abs(u) for k, u in along.friction.items()})
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
                           saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
 
 
+def _force_peaks(peaks: dict) -> list:
+    """The peaks of the joints' |F| (not the driving effort's, nor the friction's)."""
+    from ._peaks import FRICTION
+
+    return [p for name, p in peaks.items() if name != "driving" and not name.startswith(FRICTION)]
+
+
 def _print_peaks(peaks: dict, units: dict, scene):
-    forces = [p for name, p in peaks.items() if name != "driving"]
+    forces = _force_peaks(peaks)
     print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
     drive = peaks["driving"]
     if _driving_is_round_off(peaks, scene, units):
@@ -338,7 +350,7 @@ def _print_peaks(peaks: dict, units: dict, scene):
 
 def _driving_is_round_off(peaks: dict, scene, units: dict) -> bool:
     """Whether the peak driving effort is at the rounding level of the peak reactions."""
-    forces = [p.value for name, p in peaks.items() if name != "driving"]
+    forces = [p.value for p in _force_peaks(peaks)]
     return _round_off(peaks["driving"].value, max(forces, default=0.0), scene, units)
 
 
@@ -542,7 +554,7 @@ def cmd_run(args) -> int:
         if joints:
             along = _reactions_along(scene, sol, joints)
             forces, driving, rx_time = along.forces, along.driving, along.seconds
-            peaks = _peaks(scene, sol, samples, joints, forces, driving)
+            peaks = _peaks(scene, sol, samples, joints, along)
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
         files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
@@ -586,7 +598,7 @@ def cmd_run(args) -> int:
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps")
     if peaks:
         _print_peaks(peaks, units, scene)
-    for line in _friction_lines(sol.t, along) if along else ():
+    for line in _friction_lines(sol.t, along, peaks) if along else ():
         print(line)
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
@@ -619,7 +631,7 @@ def cmd_reactions(args) -> int:
     sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
     along = _reactions_along(scene, sol, joints)
     forces, driving, elapsed = along.forces, along.driving, along.seconds
-    peaks = _peaks(scene, sol, samples, joints, forces, driving)
+    peaks = _peaks(scene, sol, samples, joints, along)
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
                         | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))}
@@ -642,7 +654,7 @@ def cmd_reactions(args) -> int:
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
     _print_peaks(peaks, units, scene)
-    for line in _friction_lines(sol.t, along):
+    for line in _friction_lines(sol.t, along, peaks):
         print(line)
     _print_files(files)
     return 0

@@ -310,6 +310,11 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert lost == pytest.approx(-cols["W"][-1], rel=1e-4)
     printed = capsys.readouterr().out
     assert f"friction: {lost:.5g} J lost over the motion (O 100 %)" in printed
+    # its peak, located on the dense output as the reaction's is: mu r times that peak, at its time
+    friction, force = summary["peaks"]["friction O"], summary["peaks"]["O"]
+    assert friction["t"] == force["t"] and friction["value"] == pytest.approx(0.3 * 0.04 * force["value"], rel=1e-12)
+    assert friction["value"] >= np.max(np.abs(cols["friction_O"]))
+    assert f"peak |friction| (located on the dense output): O {friction['value']:.5g} N m at t = {friction['t']:.4f} s" in printed
 
 
 def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsys):
@@ -336,11 +341,13 @@ def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsy
 def test_summary_names_samples_held_where_the_friction_self_locks():
     """The reactions summary counts the samples whose friction has no consistent solution
     (Reactions.friction_ok False), and says nothing where every one has."""
+    from assurjax._peaks import Peak
     from assurjax.cli import _Along, _friction_lines
 
     t = np.linspace(0.0, 1.0, 5)
     along = lambda ok: _Along({}, np.zeros(5), np.ones(5, bool), {"A": np.ones(5)}, {"A": -np.ones(5)}, 0.0, ok)  # noqa: E731
-    lines = _friction_lines(t, along(np.array([True, False, False, True, True])))
+    peaks = {"friction A": Peak("friction A", 1.0, 0.25)}
+    lines = _friction_lines(t, along(np.array([True, False, False, True, True])), peaks)
     assert lines[0].startswith("  friction: 1 J lost over the motion")
     assert "self-locks the mechanism at 2 of 5 samples" in lines[-1]
-    assert not any("self-locks" in line for line in _friction_lines(t, along(np.ones(5, bool))))
+    assert not any("self-locks" in line for line in _friction_lines(t, along(np.ones(5, bool)), peaks))
