@@ -388,10 +388,9 @@ def check_family(family: str, n: int, seed: int, *, flip: bool = False):
 
 
 # the default suite draws the slider family (RRR and PRP dyads on a slider driver; every dyad kind is
-# checked by default in tests/test_dyads.py); the crank
-# family (~30 s of compiles on a loaded 2-core machine: the default suite ran 10:09-11:00) and the
-# iterative families (~20 s each; tests/test_iterative_groups.py checks them by default) in the
-# slow suite, with their many draws below
+# checked by default in tests/test_dyads.py); the crank family (~30 s of compiles on a loaded 2-core
+# machine, where the default suite ran 10:09-11:00) and the iterative families (~20 s each;
+# tests/test_iterative_groups.py checks them by default) in the slow suite, with their many draws below
 @pytest.mark.parametrize("family", [f if f == "slider" else pytest.param(f, marks=pytest.mark.slow) for f in FAMILIES])
 def test_random_mechanisms_of_every_kind(family):
     """A few random geometries and states per family (one compile each; a single test
