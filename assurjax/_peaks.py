@@ -40,9 +40,15 @@ def magnitudes(scene, sol, joints=None) -> dict[str, np.ndarray]:
     import assurjax
 
     r = assurjax.reactions(scene, sol, joints=list(joints) if joints else None, check=False)
-    out = {k: np.hypot(*np.moveaxis(np.asarray(v), -1, 0)) for k, v in r.forces.items()}
-    out["driving"] = np.abs(np.asarray(r.driving))
-    return out | {FRICTION + k: np.abs(np.asarray(v)) for k, v in r.friction.items()}
+    return magnitudes_of(r.forces, r.driving, r.friction)
+
+
+def magnitudes_of(forces: dict, driving, friction: dict) -> dict[str, np.ndarray]:
+    """:func:`magnitudes` from reactions already computed: ``forces`` (..., 2) per joint, the
+    ``driving`` effort and the ``friction`` value per pair (as :class:`assurjax.Reactions` has them)."""
+    out = {k: np.hypot(*np.moveaxis(np.asarray(v), -1, 0)) for k, v in forces.items()}
+    out["driving"] = np.abs(np.asarray(driving))
+    return out | {FRICTION + k: np.abs(np.asarray(v)) for k, v in friction.items()}
 
 
 def _bracket(t: np.ndarray, i: int) -> tuple[float, float]:

@@ -320,12 +320,9 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     """Peak |F| per joint, peak |driving effort| and peak |friction| per element, located on
     the dense output around the largest of the values ``along`` the samples of ``sol``
     (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
-    import numpy as np
+    from ._peaks import magnitudes_of, peak_reactions
 
-    from ._peaks import FRICTION, peak_reactions
-
-    grid = ({k: np.hypot(f[:, 0], f[:, 1]) for k, f in along.forces.items()} | {"driving": np.abs(along.driving)}
-            | {FRICTION + k: np.abs(u) for k, u in along.friction.items()})
+    grid = magnitudes_of(along.forces, along.driving, along.friction)
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
                           saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
 

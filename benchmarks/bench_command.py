@@ -26,7 +26,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-SCENES = ("watt_sixbar", "press_with_friction", "triad_mechanism")  # the bundled scenes with reactions outputs, but the class-IV seed
+SCENES = ("watt_sixbar", "press_with_friction", "triad_mechanism")  # three of the four bundled scenes with reactions outputs
 
 CHILD = r"""
 import json, sys, time
