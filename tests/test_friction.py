@@ -957,6 +957,26 @@ def test_agrees_with_the_joint_based_reference(case):
         assert np.count_nonzero(np.diff(expected.stuck.astype(int)) == 1) == 2  # held twice (and released)
 
 
+def test_friction_through_statics_solved_in_batches_obeys_the_law():
+    """The two-legged strandbeest with friction in every joint (K past SUMMED_TERMS: the
+    stacked path; the legs' statics, and their tangents, solved in batches of one kind of
+    group per level): along motions either way, each element's friction is mu r |F| of its
+    joint's reaction as the mechanism's single dense system gives it (method "global")."""
+    from assurjax._friction import SUMMED_TERMS
+
+    scene = aj.strandbeest(1)
+    mu, radius = 0.2, 0.02
+    rough = scene.with_loads(scene.loads + tuple(aj.JointFriction(j, mu, radius) for j in aj.joint_names(scene.mechanism)))
+    assert len(rough.loads) - len(scene.loads) > SUMMED_TERMS
+    q = np.linspace(0.3, 5.9, 6)
+    w, a = np.array([1.5, -2.0, 0.7, -0.3, 3.0, -1.0]), np.array([0.5, 2.0, -1.0, 0.0, -3.0, 1.0])
+    r = aj.reactions(rough, (q, w, a), method="global")
+    assert np.all(np.asarray(r.friction_ok))
+    for joint, force in r.forces.items():
+        np.testing.assert_allclose(np.abs(r.friction[joint]), mu * radius * np.hypot(*np.moveaxis(np.asarray(force), -1, 0)),
+                                   rtol=1e-9, atol=1e-12, err_msg=joint)
+
+
 def test_many_elements_take_the_stacked_path_to_the_same_friction():
     """Past SUMMED_TERMS elements the friction takes its stacked path (the reactions stacked
     at the elements' pairs, the revolutes' rates gathered from the link angles, the prismatic

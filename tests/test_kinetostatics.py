@@ -26,6 +26,7 @@ from assurjax._kinetostatics import SingularConfigurationError, joint_names, rea
 from assurjax._kinematics import _kinematics_single
 from assurjax._kinetostatics import _api as kinetostatics_api
 from assurjax._kinetostatics._api import from_kinematics
+from assurjax._kinetostatics._batches import solve_order
 from assurjax._kinetostatics._layout import group_pairs
 from assurjax._reduction import reduce_single
 
@@ -262,6 +263,34 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         for joint in r.forces:
             np.testing.assert_allclose(other[joint], r[joint], rtol=0, atol=1e-9, err_msg=f"{method} {joint}")
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
+
+
+def test_groups_of_one_kind_at_one_level_are_solved_together():
+    """The two-legged strandbeest's legs are solved in batches (one vmap per kind of group
+    and level): every link stays in equilibrium, and the reactions equal those of the groups
+    solved one at a time (round-off) and of the mechanism's single dense system."""
+    scene = assurjax.strandbeest(1)
+    mech = scene.mechanism
+    assert sorted(len(b) for b in solve_order(mech, group_pairs(mech), range(len(mech.groups))) if len(b) > 1) == [2, 2]
+    q, w, a, t = _states(scene, 7)
+    ways = {"batched": ("modular", True), "one at a time": ("modular", False), "global": ("global", True)}
+
+    def one(q, w, a, t):
+        kin = _kinematics_single(mech, q, w, a, None, 2)
+        return kin, {way: from_kinematics(scene, kin, t, method=m, batched=b) for way, (m, b) in ways.items()}
+
+    kin, found = jax.jit(jax.vmap(one))(*(jnp.asarray(v, dtype=float) for v in (q, w, a, t)))
+    pairs = tuple(p for ps in group_pairs(mech) for p in ps)
+    r = Solved(*found["batched"], pairs)
+    assert np.all(np.asarray(r.ok))
+    for i in range(N_STATES):
+        residual = newton_euler_residuals(scene, _single(kin, i), _single(r, i), t[i])
+        assert np.max(np.abs(residual)) < 1e-10, (i, residual)
+    for way, tol in (("one at a time", 1e-12), ("global", 1e-9)):
+        other = Solved(*found[way], pairs)
+        for joint in r.forces:
+            np.testing.assert_allclose(r[joint], other[joint], rtol=0, atol=tol, err_msg=f"{way} {joint}")
+        np.testing.assert_allclose(r.driving, other.driving, rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("name", _scene_params(n for n, s in SCENES.items() if _has_prismatic_dyad(s)))

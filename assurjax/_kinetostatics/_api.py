@@ -21,7 +21,8 @@ from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
 from ._dyads import solve_prp, solve_prr, solve_rpr, solve_rrp, solve_rrr
 from ._layout import Pair, group_pairs, groups_for
-from ._system import Geometry, hand_back, solve_dense
+from ._batches import apply_hand_backs, hand_backs, queue_hand_backs, solve_batch, solve_order
+from ._system import Geometry, solve_dense
 
 
 class SingularConfigurationError(AssurjaxError):
@@ -125,27 +126,41 @@ def _known_wrenches(mechanism: Mechanism, kin: Kinematics, wrenches) -> dict:
     return known
 
 
-def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: str = "modular", groups=None):
-    """The kinetostatic analysis proper: groups in reverse formation order, each
-    solving only its own equations with the loads handed back by the groups built
-    on it; the driver last. Returns (reactions by name, driving effort, ok per group)."""
+def solve_group(mechanism: Mechanism, pairs, i: int, geom: Geometry, known: dict, method: str = "modular"):
+    """Group i's (reactions by name, driving effort (the driver's; else None), whether its
+    system is regular), from the known wrenches of its links."""
+    group = mechanism.groups[i]
+    solver = _solver(group, pairs[i], method)
+    if solver is None:
+        return solve_dense(group.links, pairs[i], geom, known, group if group.is_driver else None)
+    return solver(group, pairs[i], geom, known)
+
+
+def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: str = "modular", groups=None,
+                 batched: bool = True):
+    """The kinetostatic analysis proper: each group solving only its own equations with
+    the loads handed back by the groups built on it, level by level from the outermost
+    in, groups of one kind at one level together (:mod:`._batches`; ``batched=False``: one
+    at a time, a reference); the driver last. Returns (reactions by name, driving effort,
+    ok per group)."""
     pairs = group_pairs(mechanism)
     wanted = range(len(mechanism.groups)) if groups is None else groups
-    known = dict(known)
+    known, queued = dict(known), {}
     out, driving = {}, jnp.zeros(())
     oks = [jnp.array(True)] * len(mechanism.groups)
-    for i in sorted(wanted, reverse=True):
-        group = mechanism.groups[i]
-        solver = _solver(group, pairs[i], method)
-        if solver is None:
-            found, effort, oks[i] = solve_dense(group.links, pairs[i], geom, known, group if group.is_driver else None)
-        else:
-            found, effort, oks[i] = solver(group, pairs[i], geom, known)
-        if effort is not None:
-            driving = effort
-        for pair in pairs[i]:
-            hand_back(geom, known, pair, found[pair.name])
-        out.update(found)
+    for batch in solve_order(mechanism, pairs, wanted, batched):
+        apply_hand_backs(known, queued, [link for i in batch for link in mechanism.groups[i].links])
+        solved = None
+        if len(batch) > 1:
+            solved = solve_batch(mechanism, pairs, batch, geom, known,
+                                 lambda i, g, k: solve_group(mechanism, pairs, i, g, k, method))
+        if solved is None:
+            solved = [solve_group(mechanism, pairs, i, geom, known, method) for i in batch]
+        for i, (found, effort, oks[i]) in zip(batch, solved):
+            if effort is not None:
+                driving = effort
+            queue_hand_backs(queued, i, pairs[i], hand_backs(geom, pairs[i], found))
+            out.update(found)
     return out, driving, jnp.stack(oks)
 
 
@@ -233,7 +248,7 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     return found + (u, rates, pick_flag(consistent)) if friction else found
 
 
-def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None):
+def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True):
     """Reactions at one state given its kinematics (order 2, or order 0 with zero
     velocities for statics): (forces, couples, driving effort, ok per group).
     ``model``: a :class:`assurjax.Model` or a Scene. ``extra``: link -> (force, moment
@@ -248,7 +263,7 @@ def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", group
     if method == "global":
         found, driving, ok = solve_global(mechanism, geom, known)
     else:
-        found, driving, ok = solve_groups(mechanism, geom, known, method=method, groups=groups)
+        found, driving, ok = solve_groups(mechanism, geom, known, method=method, groups=groups, batched=batched)
     forces = {k: r.force for k, r in found.items()}
     couples = {k: r.couple for k, r in found.items() if k in _prismatic_names(mechanism)}
     return forces, couples, driving, ok & kin.ok

@@ -82,14 +82,18 @@ def joint_names(mechanism: Mechanism) -> tuple[str, ...]:
     return tuple(p.name for pairs in group_pairs(mechanism) for p in pairs)
 
 
+def feeds(mechanism: Mechanism, pairs) -> dict[int, set[int]]:
+    """Group j -> the earlier groups it hands loads back to: i < j where one of j's pairs
+    acts BY a link of i."""
+    group_of = {link: i for i, g in enumerate(mechanism.groups) for link in g.links}
+    return {j: {group_of[p.by] for p in pairs[j] if p.by != GROUND and group_of[p.by] != j} for j in range(len(pairs))}
+
+
 def groups_for(mechanism: Mechanism, pairs, wanted_groups: set[int]) -> tuple[int, ...]:
     """Groups to solve so that ``wanted_groups`` get their reactions: those groups and
     every later group that hands loads back to them, directly or through others."""
-    group_of = {link: i for i, g in enumerate(mechanism.groups) for link in g.links}
-    needed = set()
-    # j hands loads to i < j when one of j's pairs acts BY a link of i.
-    feeds = {j: {group_of[p.by] for p in pairs[j] if p.by != GROUND and group_of[p.by] != j} for j in range(len(pairs))}
+    fed, needed = feeds(mechanism, pairs), set()
     for j in range(len(pairs)):
-        if j in wanted_groups or feeds[j] & needed:
+        if j in wanted_groups or fed[j] & needed:
             needed.add(j)
     return tuple(sorted(needed))

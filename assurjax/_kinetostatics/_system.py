@@ -55,15 +55,6 @@ def guide_normal(geom: Geometry, pair: Pair) -> Array:
     return perp(geom.rots[pair.on])
 
 
-def hand_back(geom: Geometry, known: dict, pair: Pair, reaction: Reaction) -> None:
-    """Put minus a solved reaction on the earlier link ``by`` (action and reaction)."""
-    if pair.by == GROUND or pair.by not in known:
-        return
-    f, m = known[pair.by]
-    at = geom.points[pair.point]
-    known[pair.by] = (f - reaction.force, m - reaction.couple - moment_about_com(geom, pair.by, at, reaction.force))
-
-
 def _wrench_column(geom, index, link, at, force, couple, sign, size):
     """Column of a unit unknown: its force and moment about the COM on ``link`` (if in the system)."""
     col = jnp.zeros(size)
