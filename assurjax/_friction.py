@@ -333,14 +333,6 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     return coulomb
 
 
-def at_elements(frictions, forces: dict, couples: dict) -> tuple[Array, Array]:
-    """The reactions at the elements' pairs, stacked: forces (..., K, 2), couples (..., K)
-    (0 on a revolute)."""
-    force = jnp.stack([forces[f.pair] for f in frictions], axis=-2)
-    zero = jnp.zeros(force.shape[:-2])
-    return force, jnp.stack([couples.get(f.pair, zero) for f in frictions], axis=-1)
-
-
 def _affine(value, tangents, u):
     """value + sum_j u_j tangents[j]: for up to SUMMED_TERMS elements a chain of products
     and sums (see :func:`_coulomb_limits`), past them one dot."""
@@ -430,10 +422,11 @@ def linearize_reactions(react, frictions, directions: int):
     """(reactions at v = 0, their tangents along the ``directions`` unit vectors) of
     ``react(v)`` -> (forces, couples) by pair, affine in v (the friction values, and in the
     forward dynamics dw/dt first): one kinetostatic solve and one more per tangent. For more
-    than SUMMED_TERMS ``frictions``, read at their pairs and stacked (:func:`at_elements`):
-    the sums made of them afterwards are then one operation each, where by pair they were one
-    each per pair (the strandbeest with friction in its 73 joints: 146 calls per right-hand side)."""
-    read = (lambda v: at_elements(frictions, *react(v))) if len(frictions) > SUMMED_TERMS else react
+    than SUMMED_TERMS ``frictions``, ``react(v, at_pairs=...)`` reads their pairs' reactions
+    stacked, (forces (K, 2), couples (K,)): the sums made of them afterwards are then one
+    operation each, where by pair they were one each per pair (the strandbeest with friction
+    in its 73 joints: 146 calls per right-hand side)."""
+    read = (lambda v: react(v, at_pairs=tuple(f.pair for f in frictions))) if len(frictions) > SUMMED_TERMS else react
     reactions0, linear = jax.linearize(read, jnp.zeros(directions))
     return reactions0, jax.vmap(linear)(jnp.eye(directions))
 

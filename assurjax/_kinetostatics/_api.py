@@ -7,6 +7,7 @@ from collections.abc import Iterable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
@@ -142,11 +143,12 @@ def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: s
     the loads handed back by the groups built on it, level by level from the outermost
     in, groups of one kind at one level together (:mod:`._batches`; ``batched=False``: one
     at a time, a reference); the driver last. Returns (reactions by name, driving effort,
-    ok per group)."""
+    ok per group, the reactions stacked as they were solved: [(pair names, forces (n, 2),
+    couples (n,))])."""
     pairs = group_pairs(mechanism)
     wanted = range(len(mechanism.groups)) if groups is None else groups
     known, queued = dict(known), {}
-    out, driving = {}, jnp.zeros(())
+    out, driving, stacks = {}, jnp.zeros(()), []
     oks = [jnp.array(True)] * len(mechanism.groups)
     for batch in solve_order(mechanism, pairs, wanted, batched):
         apply_hand_backs(known, queued, [link for i in batch for link in mechanism.groups[i].links])
@@ -155,13 +157,28 @@ def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: s
             solved = solve_batch(mechanism, pairs, batch, geom, known,
                                  lambda i, g, k: solve_group(mechanism, pairs, i, g, k, method))
         if solved is None:
-            solved = [solve_group(mechanism, pairs, i, geom, known, method) for i in batch]
-        for i, (found, effort, oks[i]) in zip(batch, solved):
+            each = [solve_group(mechanism, pairs, i, geom, known, method) for i in batch]
+            each = [s + (hand_backs(geom, pairs[i], s[0]),) for i, s in zip(batch, each)]
+            solved = each, [((name,), r.force[None], r.couple[None]) for s in each for name, r in s[0].items()]
+        for i, (found, effort, oks[i], back) in zip(batch, solved[0]):
             if effort is not None:
                 driving = effort
-            queue_hand_backs(queued, i, pairs[i], hand_backs(geom, pairs[i], found))
+            queue_hand_backs(queued, i, pairs[i], back)
             out.update(found)
-    return out, driving, jnp.stack(oks)
+        stacks.extend(solved[1])
+    return out, driving, jnp.stack(oks), stacks
+
+
+def stacked_at(stacks, names) -> tuple[Array, Array]:
+    """(forces (P, 2), couples (P,)) of the pairs ``names`` from :func:`solve_groups`'
+    stacked reactions: one concatenation and one gather, where a stack of P reactions each
+    sliced from its batch was a copy per pair."""
+    where = {name: (k, n) for k, (members, _, _) in enumerate(stacks) for n, name in enumerate(members)}
+    used = sorted({where[name][0] for name in names})
+    start = dict(zip(used, np.cumsum([0] + [len(stacks[k][0]) for k in used])))
+    rows = np.array([start[where[name][0]] + where[name][1] for name in names])
+    return (jnp.concatenate([stacks[k][1] for k in used])[rows],
+            jnp.concatenate([jnp.broadcast_to(stacks[k][2], (len(stacks[k][0]),)) for k in used])[rows])
 
 
 def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
@@ -221,8 +238,8 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     mechanism = model.mechanism
     rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
 
-    def react(u):  # every pair's reaction, for the friction law
-        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u))[:2]
+    def react(u, at_pairs=None):  # the pairs' reactions, for the friction law
+        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u), at_pairs=at_pairs)[:2]
 
     linear = linearize_reactions(react, frictions, len(frictions))
 
@@ -248,11 +265,14 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     return found + (u, rates, pick_flag(consistent)) if friction else found
 
 
-def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True):
+def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,
+                    at_pairs=None):
     """Reactions at one state given its kinematics (order 2, or order 0 with zero
     velocities for statics): (forces, couples, driving effort, ok per group).
     ``model``: a :class:`assurjax.Model` or a Scene. ``extra``: link -> (force, moment
-    about the COM) added to the applied loads (the friction wrenches)."""
+    about the COM) added to the applied loads (the friction wrenches). ``at_pairs``
+    (names): only the (forces (P, 2), couples (P,), 0 on a revolute) of those pairs,
+    stacked, by :func:`stacked_at`."""
     model = as_model(model)
     mechanism = model.mechanism
     wrenches = applied_wrenches(mechanism, model.gravity, model.loads, kin, t)
@@ -262,8 +282,11 @@ def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", group
     geom = _geometry(kin)
     if method == "global":
         found, driving, ok = solve_global(mechanism, geom, known)
+        stacks = [((name,), r.force[None], r.couple[None]) for name, r in found.items()]
     else:
-        found, driving, ok = solve_groups(mechanism, geom, known, method=method, groups=groups, batched=batched)
+        found, driving, ok, stacks = solve_groups(mechanism, geom, known, method=method, groups=groups, batched=batched)
+    if at_pairs is not None:
+        return stacked_at(stacks, at_pairs)
     forces = {k: r.force for k, r in found.items()}
     couples = {k: r.couple for k, r in found.items() if k in _prismatic_names(mechanism)}
     return forces, couples, driving, ok & kin.ok

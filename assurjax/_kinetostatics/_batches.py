@@ -68,32 +68,44 @@ def member_pairs(mechanism: Mechanism, pairs, rep: int, member: int):
     return links, points, out
 
 
-def hand_backs(geom: Geometry, group_pairs_i, found: dict) -> dict:
+def hand_backs(geom: Geometry, group_pairs_i, found: dict, by=lambda pair: pair.by) -> dict:
     """What each of a group's solved reactions puts on the earlier link it acts by, minus
     it (action and reaction), by pair name: (force, couple, moment of the force about that
-    link's COM), each to subtract (the ground takes none)."""
+    link's COM, ``by(pair)`` its name in ``geom``), each to subtract (the ground takes none)."""
     return {p.name: (found[p.name].force, found[p.name].couple,
-                     moment_about_com(geom, p.by, geom.points[p.point], found[p.name].force))
+                     moment_about_com(geom, by(p), geom.points[p.point], found[p.name].force))
             for p in group_pairs_i if p.by != GROUND}
 
 
 def solve_batch(mechanism: Mechanism, pairs, batch: tuple[int, ...], geom: Geometry, known: dict, solve_one):
-    """Each member's (reactions by its pair names, driving effort, ok) from one vmapped
-    ``solve_one(rep index, geometry, known)`` under the first member's names; None where a
-    member does not correspond to it (each is then solved on its own)."""
+    """(each member's (reactions by its pair names, driving effort, ok, :func:`hand_backs`),
+    the reactions stacked: per pair of the first member, (its members' pair names, forces
+    (n, 2), couples (n,))) from one vmapped ``solve_one(rep index, geometry, known)`` under
+    the first member's names; None where a member does not correspond to it (each is then
+    solved on its own). The hand-backs are computed in the batch, so that each member's
+    reactions are read apart only as outputs."""
     rep = batch[0]
     maps = [member_pairs(mechanism, pairs, rep, i) for i in batch]
     if any(m is None for m in maps):
         return None
     links = mechanism.groups[rep].links
     points = sorted({p.point for p in pairs[rep]})
-    sub = Geometry({name: jnp.stack([geom.points[m[1][name]] for m in maps]) for name in points},
-                   {link: jnp.stack([geom.coms[m[0][link]] for m in maps]) for link in links},
+    backs = [p for p in pairs[rep] if p.by != GROUND]
+    coms = {link: jnp.stack([geom.coms[m[0][link]] for m in maps]) for link in links}
+    coms.update({f"by {p.name}": jnp.stack([geom.coms[m[2][p.name].by] for m in maps]) for p in backs})
+    sub = Geometry({name: jnp.stack([geom.points[m[1][name]] for m in maps]) for name in points}, coms,
                    {link: jnp.stack([geom.rots[m[0][link]] for m in maps]) for link in links})
     sub_known = {link: tuple(jnp.stack([known[m[0][link]][k] for m in maps]) for k in (0, 1)) for link in links}
-    found, effort, ok = jax.vmap(lambda g, k: solve_one(rep, g, k))(sub, sub_known)
-    return [({m[2][name].name: jax.tree.map(lambda x: x[n], r) for name, r in found.items()},
-             None if effort is None else effort[n], ok[n]) for n, m in enumerate(maps)]
+
+    def solve(g, k):
+        found, effort, ok = solve_one(rep, g, k)
+        return found, effort, ok, hand_backs(g, pairs[rep], found, by=lambda p: f"by {p.name}")
+
+    found, effort, ok, back = jax.vmap(solve)(sub, sub_known)
+    member = lambda tree, n: jax.tree.map(lambda x: x[n], tree)  # noqa: E731
+    each = [({m[2][name].name: member(r, n) for name, r in found.items()}, None if effort is None else effort[n], ok[n],
+             {m[2][name].name: member(h, n) for name, h in back.items()}) for n, m in enumerate(maps)]
+    return each, [(tuple(m[2][name].name for m in maps), r.force, r.couple) for name, r in found.items()]
 
 
 def apply_hand_backs(known: dict, queued: dict, links) -> None:

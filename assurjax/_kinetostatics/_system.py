@@ -16,7 +16,6 @@ from jaxtyping import Array
 
 from .._geometry import cross, perp
 from .._linalg import lu_factor, lu_solve
-from ..groups._base import GROUND
 from ._layout import Pair
 
 SINGULAR = 1e-10

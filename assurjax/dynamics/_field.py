@@ -257,12 +257,12 @@ def _linear_reactions(model: Model, coeffs, t, omega, alpha0, dalpha):
     _, dcoms, dangles = coeffs.dx
     inertial = {name: (-link.mass * dcoms[name], -link.inertia * dangles[name]) for name, link in mechanism.links.items()}
 
-    def react(v):  # v = (dw/dt, u)
+    def react(v, at_pairs=None):  # v = (dw/dt, u)
         extra = friction_wrenches(mechanism, base, frictions, v[1:])
         for name, (f, m) in inertial.items():
             f0, m0 = extra.get(name, (0.0, 0.0))
             extra[name] = (f0 + v[0] * f, m0 + v[0] * m)
-        return from_kinematics(model, base, t, extra=extra)[:2]
+        return from_kinematics(model, base, t, extra=extra, at_pairs=at_pairs)[:2]
 
     reactions0, basis = linearize_reactions(react, frictions, len(frictions) + 1)
     at_zero = jax.tree.map(lambda r, b: r + alpha0 * b[0], reactions0, basis)
