@@ -14,10 +14,8 @@ with the working tree's, and reports the ratios.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -78,30 +76,16 @@ def measure(code_dirs: dict, repeats: int) -> dict:
     return out
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--before", metavar="REF", help="also measure the package at this git revision")
-    parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--out", default=str(HERE / "results" / "command.json"))
-    args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        code_dirs = {"after": str(ROOT)}
-        if args.before:
-            from bench_overhead import _export
-
-            code_dirs["before"] = _export(args.before, tmp)
-            args.before = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", args.before],
-                                         capture_output=True, text=True, check=True).stdout.strip()
-        runs = measure(code_dirs, args.repeats)
-    result = dict(machine=platform.platform(), cpus=os.cpu_count(), before=args.before, repeats=args.repeats, scenes=runs)
-    if args.before:
-        best = lambda scene, version, kind, key: min(r[key] for r in runs[scene][version][kind])  # noqa: E731
-        result["before_over_after"] = {
-            scene: {f"{kind}_{key}": best(scene, "before", kind, key) / best(scene, "after", kind, key)
+def ratios(runs: dict) -> dict:
+    best = lambda scene, version, kind, key: min(r[key] for r in runs[scene][version][kind])  # noqa: E731
+    return {scene: {f"{kind}_{key}": best(scene, "before", kind, key) / best(scene, "after", kind, key)
                     for kind in ("cold", "warm") for key in ("wall_s", "peaks_s")} for scene in SCENES}
-        print(json.dumps(result["before_over_after"], indent=1))
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=1)
+
+
+def main():
+    from bench_overhead import versions_main
+
+    versions_main(__doc__, HERE / "results" / "command.json", measure, ratios)
 
 
 if __name__ == "__main__":

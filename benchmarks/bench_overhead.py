@@ -172,6 +172,38 @@ def _export(ref: str, into: str) -> str:
     return into
 
 
+def code_versions(before: str | None, into: str) -> tuple[dict, str | None]:
+    """({"after": the working tree, "before": the package at git revision ``before``,
+    extracted under ``into``, if given}, that revision's short hash or None)."""
+    code_dirs = {"after": str(ROOT)}
+    if not before:
+        return code_dirs, None
+    code_dirs["before"] = _export(before, into)
+    short = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", before], capture_output=True, text=True,
+                           check=True).stdout.strip()
+    return code_dirs, short
+
+
+def versions_main(doc: str, default_out: Path, measure, ratios) -> None:
+    """The command line of a benchmark that can also measure an earlier revision:
+    ``--before REF``, ``--repeats``, ``--out``. ``measure(code_dirs, repeats)`` -> runs;
+    ``ratios(runs)`` -> the before / after ratios, saved with them when REF is given."""
+    parser = argparse.ArgumentParser(description=doc)
+    parser.add_argument("--before", metavar="REF", help="also measure the package at this git revision")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--out", default=str(default_out))
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        code_dirs, before = code_versions(args.before, tmp)
+        runs = measure(code_dirs, args.repeats)
+    result = dict(machine=platform.platform(), cpus=os.cpu_count(), before=before, repeats=args.repeats, scenes=runs)
+    if before:
+        result["before_over_after"] = ratios(runs)
+        print(json.dumps(result["before_over_after"], indent=1))
+    with open(args.out, "w") as f:
+        json.dump(result, f, indent=1)
+
+
 def _in_process(code_dir: str, quick: bool) -> dict:
     """measure() in a fresh interpreter importing the package from ``code_dir``."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([code_dir, str(HERE)]))

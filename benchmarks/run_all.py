@@ -28,6 +28,7 @@ BENCHMARKS = {
     "profile": ("bench_profile.py", []),
     "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
+    "batched_statics": ("bench_batched_statics.py", ["--repeats", "1"]),
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
     "step_calls": ("bench_step_calls.py", []),
