@@ -1,4 +1,5 @@
-"""Joint reactions and driving effort, group by group in reverse formation order."""
+"""Joint reactions and driving effort, group by group in reverse formation order (level by
+level, groups of one kind at one level in batches: :mod:`._batches`)."""
 
 from __future__ import annotations
 
