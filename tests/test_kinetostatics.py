@@ -112,6 +112,66 @@ mode = "left"
 """
 
 
+# two connecting rods on one crank pin each, their pistons on two guides: two RRP dyads at one
+# level, solved as one batch (different guide directions and offsets)
+TWO_CYLINDER = """
+[scene]
+name = "two_cylinder"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+[links.crank]
+points = { O = [0.0, 0.0], A = [0.1, 0.0], C = [-0.05, 0.08] }
+com = [0.01, 0.01]
+mass = 0.5
+inertia = 0.001
+[links.rod]
+points = { A = [0.0, 0.0], B = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 1.0
+inertia = 0.0075
+[links.piston]
+points = { B = [0.0, 0.0] }
+com = [0.0, 0.0]
+mass = 0.8
+inertia = 0.0
+[links.rod2]
+points = { C = [0.0, 0.0], D = [0.35, 0.0] }
+com = [0.17, 0.01]
+mass = 1.2
+inertia = 0.009
+[links.piston2]
+points = { D = [0.0, 0.0] }
+com = [0.0, 0.0]
+mass = 0.7
+inertia = 0.0
+[[formation]]
+group = "crank"
+link = "crank"
+pivot = "O"
+[[formation]]
+group = "RRP"
+name = "one"
+links = ["rod", "piston"]
+joints = ["A", "B"]
+guide_point = "O"
+direction = [1.0, 0.0]
+offset = 0.0
+mode = "forward"
+[[formation]]
+group = "RRP"
+name = "two"
+links = ["rod2", "piston2"]
+joints = ["C", "D"]
+guide_point = "O"
+direction = [0.0, 1.0]
+offset = 0.02
+mode = "forward"
+[state]
+q0 = 0.5
+"""
+
+
 def _scenes():
     from assurjax.scene._load import scene_from_dict
     import tomllib
@@ -119,6 +179,7 @@ def _scenes():
     scenes = {name: assurjax.load_scene(name) for name in assurjax.bundled_scenes()}
     scenes["slider_crank_prr"] = scene_from_dict(tomllib.loads(PRR_SLIDER_CRANK), source="prr")
     scenes["slider_driven"] = scene_from_dict(tomllib.loads(SLIDER_DRIVEN), source="slider_driven")
+    scenes["two_cylinder"] = scene_from_dict(tomllib.loads(TWO_CYLINDER), source="two_cylinder")
     return scenes
 
 
@@ -265,13 +326,15 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
 
 
-def test_groups_of_one_kind_at_one_level_are_solved_together():
-    """The two-legged strandbeest's legs are solved in batches (one vmap per kind of group
-    and level): every link stays in equilibrium, and the reactions equal those of the groups
-    solved one at a time (round-off) and of the mechanism's single dense system."""
-    scene = assurjax.strandbeest(1)
+@pytest.mark.parametrize("name, batches", [("two legs", [2, 2]), ("two_cylinder", [2])])
+def test_groups_of_one_kind_at_one_level_are_solved_together(name, batches):
+    """The two-legged strandbeest's legs (RRR dyads) and the two cylinders' slider dyads
+    (RRP) are solved in batches (one vmap per kind of group and level): every link stays in
+    equilibrium, and the reactions equal those of the groups solved one at a time (round-off)
+    and of the mechanism's single dense system."""
+    scene = assurjax.strandbeest(1) if name == "two legs" else SCENES[name]
     mech = scene.mechanism
-    assert sorted(len(b) for b in solve_order(mech, group_pairs(mech), range(len(mech.groups))) if len(b) > 1) == [2, 2]
+    assert sorted(len(b) for b in solve_order(mech, group_pairs(mech), range(len(mech.groups))) if len(b) > 1) == batches
     q, w, a, t = _states(scene, 7)
     ways = {"batched": ("modular", True), "one at a time": ("modular", False), "global": ("global", True)}
 
@@ -290,6 +353,8 @@ def test_groups_of_one_kind_at_one_level_are_solved_together():
         other = Solved(*found[way], pairs)
         for joint in r.forces:
             np.testing.assert_allclose(r[joint], other[joint], rtol=0, atol=tol, err_msg=f"{way} {joint}")
+        for joint in r.couples:
+            np.testing.assert_allclose(r.couples[joint], other.couples[joint], rtol=0, atol=tol, err_msg=f"{way} {joint}")
         np.testing.assert_allclose(r.driving, other.driving, rtol=0, atol=tol)
 
 
