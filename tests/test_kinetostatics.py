@@ -326,7 +326,9 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("name, batches", [("two legs", [2, 2]), ("two_cylinder", [2])])
+# the strandbeest's in the slow suite (~10 s of compiles): its leg dyads' batches stay checked by
+# default through test_friction.py's test_friction_through_statics_solved_in_batches_obeys_the_law
+@pytest.mark.parametrize("name, batches", [pytest.param("two legs", [2, 2], marks=pytest.mark.slow), ("two_cylinder", [2])])
 def test_groups_of_one_kind_at_one_level_are_solved_together(name, batches):
     """The two-legged strandbeest's legs (RRR dyads) and the two cylinders' slider dyads
     (RRP) are solved in batches (one vmap per kind of group and level): every link stays in
