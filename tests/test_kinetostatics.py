@@ -12,6 +12,7 @@
 
 import os
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 from typing import NamedTuple
 
@@ -112,64 +113,20 @@ mode = "left"
 """
 
 
-# two connecting rods on one crank pin each, their pistons on two guides: two RRP dyads at one
-# level, solved as one batch (different guide directions and offsets)
-TWO_CYLINDER = """
-[scene]
-name = "two_cylinder"
-gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-[links.crank]
-points = { O = [0.0, 0.0], A = [0.1, 0.0], C = [-0.05, 0.08] }
-com = [0.01, 0.01]
-mass = 0.5
-inertia = 0.001
-[links.rod]
-points = { A = [0.0, 0.0], B = [0.3, 0.0] }
-com = [0.15, 0.0]
-mass = 1.0
-inertia = 0.0075
-[links.piston]
-points = { B = [0.0, 0.0] }
-com = [0.0, 0.0]
-mass = 0.8
-inertia = 0.0
-[links.rod2]
-points = { C = [0.0, 0.0], D = [0.35, 0.0] }
-com = [0.17, 0.01]
-mass = 1.2
-inertia = 0.009
-[links.piston2]
-points = { D = [0.0, 0.0] }
-com = [0.0, 0.0]
-mass = 0.7
-inertia = 0.0
-[[formation]]
-group = "crank"
-link = "crank"
-pivot = "O"
-[[formation]]
-group = "RRP"
-name = "one"
-links = ["rod", "piston"]
-joints = ["A", "B"]
-guide_point = "O"
-direction = [1.0, 0.0]
-offset = 0.0
-mode = "forward"
-[[formation]]
-group = "RRP"
-name = "two"
-links = ["rod2", "piston2"]
-joints = ["C", "D"]
-guide_point = "O"
-direction = [0.0, 1.0]
-offset = 0.02
-mode = "forward"
-[state]
-q0 = 0.5
-"""
+def _two_cylinder() -> dict:
+    """The bundled slider-crank with a second connecting rod and piston on another pin of its
+    crank, on a guide of another direction and offset: two RRP dyads at one level, solved as
+    one batch."""
+    import tomllib
+
+    data = tomllib.loads((Path(assurjax.__file__).parent / "scenes" / "slider_crank.toml").read_text())
+    data["scene"]["name"] = "two_cylinder"
+    data["links"]["crank"]["points"]["C"] = [-0.05, 0.08]
+    data["links"]["rod2"] = dict(points={"C": [0.0, 0.0], "D": [0.35, 0.0]}, com=[0.17, 0.01], mass=1.2, inertia=0.009)
+    data["links"]["piston2"] = dict(points={"D": [0.0, 0.0]}, com=[0.0, 0.0], mass=0.7, inertia=0.0)
+    data["formation"].append(dict(data["formation"][1], name="second", links=["rod2", "piston2"], joints=["C", "D"],
+                                  direction=[0.0, 1.0], offset=0.02))
+    return data
 
 
 def _scenes():
@@ -179,7 +136,7 @@ def _scenes():
     scenes = {name: assurjax.load_scene(name) for name in assurjax.bundled_scenes()}
     scenes["slider_crank_prr"] = scene_from_dict(tomllib.loads(PRR_SLIDER_CRANK), source="prr")
     scenes["slider_driven"] = scene_from_dict(tomllib.loads(SLIDER_DRIVEN), source="slider_driven")
-    scenes["two_cylinder"] = scene_from_dict(tomllib.loads(TWO_CYLINDER), source="two_cylinder")
+    scenes["two_cylinder"] = scene_from_dict(_two_cylinder(), source="two_cylinder")
     return scenes
 
 

@@ -144,8 +144,8 @@ def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: s
     the loads handed back by the groups built on it, level by level from the outermost
     in, groups of one kind at one level together (:mod:`._batches`; ``batched=False``: one
     at a time, a reference); the driver last. Returns (reactions by name, driving effort,
-    ok per group, the reactions stacked as they were solved: [(pair names, forces (n, 2),
-    couples (n,))])."""
+    ok per group, the reactions as they were solved: [(pair names, forces (n, 2), couples
+    (n,)) of a batch of n, or (name,), force (2,), couple of one group's pair])."""
     pairs = group_pairs(mechanism)
     wanted = range(len(mechanism.groups)) if groups is None else groups
     known, queued = dict(known), {}
@@ -160,7 +160,7 @@ def solve_groups(mechanism: Mechanism, geom: Geometry, known: dict, *, method: s
         if solved is None:
             each = [solve_group(mechanism, pairs, i, geom, known, method) for i in batch]
             each = [s + (hand_backs(geom, pairs[i], s[0]),) for i, s in zip(batch, each)]
-            solved = each, [((name,), r.force[None], r.couple[None]) for s in each for name, r in s[0].items()]
+            solved = each, [((name,), r.force, r.couple) for s in each for name, r in s[0].items()]
         for i, (found, effort, oks[i], back) in zip(batch, solved[0]):
             if effort is not None:
                 driving = effort
@@ -178,8 +178,9 @@ def stacked_at(stacks, names) -> tuple[Array, Array]:
     used = sorted({where[name][0] for name in names})
     start = dict(zip(used, np.cumsum([0] + [len(stacks[k][0]) for k in used])))
     rows = np.array([start[where[name][0]] + where[name][1] for name in names])
-    return (jnp.concatenate([stacks[k][1] for k in used])[rows],
-            jnp.concatenate([jnp.broadcast_to(stacks[k][2], (len(stacks[k][0]),)) for k in used])[rows])
+    sizes = [len(stacks[k][0]) for k in used]
+    return (jnp.concatenate([jnp.reshape(stacks[k][1], (n, 2)) for k, n in zip(used, sizes)])[rows],
+            jnp.concatenate([jnp.broadcast_to(stacks[k][2], (n,)) for k, n in zip(used, sizes)])[rows])
 
 
 def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
@@ -283,7 +284,7 @@ def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", group
     geom = _geometry(kin)
     if method == "global":
         found, driving, ok = solve_global(mechanism, geom, known)
-        stacks = [((name,), r.force[None], r.couple[None]) for name, r in found.items()]
+        stacks = [((name,), r.force, r.couple) for name, r in found.items()]
     else:
         found, driving, ok, stacks = solve_groups(mechanism, geom, known, method=method, groups=groups, batched=batched)
     if at_pairs is not None:

@@ -114,9 +114,8 @@ def apply_hand_backs(known: dict, queued: dict, links) -> None:
     one group after another (later groups first): the same sums to the bit."""
     for link in links:
         for _, _, (force, couple, moment) in sorted(queued.pop(link, []), key=lambda h: (-h[0], h[1])):
-            if link in known:
-                f, m = known[link]
-                known[link] = (f - force, m - couple - moment)
+            f, m = known[link]
+            known[link] = (f - force, m - couple - moment)
 
 
 def queue_hand_backs(queued: dict, i: int, group_pairs_i, back: dict) -> None:
