@@ -3,12 +3,14 @@ positions (tests/joint_reference.py) and central finite differences."""
 
 import os
 import sys
+import warnings
 
 import matplotlib
 
 matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
@@ -190,6 +192,25 @@ def test_traced_points_have_their_own_colour_and_legend_entry(watt):
     assert drawing.ax.get_title().endswith("q = 0.3 rad")
     anim = viz.animate(watt, [0.25, 0.5], t=[0.0, 0.1])
     assert anim._fig.axes[0].get_title().endswith("t = 0.000 s, q = 0.250 rad")
+
+
+def test_legend_entries_are_told_apart_by_their_colours(watt):
+    """A link gets a legend entry while every link has a colour of its own: the Watt six-bar's
+    links, each its own colour; the strandbeest's 49 links share 10 colours, and their 57
+    entries overflowed the figure (matplotlib warned that its layout collapsed)."""
+    small = viz.draw_mechanism(watt, 0.3)
+    handles, labels = small.ax.get_legend_handles_labels()
+    assert labels == list(watt.links)
+    colours = {matplotlib.colors.to_hex(h.get_color() if isinstance(h, Line2D) else h.get_facecolor()) for h in handles}
+    assert len(colours) == len(watt.links)
+    beest = assurjax.load_scene("strandbeest").mechanism
+    anim = viz.animate(beest, [0.25, 0.5], trace=["GL0", "GR0"], trace_q=np.linspace(0.0, 1.0, 5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a collapsed layout warns
+        frames = viz.render_frames(anim)
+    assert len(frames) == 2
+    assert [t.get_text() for t in anim._fig.axes[0].get_legend().get_texts()] == ["path of GL0", "path of GR0"]
+    assert viz.draw_mechanism(beest, 0.3).ax.get_legend() is None  # nothing named: no empty legend
 
 
 def test_legend_of_many_curves_sits_outside_the_data(watt_frames):

@@ -142,20 +142,25 @@ class MechanismDrawing:
 
     def _draw_traces(self, names):
         s, ok = self.scale, self.trace_frames.ok
+        named = len(names) <= len(TRACE_COLORS)  # see _make_links
         for k, name in enumerate(names):
             xy = np.where(ok[:, None], self.trace_frames.points[name], np.nan) * s
-            self.ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ls="--", color=trace_color(k), zorder=2, label=f"path of {name}")
+            self.ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ls="--", color=trace_color(k), zorder=2,
+                         label=f"path of {name}" if named else None)
 
     def _make_links(self) -> dict:
+        # legend entries only while each colour is one link's: past the palette colours repeat,
+        # and an entry names nothing (the strandbeest's 49 links overflowed the figure)
+        named = len(self.mechanism.links) <= len(LINK_COLORS)
         artists = {}
         for i, (name, link) in enumerate(self.mechanism.links.items()):
-            color = LINK_COLORS[i % len(LINK_COLORS)]
+            color, label = LINK_COLORS[i % len(LINK_COLORS)], name if named else None
             order = _hull_order(link.points)
             if len(order) == 2:  # a bar
-                artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3.5, label=name)[0]
+                artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3.5, label=label)[0]
             else:  # a plate through its points, or a slider block around its only point
                 corners = np.zeros((4 if len(order) == 1 else len(order), 2))
-                artist = self.ax.add_patch(Polygon(corners, closed=True, fc=color, ec=color, lw=2, zorder=2.5, label=name))
+                artist = self.ax.add_patch(Polygon(corners, closed=True, fc=color, ec=color, lw=2, zorder=2.5, label=label))
             artists[name] = (artist, order)
         return artists
 
@@ -191,8 +196,10 @@ class MechanismDrawing:
 
 
 def place_legend(ax):
-    """The legend outside the drawing, on its right, so it never hides the mechanism."""
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, borderaxespad=0.0)
+    """The legend outside the drawing, on its right, so it never hides the mechanism; none
+    where nothing is named (see ``MechanismDrawing._make_links``)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, borderaxespad=0.0)
 
 
 def draw_mechanism(
