@@ -92,7 +92,7 @@ def enable_fast_loops() -> None:
     add_xla_flag(FAST_LOOPS_FLAG, FAST_LOOPS_SETTING)
 
 
-def _at_top_level() -> bool:
+def at_top_level() -> bool:
     """True outside any jit, vmap or grad trace: JAX takes compiler options only there."""
     try:
         return _jax_core.trace_state_clean()
@@ -112,7 +112,7 @@ def jit(fun=None, *, compiler_options: dict = COMPILER_OPTIONS, **kwargs):
 
     @functools.wraps(fun)
     def call(*args, **kw):
-        return (top if _at_top_level() else nested)(*args, **kw)
+        return (top if at_top_level() else nested)(*args, **kw)
 
     return call
 
@@ -151,6 +151,13 @@ def jit_arrays(fun, static_argnums=()):
     static arguments: a call costs a flatten of the arguments, where ``equinox.filter_jit``
     partitions each one (~0.1 ms for the Watt six-bar's model, ~0.7 ms for the strandbeest's)."""
     return jax.jit(fun, static_argnums=static_argnums, compiler_options=PAIRED_OPTIONS)
+
+
+def chunk_rows(n: int, most: int) -> list[np.ndarray]:
+    """The indices of n rows in the fewest chunks of at most ``most`` rows, all of one size
+    (the last filled with the last row): one compiled program serves every chunk."""
+    size = -(-n // -(-n // most))
+    return [np.minimum(np.arange(start, start + size), n - 1) for start in range(0, n, size)]
 
 
 class Static:

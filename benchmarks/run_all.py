@@ -29,6 +29,7 @@ BENCHMARKS = {
     "compile_options": ("bench_compile_options.py", []),
     "kinetostatics": ("bench_kinetostatics.py", ["--repeats", "3"]),
     "batched_statics": ("bench_batched_statics.py", ["--repeats", "1"]),
+    "chunked_outputs": ("bench_chunked_outputs.py", ["--repeats", "1"]),
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
     "step_calls": ("bench_step_calls.py", []),

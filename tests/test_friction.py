@@ -67,6 +67,40 @@ def test_energy_balance_closes_with_friction(rough):
     np.testing.assert_allclose(rough.work, -rough.dissipated, atol=1e-12 * scale)
 
 
+def test_outputs_analysed_in_chunks_are_those_of_one_analysis(slider, rough, monkeypatch):
+    """With many friction elements ``simulate`` analyses its saved states a chunk at a time
+    (``dynamics._solve.OUTPUT_CHUNK``, one program called per chunk), and so does ``reactions``
+    (``STATES_PER_CALL``): forced here on the rough slider-crank, its 81 samples in chunks of 7
+    (the last one filled with the final state), the same run gives the same motion, dw/dt,
+    energies and work as one analysis of every sample, and its reactions in chunks of 5 those
+    of one call."""
+    from assurjax._kinetostatics import _api
+    from assurjax.dynamics import _solve
+    from assurjax.dynamics._solution import SAVED_FIELDS
+
+    model = aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism, MU, 1e-3))
+    moving = rough.omega != 0.0  # the states of test_inverse_dynamics_with_friction_balances_the_power (its program)
+    state = (rough.q[moving], rough.omega[moving], rough.domega[moving])
+    whole = aj.reactions(model, state)
+    monkeypatch.setattr(_api, "SUMMED_TERMS", 0)
+    monkeypatch.setattr(_api, "STATES_PER_CALL", 5)
+    for got, expected in zip(jax.tree.leaves(aj.reactions(model, state)), jax.tree.leaves(whole), strict=True):
+        assert np.shape(got) == np.shape(expected)
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
+
+    calls, saved_rows = [], _solve.saved_rows
+    monkeypatch.setattr(_solve, "SUMMED_TERMS", 0)  # chunked from the first friction element on
+    monkeypatch.setattr(_solve, "OUTPUT_CHUNK", 7)
+    monkeypatch.setattr(_solve, "saved_rows", lambda out, rows: calls.append(rows) or saved_rows(out, rows))
+    chunked = run(slider, MU, viscous=1e-3)
+    # (a first call may come from compiling the program for a chunk's shape)
+    np.testing.assert_array_equal(np.concatenate(calls[-12:]), np.minimum(np.arange(84), 80))
+    assert chunked.status == rough.status and chunked.t_final == rough.t_final
+    for name in SAVED_FIELDS:
+        for got, expected in zip(jax.tree.leaves(getattr(chunked, name)), jax.tree.leaves(getattr(rough, name)), strict=True):
+            np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=name)
+
+
 @pytest.mark.slow  # 29 s of compiles (stick segments with user events): the default suite ran 10:03
 def test_user_events_past_a_rest_and_while_held(slider, rough):
     """User events with friction past the first rest (0.52 s): t = 0.7 s, while it swings

@@ -13,9 +13,9 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._geometry import rotation
-from .._jit import jit
+from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction
+from .._friction import SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -306,6 +306,25 @@ def _batch(model, q, omega, alpha, t, method, groups, static):
     return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
 
 
+# States per call of the reactions' program where each solves many friction elements (past
+# SUMMED_TERMS): with the (K + 1) x K x 2 tangents of every state in one vmap the work runs
+# past the CPU's caches (the strandbeest with friction in its 73 joints: 1.9 ms a state in a
+# vmap of 2001, ~0.9 in one of 64). One program for a chunk, called once per chunk.
+STATES_PER_CALL = 64
+
+
+def _batched(model, state: tuple, method, groups, static):
+    """:func:`_batch` of the states (arrays of one shape), in chunks of at most
+    STATES_PER_CALL states (``_jit.chunk_rows``) where that applies: many friction elements,
+    called outside any trace (inside one, each chunk's call would inline a copy)."""
+    n = state[0].size
+    if len(frictions_of(model.loads)) <= SUMMED_TERMS or n <= STATES_PER_CALL or not at_top_level():
+        return _batch(model, *state, method, groups, static)
+    flat = [v.reshape(-1) for v in state]
+    pieces = [_batch(model, *(v[rows] for v in flat), method, groups, static) for rows in chunk_rows(n, STATES_PER_CALL)]
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n].reshape(state[0].shape + xs[0].shape[1:]), *pieces)
+
+
 def _state(state):
     """(q, omega, alpha, t) from a Solution-like object, a mapping or a tuple."""
     if isinstance(state, dict):
@@ -436,7 +455,8 @@ def _run(scene, state, joints, method, check, *, static):
     q = jnp.asarray(state[0], dtype=float)
     shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
-    forces, couples, driving, ok, friction, friction_power, friction_ok = _batch(model, q, omega, alpha, t, method, groups, static)
+    forces, couples, driving, ok, friction, friction_power, friction_ok = _batched(model, (q, omega, alpha, t), method, groups,
+                                                                                  static)
     if joints is not None:
         names = (joints,) if isinstance(joints, str) else tuple(joints)
         forces = {k: forces[k] for k in names}

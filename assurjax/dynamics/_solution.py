@@ -168,9 +168,10 @@ def _rates(mechanism, q, w, alpha, near, settings: Settings) -> dict:
     return out
 
 
-_SAVED = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "work", "points", "angles", "valid",
-          "velocities", "accelerations", "coms", "com_velocities", "com_accelerations", "angular_velocities",
-          "angular_accelerations")
+# the Solution's fields with a value per saved time
+SAVED_FIELDS = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "dissipated", "work", "points", "angles",
+                "valid", "velocities", "accelerations", "coms", "com_velocities", "com_accelerations",
+                "angular_velocities", "angular_accelerations")
 
 
 def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
@@ -181,7 +182,7 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     valid = sol.valid
     n_saved, n = valid.shape[0], int(np.count_nonzero(valid))
     cut = lambda x: x[:n] if isinstance(x, np.ndarray) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
-    fields = jax.tree.map(cut, {k: getattr(sol, k) for k in _SAVED})
+    fields = jax.tree.map(cut, {k: getattr(sol, k) for k in SAVED_FIELDS})
     event, failed, code = int(sol.event), int(sol.failed_group_index), int(result_code(sol.result))
     group = mechanism.groups[failed].name if failed >= 0 else None
     if code == START_NOT_ASSEMBLED:
