@@ -499,7 +499,8 @@ class _Prepared:
         """simulate_core's work for ``args`` (its arguments after the model) as two programs:
         the integration, then the end checks and the outputs at the saved states, compiled
         side by side on the first call of a signature (the Watt six-bar's first call 2.6 ->
-        1.8 s on two cores, against one program holding both)."""
+        1.8 s on two cores, against one program holding both); the outputs in chunks of
+        saved states where they solve many friction elements (:func:`output_chunk`)."""
         integrate, finish = (_integrate_jit, _finished_jit) if batch is None else (_batch_integrate_jit, _batch_finished_jit)
         parts, settings = self.model_parts, args[6]
         chunk = None if batch is not None else output_chunk(self.model, settings)
@@ -549,7 +550,7 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
     time (:func:`~.._jit.chunk_rows`): the end checks ride on every chunk, and give the same
     result on each."""
     n = out[0].t.shape[0]
-    pieces = [to_host(finish(saved_rows(out, rows))) for rows in chunk_rows(n, chunk)]
+    pieces = to_host([finish(saved_rows(out, rows)) for rows in chunk_rows(n, chunk)])  # every call dispatched first
     joined = {k: jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *(getattr(p, k) for p in pieces)) for k in SAVED_FIELDS}
     return replaced(pieces[0], **joined)
 
