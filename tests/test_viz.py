@@ -203,14 +203,14 @@ def test_legend_entries_are_told_apart_by_their_colours(watt):
     assert labels == list(watt.links)
     colours = {matplotlib.colors.to_hex(h.get_color() if isinstance(h, Line2D) else h.get_facecolor()) for h in handles}
     assert len(colours) == len(watt.links)
-    beest = assurjax.load_scene("strandbeest").mechanism
-    anim = viz.animate(beest, [0.25, 0.5], trace=["GL0", "GR0"], trace_q=np.linspace(0.0, 1.0, 5))
+    beest, q = assurjax.load_scene("strandbeest").mechanism, [0.25, 0.5]  # one position analysis compiled
+    anim = viz.animate(beest, q, trace=["GL0", "GR0"], trace_q=q)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a collapsed layout warns
         frames = viz.render_frames(anim)
     assert len(frames) == 2
     assert [t.get_text() for t in anim._fig.axes[0].get_legend().get_texts()] == ["path of GL0", "path of GR0"]
-    assert viz.draw_mechanism(beest, 0.3).ax.get_legend() is None  # nothing named: no empty legend
+    assert viz.animate(beest, q)._fig.axes[0].get_legend() is None  # nothing named: no empty legend
 
 
 def test_legend_of_many_curves_sits_outside_the_data(watt_frames):
