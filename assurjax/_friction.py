@@ -418,6 +418,20 @@ FIXED_POINT_STEPS = 32
 CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_friction's robust_newton)
 
 
+# Analyses along many states (simulate's output samples, reactions along a motion) with more
+# than SUMMED_TERMS elements: each state's friction solve carries the statics' (K + 1) x K x 2
+# tangents (86 kB with the strandbeest's 73 joints), and one vmap over all the states works past
+# the CPU's caches (2-3x the cost per state of a vmap over 64). They go this many at a time
+# through one program compiled for a chunk, called once per chunk.
+STATES_PER_CALL = 64
+
+
+def states_per_call(frictions) -> int | None:
+    """States per call of an analysis along many states with these friction elements (None:
+    all in one call), see STATES_PER_CALL."""
+    return STATES_PER_CALL if len(frictions) > SUMMED_TERMS else None
+
+
 def linearize_reactions(react, frictions, directions: int):
     """(reactions at v = 0, their tangents along the ``directions`` unit vectors) of
     ``react(v)`` -> (forces, couples) by pair, affine in v (the friction values, and in the

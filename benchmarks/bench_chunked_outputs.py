@@ -1,7 +1,6 @@
 """Analyses along many samples of a mechanism with many friction elements, in chunks: the
-output samples of ``simulate`` (``dynamics._solve.OUTPUT_CHUNK``) and the states of
-``reactions`` (``_kinetostatics._api.STATES_PER_CALL``), one program for a chunk of 64 called
-once per chunk, against one vmap over every sample.
+output samples of ``simulate`` and the states of ``reactions`` (``_friction.states_per_call``),
+one program for a chunk of at most 64 called once per chunk, against one vmap over every sample.
 
 The bundled strandbeest with friction in its 73 joints (mu 0.2, radius 0.02 m), 0.2 s of
 motion saved at 201 and at 2001 samples, each in a fresh process (no compiled program kept

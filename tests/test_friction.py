@@ -67,40 +67,6 @@ def test_energy_balance_closes_with_friction(rough):
     np.testing.assert_allclose(rough.work, -rough.dissipated, atol=1e-12 * scale)
 
 
-def test_outputs_analysed_in_chunks_are_those_of_one_analysis(slider, rough, monkeypatch):
-    """With many friction elements ``simulate`` analyses its saved states a chunk at a time
-    (``dynamics._solve.OUTPUT_CHUNK``, one program called per chunk), and so does ``reactions``
-    (``STATES_PER_CALL``): forced here on the rough slider-crank, its 81 samples in chunks of 7
-    (the last one filled with the final state), the same run gives the same motion, dw/dt,
-    energies and work as one analysis of every sample, and its reactions in chunks of 5 those
-    of one call."""
-    from assurjax._kinetostatics import _api
-    from assurjax.dynamics import _solve
-    from assurjax.dynamics._solution import SAVED_FIELDS
-
-    model = aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism, MU, 1e-3))
-    moving = rough.omega != 0.0  # the states of test_inverse_dynamics_with_friction_balances_the_power (its program)
-    state = (rough.q[moving], rough.omega[moving], rough.domega[moving])
-    whole = aj.reactions(model, state)
-    monkeypatch.setattr(_api, "SUMMED_TERMS", 0)
-    monkeypatch.setattr(_api, "STATES_PER_CALL", 5)
-    for got, expected in zip(jax.tree.leaves(aj.reactions(model, state)), jax.tree.leaves(whole), strict=True):
-        assert np.shape(got) == np.shape(expected)
-        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
-
-    calls, saved_rows = [], _solve.saved_rows
-    monkeypatch.setattr(_solve, "SUMMED_TERMS", 0)  # chunked from the first friction element on
-    monkeypatch.setattr(_solve, "OUTPUT_CHUNK", 7)
-    monkeypatch.setattr(_solve, "saved_rows", lambda out, rows: calls.append(rows) or saved_rows(out, rows))
-    chunked = run(slider, MU, viscous=1e-3)
-    # (a first call may come from compiling the program for a chunk's shape)
-    np.testing.assert_array_equal(np.concatenate(calls[-12:]), np.minimum(np.arange(84), 80))
-    assert chunked.status == rough.status and chunked.t_final == rough.t_final
-    for name in SAVED_FIELDS:
-        for got, expected in zip(jax.tree.leaves(getattr(chunked, name)), jax.tree.leaves(getattr(rough, name)), strict=True):
-            np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=name)
-
-
 @pytest.mark.slow  # 29 s of compiles (stick segments with user events): the default suite ran 10:03
 def test_user_events_past_a_rest_and_while_held(slider, rough):
     """User events with friction past the first rest (0.52 s): t = 0.7 s, while it swings
@@ -954,10 +920,12 @@ def _reference_case(case):
                                   pytest.param("slider_crank_driven", marks=pytest.mark.slow),
                                   pytest.param("watt_sixbar", marks=pytest.mark.slow), "quick_return",
                                   pytest.param("slider_driven", marks=pytest.mark.slow)])
-def test_agrees_with_the_joint_based_reference(case):
+def test_agrees_with_the_joint_based_reference(case, monkeypatch):
     """Friction in every joint (viscous terms too), motion through rests, sticking and sign
     reversals of the relative rates: q within 1e-8 rad (m) of the reference, and dw/dt of the
-    output samples (their own friction solve) within 1e-7 relative. Split: the
+    output samples (their own friction solve) within 1e-7 relative; on the slider-crank also
+    with the output samples and the reactions' states analysed in chunks (which many friction
+    elements ask for, ``_friction.states_per_call``; forced here). Split: the
     slider-crank's friction shared by three elements per pair (K = 12, past SUMMED_TERMS:
     the friction law takes its stacked path). Quick-return: the RPR's block slides on the
     turning rocker (the pair's guide moves), under a constant drive; slider-driven: the
@@ -975,20 +943,43 @@ def test_agrees_with_the_joint_based_reference(case):
     in_time = callable(drive)
     drives = (aj.Drive(lambda q, w, t: drive(t)),) if in_time else (aj.Drive(drive),) if drive else ()
     loads = tuple(scene.loads) + drives + _package_frictions(scene.mechanism, table, parts)
-    sol = aj.simulate(scene, loads=loads, q0=q0, omega0=w0, stop=None, t1=t1, saveat=times, energies=True, rtol=1e-10,
-                      atol=1e-10)
-    assert sol.status.startswith("reached t1"), sol.status
-    np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
-    np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
-    np.testing.assert_allclose(sol.domega[1:], expected.wdot[1:], rtol=1e-7, atol=1e-6)  # the outputs' own friction solve
-    # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is
-    # the drive applied (a Drive load is the effort asked for; at rest the static friction is not set by the motion)
-    moving = ~expected.stuck & (expected.w != 0.0)
-    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, loads), (expected.q[moving], expected.w[moving], expected.wdot[moving]))
-    np.testing.assert_allclose(r.driving, drive(times[moving]) if in_time else drive, atol=1e-7)
+
+    def check_against_the_reference():
+        sol = aj.simulate(scene, loads=loads, q0=q0, omega0=w0, stop=None, t1=t1, saveat=times, energies=True, rtol=1e-10,
+                          atol=1e-10)
+        assert sol.status.startswith("reached t1"), sol.status
+        np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
+        np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])  # t0: at rest before it moves
+        np.testing.assert_allclose(sol.domega[1:], expected.wdot[1:], rtol=1e-7, atol=1e-6)  # the outputs' own friction solve
+        assert np.max(np.abs(sol.balance)) < 1e-7 * np.max(np.abs(sol.total))  # T + V (outputs) - W (integrated)
+        # inverse dynamics along the reference's own motion, where it moves: the driving effort needed is
+        # the drive applied (a Drive load is the effort asked for; at rest the static friction is not set by the motion)
+        moving = ~expected.stuck & (expected.w != 0.0)
+        r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, loads),
+                         (expected.q[moving], expected.w[moving], expected.wdot[moving]))
+        np.testing.assert_allclose(r.driving, drive(times[moving]) if in_time else drive, atol=1e-7)
+        pins = [name for name in r.forces if name in expected.reactions]  # the revolutes: |F| whatever the convention
+        assert pins
+        for name in pins:
+            np.testing.assert_allclose(np.hypot(*np.moveaxis(np.asarray(r.forces[name]), -1, 0)),
+                                       np.linalg.norm(expected.reactions[name][moving], axis=-1), rtol=1e-7, atol=1e-7,
+                                       err_msg=name)
+
+    check_against_the_reference()
     if in_time:
         assert np.count_nonzero(np.diff(expected.stuck.astype(int)) == 1) == 2  # held twice (and released)
+    if case == "slider_crank" and parts == 1:  # again, the analyses in chunks of 7 (outputs) and 5 (reactions)
+        from assurjax._kinetostatics import _api
+        from assurjax.dynamics import _solve
+
+        calls, rows_of = [], _solve.integrated_rows
+        monkeypatch.setattr(_solve, "states_per_call", lambda frictions: 7)
+        monkeypatch.setattr(_api, "states_per_call", lambda frictions: 5)
+        monkeypatch.setattr(_solve, "integrated_rows", lambda out, rows: calls.append(rows) or rows_of(out, rows))
+        check_against_the_reference()
+        # the 81 samples in 12 chunks of 7, the last one filled (a first call may come from compiling for a chunk)
+        np.testing.assert_array_equal(np.concatenate(calls[-12:]), np.minimum(np.arange(84), times.size - 1))
 
 
 def test_friction_through_statics_solved_in_batches_obeys_the_law():

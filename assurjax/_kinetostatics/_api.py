@@ -15,7 +15,7 @@ from .._errors import AssurjaxError
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction
+from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction, states_per_call
 from .._loads import applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -306,22 +306,15 @@ def _batch(model, q, omega, alpha, t, method, groups, static):
     return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
 
 
-# States per call of the reactions' program where each solves many friction elements (past
-# SUMMED_TERMS): with the (K + 1) x K x 2 tangents of every state in one vmap the work runs
-# past the CPU's caches (the strandbeest with friction in its 73 joints: 1.9 ms a state in a
-# vmap of 2001, ~0.9 in one of 64). One program for a chunk, called once per chunk.
-STATES_PER_CALL = 64
-
-
 def _batched(model, state: tuple, method, groups, static):
-    """:func:`_batch` of the states (arrays of one shape), in chunks of at most
-    STATES_PER_CALL states (``_jit.chunk_rows``) where that applies: many friction elements,
-    called outside any trace (inside one, each chunk's call would inline a copy)."""
-    n = state[0].size
-    if len(frictions_of(model.loads)) <= SUMMED_TERMS or n <= STATES_PER_CALL or not at_top_level():
+    """:func:`_batch` of the states (arrays of one shape), in chunks (``_jit.chunk_rows``) where
+    the friction asks for them (``_friction.states_per_call``) and the call is outside any trace
+    (inside one, each chunk's call would inline a copy)."""
+    n, chunk = state[0].size, states_per_call(frictions_of(model.loads))
+    if chunk is None or n <= chunk or not at_top_level():
         return _batch(model, *state, method, groups, static)
     flat = [v.reshape(-1) for v in state]
-    pieces = [_batch(model, *(v[rows] for v in flat), method, groups, static) for rows in chunk_rows(n, STATES_PER_CALL)]
+    pieces = [_batch(model, *(v[rows] for v in flat), method, groups, static) for rows in chunk_rows(n, chunk)]
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n].reshape(state[0].shape + xs[0].shape[1:]), *pieces)
 
 

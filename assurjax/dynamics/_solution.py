@@ -179,10 +179,6 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     # On the host, in one transfer: slicing device arrays to a new length n would
     # compile per n. The trimmed Solution holds NumPy arrays.
     sol = to_host(sol)
-    valid = sol.valid
-    n_saved, n = valid.shape[0], int(np.count_nonzero(valid))
-    cut = lambda x: x[:n] if isinstance(x, np.ndarray) and x.ndim >= 1 and x.shape[0] == n_saved else x  # noqa: E731
-    fields = jax.tree.map(cut, {k: getattr(sol, k) for k in SAVED_FIELDS})
     event, failed, code = int(sol.event), int(sol.failed_group_index), int(result_code(sol.result))
     group = mechanism.groups[failed].name if failed >= 0 else None
     if code == START_NOT_ASSEMBLED:
@@ -192,7 +188,15 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
     status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
-    return replaced(sol, **fields, t_stop=t_stop, failed_group=group, status=status)
+    reached = saved_rows(sol, slice(0, int(np.count_nonzero(sol.valid))))
+    return replaced(reached, t_stop=t_stop, failed_group=group, status=status)
+
+
+def saved_rows(sol: Solution, rows) -> Solution:
+    """``sol`` with only the saved times ``rows`` (a slice or indices) in its SAVED_FIELDS."""
+    n = sol.t.shape[0]
+    take = lambda x: x[rows] if getattr(x, "ndim", 0) >= 1 and x.shape[0] == n else x  # noqa: E731
+    return replaced(sol, **{k: jax.tree.map(take, getattr(sol, k)) for k in SAVED_FIELDS})
 
 
 def to_host(tree):

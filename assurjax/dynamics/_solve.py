@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import SUMMED_TERMS, frictions_of
+from .._friction import frictions_of, states_per_call
 from .._jit import Static, checks_without_callbacks, chunk_rows, combine, compile_side_by_side, jit_arrays, split_arrays
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
@@ -32,7 +32,8 @@ from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, to_host, trim
+from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, saved_rows,
+                        to_host, trim)
 from ._stick import batch_settings, jammed_members, stick_slip, with_jam_status
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -500,10 +501,10 @@ class _Prepared:
         the integration, then the end checks and the outputs at the saved states, compiled
         side by side on the first call of a signature (the Watt six-bar's first call 2.6 ->
         1.8 s on two cores, against one program holding both); the outputs in chunks of
-        saved states where they solve many friction elements (:func:`output_chunk`)."""
+        saved states where dw/dt solves many friction elements (``_friction.states_per_call``)."""
         integrate, finish = (_integrate_jit, _finished_jit) if batch is None else (_batch_integrate_jit, _batch_finished_jit)
         parts, settings = self.model_parts, args[6]
-        chunk = None if batch is not None else output_chunk(self.model, settings)
+        chunk = None if batch is not None or not settings.domega else states_per_call(frictions_of(self.model.loads))
 
         def chunked(out):  # whether the outputs' program takes the saved states in chunks
             return chunk is not None and out[0].t.shape[0] > chunk
@@ -512,7 +513,7 @@ class _Prepared:
         # wrong, only compiled one program after the other by the calls themselves)
         signature = (batch, None if args[4] is None else args[4].shape, args[5] is None, args[7] is None, settings)
         if signature not in self._compiled:
-            rows = lambda out: saved_rows(out, chunk_rows(out[0].t.shape[0], chunk)[0]) if chunked(out) else out  # noqa: E731
+            rows = lambda out: integrated_rows(out, chunk_rows(out[0].t.shape[0], chunk)[0]) if chunked(out) else out  # noqa: E731
             compile_side_by_side(integrate, (*parts, *args), finish, lambda out: (*parts, *rows(out), settings))
             self._compiled.add(signature)
         out = integrate(*parts, *args)
@@ -521,36 +522,20 @@ class _Prepared:
         return finished_in_chunks(lambda part: finish(*parts, *part, settings), to_host(out), chunk)
 
 
-# The output samples' analysis in chunks of this many, where it solves many friction
-# elements: each sample carries (K + 1) x K x 2 tangents of the statics (86 kB with the
-# strandbeest's 73), and a vmap over all of them runs past the CPU's caches (the strandbeest:
-# ~250 us a sample in one vmap of 201 or more, 84 us in one of 64). One program for a chunk,
-# called once per chunk: inside one program a loop over the chunks cost 1-3 s more to compile.
-OUTPUT_CHUNK = 64
-
-
-def output_chunk(model: Model, settings: Settings) -> int | None:
-    """Saved states per call of the outputs' program (None: all in one), see OUTPUT_CHUNK."""
-    many = len(frictions_of(model.loads)) > SUMMED_TERMS
-    return OUTPUT_CHUNK if many and settings.domega else None
-
-
-def saved_rows(out: tuple, rows) -> tuple:
+def integrated_rows(out: tuple, rows) -> tuple:
     """(solution, branch, end checks) of :func:`_integrate` with only the saved states
     ``rows`` (host arrays)."""
     sol, branch, checks = out
-    n = sol.t.shape[0]
-    take = lambda x: x[rows] if getattr(x, "ndim", 0) >= 1 and x.shape[0] == n else x  # noqa: E731
-    saved = replaced(sol, **{k: jax.tree.map(take, getattr(sol, k)) for k in SAVED_FIELDS})
-    return saved, None if branch is None else branch[rows], checks
+    return saved_rows(sol, rows), None if branch is None else branch[rows], checks
 
 
 def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
     """``finish(out)`` with the saved states' outputs computed at most ``chunk`` states at a
-    time (:func:`~.._jit.chunk_rows`): the end checks ride on every chunk, and give the same
-    result on each."""
+    time (:func:`~.._jit.chunk_rows`; one program for a chunk, called once per chunk: a loop
+    over the chunks inside one program took 1-3 s longer to compile): the end checks ride on
+    every chunk, and give the same result on each."""
     n = out[0].t.shape[0]
-    pieces = to_host([finish(saved_rows(out, rows)) for rows in chunk_rows(n, chunk)])  # every call dispatched first
+    pieces = to_host([finish(integrated_rows(out, rows)) for rows in chunk_rows(n, chunk)])  # every call dispatched first
     joined = {k: jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *(getattr(p, k) for p in pieces)) for k in SAVED_FIELDS}
     return replaced(pieces[0], **joined)
 
