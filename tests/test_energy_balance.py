@@ -22,8 +22,9 @@ def _closes(sol, rel=1e-6):
     return scale
 
 
-@pytest.mark.parametrize("name", [n if n != "strandbeest" else pytest.param(n, marks=pytest.mark.slow)
-                                  for n in assurjax.bundled_scenes()])
+# the strandbeest and the triad (~18 s; the class-IV scene keeps an iterative group by default) in the slow suite
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in ("strandbeest", "triad_mechanism")
+                                  else n for n in assurjax.bundled_scenes()])
 def test_bundled_scene_energy_balance_closes(name):
     scene = assurjax.load_scene(name)
     t1 = min(1.0, scene.state["t1"])

@@ -61,7 +61,8 @@ def test_plan_batches_the_strandbeest_by_level_and_kind():
     assert sorted(i for x in items for i in x.groups) == list(wanted)
 
 
-@pytest.mark.parametrize("tracked", [False, True])
+# the chain with fixed modes in the slow suite (~16 s): the tracked one runs the same scan and its predictor
+@pytest.mark.parametrize("tracked", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_chain_matches_group_by_group(tracked):
     """N-four-bar (a scan over the windows), fixed modes and with a branch predictor:
     positions and both kinematic coefficients equal the group-by-group values."""
@@ -76,7 +77,8 @@ def test_batches_match_group_by_group():
     compare(mech, jnp.linspace(-3.0, 3.0, 5))
 
 
-@pytest.mark.parametrize("name", ["triad_mechanism", "class4_seed003"])
+# the triad's case in the slow suite (~21 s): the class-IV group's continuation is the same code
+@pytest.mark.parametrize("name", [pytest.param("triad_mechanism", marks=pytest.mark.slow), "class4_seed003"])
 def test_iterative_groups_match_group_by_group(name):
     """Continuation of the iterative groups from their guess, batched or not."""
     scene = assurjax.load_scene(name)
