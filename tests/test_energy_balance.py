@@ -12,6 +12,7 @@ import pytest
 
 import assurjax
 from scene_texts import SHAPER_LOADS
+from slow_cases import marked_slow
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -23,8 +24,7 @@ def _closes(sol, rel=1e-6):
 
 
 # the strandbeest and the triad (~18 s; the class-IV scene keeps an iterative group by default) in the slow suite
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in ("strandbeest", "triad_mechanism")
-                                  else n for n in assurjax.bundled_scenes()])
+@pytest.mark.parametrize("name", marked_slow(assurjax.bundled_scenes(), ("strandbeest", "triad_mechanism")))
 def test_bundled_scene_energy_balance_closes(name):
     scene = assurjax.load_scene(name)
     t1 = min(1.0, scene.state["t1"])

@@ -34,6 +34,7 @@ from assurjax._reduction import reduce_single
 sys.path.insert(0, os.path.dirname(__file__))
 import joint_reference as jr  # noqa: E402
 from scene_texts import SLIDER_DRIVEN  # noqa: E402
+from slow_cases import marked_slow  # noqa: E402
 
 N_STATES = 4
 
@@ -217,7 +218,7 @@ def solved():
 
 def _scene_params(names):
     """The scenes as parameters; the strandbeest (25 groups, ~15 s of compilation) in the slow suite."""
-    return [pytest.param(n, marks=pytest.mark.slow) if n == "strandbeest" else n for n in names]
+    return marked_slow(names, ("strandbeest",))
 
 
 def _single(tree, i):

@@ -20,6 +20,7 @@ import pytest
 import assurjax
 from assurjax import MechanismError, SceneError
 from assurjax.structure import Sketch, Slide, build, decompose, explicit_toml, sketch_of
+from slow_cases import marked_slow
 
 # -- helpers --------------------------------------------------------------------------
 
@@ -55,8 +56,7 @@ def sweep_of(scene):
 
 # the triad's and the class-IV scene's sweeps in the slow suite (~25 s each): both kinds are decomposed from
 # random drawings by default (test_sketch_random.py)
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in ("triad_mechanism", "class4_seed003")
-                                  else n for n in assurjax.bundled_scenes()])
+@pytest.mark.parametrize("name", marked_slow(assurjax.bundled_scenes(), ("triad_mechanism", "class4_seed003")))
 def test_bundled_scene_rebuilt_from_its_joints(name):
     scene = assurjax.load_scene(name)
     original = scene.mechanism
