@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import abc
 
+from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
@@ -32,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from ._errors import MechanismError
@@ -308,8 +310,8 @@ def _stacked_terms(mechanism: Mechanism, kin, frictions) -> tuple:
 
 def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     """u -> the elements' Coulomb magnitudes (K,), from the reactions affine in u:
-    ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents); only the
-    elements' own pairs are read.
+    ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents), see
+    :func:`linearize_reactions`.
 
     For a few elements, element by element (the reactions by pair) with u . basis as a
     chain of products and sums: XLA fuses it with its neighbours, where a dot this small is
@@ -319,13 +321,14 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     element by element the program grows with K (the strandbeest with friction in its 73
     joints: 333 s to a first simulate() with chains over every pair, 35 s element by
     element, 22 s stacked)."""
-    (forces0, couples0), (forces_b, couples_b) = reactions0, basis
-    if len(frictions) > SUMMED_TERMS:  # already at the elements' pairs (see linearize_reactions)
+    if len(frictions) > SUMMED_TERMS:  # stacked at the elements' pairs
+        (forces0, couples0), (forces_b, couples_b) = reactions0, basis
         terms = _stacked_terms(mechanism, kin, frictions)
         return lambda u: limits(terms, _affine(forces0, forces_b, u), _affine(couples0, couples_b, u))
     terms = [f.limit_terms(mechanism, kin) for f in frictions]
 
-    def coulomb(u):
+    def coulomb(u):  # read by pair here: inside the solver's loop, where the slices fuse
+        (forces0, couples0), (forces_b, couples_b) = by_pair(reactions0), by_pair(basis)
         return jnp.stack([limits(t, _affine(forces0[f.pair], forces_b[f.pair], u),
                                  _affine(couples0[f.pair], couples_b[f.pair], u) if f.pair in couples0 else 0.0)
                           for f, t in zip(frictions, terms)])
@@ -350,8 +353,8 @@ def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u)
     for up to SUMMED_TERMS elements: a stacked (K, K, 2) array over 512 bytes makes XLA's
     CPU runtime spread a simulation's step over threads (the quick-return's right-hand side
     with friction in its 7 pairs: 16 us stacked, 7.4 row by row, 6 without this test)."""
-    (forces0, couples0), (forces_b, couples_b) = reactions
-    (forces_a, couples_a), dalpha = per_unit_acceleration(inertial[0]), inertial[1]
+    (forces0, couples0), (forces_b, couples_b) = by_pair(reactions[0]), by_pair(reactions[1])
+    (forces_a, couples_a), dalpha = by_pair(per_unit_acceleration(inertial[0])), inertial[1]
     k = len(frictions)
 
     def at_pair(values, tangents, per_unit, pair):  # (value at u, tangents at a fixed acceleration)
@@ -435,14 +438,50 @@ def states_per_call(frictions) -> int | None:
 def linearize_reactions(react, frictions, directions: int):
     """(reactions at v = 0, their tangents along the ``directions`` unit vectors) of
     ``react(v)`` -> (forces, couples) by pair, affine in v (the friction values, and in the
-    forward dynamics dw/dt first): one kinetostatic solve and one more per tangent. For more
-    than SUMMED_TERMS ``frictions``, ``react(v, at_pairs=...)`` reads their pairs' reactions
-    stacked, (forces (K, 2), couples (K,)): the sums made of them afterwards are then one
-    operation each, where by pair they were one each per pair (the strandbeest with friction
-    in its 73 joints: 146 calls per right-hand side)."""
-    read = (lambda v: react(v, at_pairs=tuple(f.pair for f in frictions))) if len(frictions) > SUMMED_TERMS else react
-    reactions0, linear = jax.linearize(read, jnp.zeros(directions))
-    return reactions0, jax.vmap(linear)(jnp.eye(directions))
+    forward dynamics dw/dt first): one kinetostatic solve and one more per tangent. Only the
+    elements' pairs are kept. For up to SUMMED_TERMS ``frictions``, as :class:`PairReactions`
+    (packed into one array). For more, ``react(v, at_pairs=...)`` reads their pairs'
+    reactions stacked, (forces (K, 2), couples (K,)): the sums made of them afterwards are then
+    one operation each, where by pair they were one each per pair (the strandbeest with
+    friction in its 73 joints: 146 calls per right-hand side)."""
+    if len(frictions) > SUMMED_TERMS:
+        read = lambda v: react(v, at_pairs=tuple(f.pair for f in frictions))  # noqa: E731
+        reactions0, linear = jax.linearize(read, jnp.zeros(directions))
+        return reactions0, jax.vmap(linear)(jnp.eye(directions))
+    pairs, unravel = {f.pair for f in frictions}, []
+
+    def packed(v):
+        forces, couples = react(v)
+        values, unpack = ravel_pytree(({p: f for p, f in forces.items() if p in pairs},
+                                       {p: c for p, c in couples.items() if p in pairs}))
+        unravel.append(unpack)  # shapes only: no tracer is kept
+        return values
+
+    values0, linear = jax.linearize(packed, jnp.zeros(directions))
+    return PairReactions(values0, unravel[0]), PairReactions(jax.vmap(linear)(jnp.eye(directions)), unravel[0])
+
+
+class PairReactions(eqx.Module):
+    """The friction elements' pairs' reactions (forces, couples by pair) packed into one
+    array, ``values`` (..., n), leading axes for tangents: the fixed-point loop and the
+    Newton fallback's cond take it as one operand, where they took one per pair and force,
+    each materialized by XLA as a call of its own (the press, four elements: 710 -> 644
+    kernel calls per step). Arithmetic on it goes through ``jax.tree.map``; the law reads
+    it by pair with :func:`by_pair`, inside the loop, where the slices fuse."""
+
+    values: Array
+    unravel: Callable = eqx.field(static=True)
+
+
+def by_pair(reactions):
+    """(forces, couples) by pair of :class:`PairReactions` (with its leading axes); other
+    reactions (stacked at the elements, past SUMMED_TERMS) as they are."""
+    if not isinstance(reactions, PairReactions):
+        return reactions
+    unravel = reactions.unravel
+    for _ in range(reactions.values.ndim - 1):
+        unravel = jax.vmap(unravel)
+    return unravel(reactions.values)
 
 
 def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *, inertial=None,
