@@ -435,30 +435,42 @@ def states_per_call(frictions) -> int | None:
     return STATES_PER_CALL if len(frictions) > SUMMED_TERMS else None
 
 
+# XLA's CPU runtime runs a loop's calls across threads once an array the loop carries passes
+# this many bytes (see dynamics/_packed.py): the friction solve's loop stays under it
+THREADED_BYTES = 512
+
+
 def linearize_reactions(react, frictions, directions: int):
     """(reactions at v = 0, their tangents along the ``directions`` unit vectors) of
     ``react(v)`` -> (forces, couples) by pair, affine in v (the friction values, and in the
-    forward dynamics dw/dt first): one kinetostatic solve and one more per tangent. Only the
-    elements' pairs are kept. For up to SUMMED_TERMS ``frictions``, as :class:`PairReactions`
-    (packed into one array). For more, ``react(v, at_pairs=...)`` reads their pairs'
-    reactions stacked, (forces (K, 2), couples (K,)): the sums made of them afterwards are then
-    one operation each, where by pair they were one each per pair (the strandbeest with
-    friction in its 73 joints: 146 calls per right-hand side)."""
-    if len(frictions) > SUMMED_TERMS:
-        read = lambda v: react(v, at_pairs=tuple(f.pair for f in frictions))  # noqa: E731
-        reactions0, linear = jax.linearize(read, jnp.zeros(directions))
-        return reactions0, jax.vmap(linear)(jnp.eye(directions))
-    pairs, unravel = {f.pair for f in frictions}, []
+    forward dynamics dw/dt first): one kinetostatic solve and one more per tangent.
+
+    Up to SUMMED_TERMS ``frictions``, the elements' pairs' reactions as
+    :class:`PairReactions` (packed into one array) while their tangents stay under
+    THREADED_BYTES, else by pair (the Watt six-bar's seven pins packed: its step 1.5x
+    dearer). Past SUMMED_TERMS, ``react(v, at_pairs=...)`` reads their pairs' reactions
+    stacked, (forces (K, 2), couples (K,)): the sums made of them afterwards are then one
+    operation each, where by pair they were one each per pair (the strandbeest with friction
+    in its 73 joints: 146 calls per right-hand side)."""
+    kinds = {f.pair: f.kind for f in frictions}
+    width = sum(3 if kind == "P" else 2 for kind in kinds.values())  # a force, and a prismatic pair's couple
+    packs = len(frictions) <= SUMMED_TERMS and directions * width * 8 <= THREADED_BYTES
+    unravel = []
 
     def packed(v):
         forces, couples = react(v)
-        values, unpack = ravel_pytree(({p: f for p, f in forces.items() if p in pairs},
-                                       {p: c for p, c in couples.items() if p in pairs}))
+        values, unpack = ravel_pytree(({p: f for p, f in forces.items() if p in kinds},
+                                       {p: c for p, c in couples.items() if p in kinds}))
         unravel.append(unpack)  # shapes only: no tracer is kept
         return values
 
-    values0, linear = jax.linearize(packed, jnp.zeros(directions))
-    return PairReactions(values0, unravel[0]), PairReactions(jax.vmap(linear)(jnp.eye(directions)), unravel[0])
+    if len(frictions) > SUMMED_TERMS:
+        read = lambda v: react(v, at_pairs=tuple(f.pair for f in frictions))  # noqa: E731
+    else:
+        read = packed if packs else react
+    reactions0, linear = jax.linearize(read, jnp.zeros(directions))
+    tangents = jax.vmap(linear)(jnp.eye(directions))
+    return (PairReactions(reactions0, unravel[0]), PairReactions(tangents, unravel[0])) if packs else (reactions0, tangents)
 
 
 class PairReactions(eqx.Module):
