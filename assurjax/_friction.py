@@ -454,7 +454,7 @@ def linearize_reactions(react, frictions, directions: int):
     in its 73 joints: 146 calls per right-hand side)."""
     kinds = {f.pair: f.kind for f in frictions}
     width = sum(3 if kind == "P" else 2 for kind in kinds.values())  # a force, and a prismatic pair's couple
-    packs = len(frictions) <= SUMMED_TERMS and directions * width * 8 <= THREADED_BYTES
+    packs = len(frictions) <= SUMMED_TERMS and directions * width * 8 <= THREADED_BYTES  # 8 bytes a float64
     unravel = []
 
     def packed(v):
@@ -470,7 +470,9 @@ def linearize_reactions(react, frictions, directions: int):
         read = packed if packs else react
     reactions0, linear = jax.linearize(read, jnp.zeros(directions))
     tangents = jax.vmap(linear)(jnp.eye(directions))
-    return (PairReactions(reactions0, unravel[0]), PairReactions(tangents, unravel[0])) if packs else (reactions0, tangents)
+    if not packs:
+        return reactions0, tangents
+    return PairReactions(reactions0, unravel[0]), PairReactions(tangents, unravel[0])
 
 
 class PairReactions(eqx.Module):
@@ -486,8 +488,8 @@ class PairReactions(eqx.Module):
 
 
 def by_pair(reactions):
-    """(forces, couples) by pair of :class:`PairReactions` (with its leading axes); other
-    reactions (stacked at the elements, past SUMMED_TERMS) as they are."""
+    """(forces, couples) by pair of :class:`PairReactions` (with its leading axes); reactions
+    already by pair, or stacked at the elements (past SUMMED_TERMS), as they are."""
     if not isinstance(reactions, PairReactions):
         return reactions
     unravel = reactions.unravel
