@@ -886,6 +886,26 @@ def _package_frictions(mechanism, table: dict, parts: int = 1):
     return tuple(out)
 
 
+def test_pairs_read_one_by_one_give_the_reference_acceleration():
+    """The Watt six-bar with friction in its seven pins: its reactions' tangents (8 x 14 doubles)
+    pass ``_friction.THREADED_BYTES``, so the law reads them pair by pair, not packed (the
+    slider-crank's path, checked by the reference case below). dw/dt of the package's vector
+    field at moving states, both directions, against the joint-based reference's forward
+    dynamics to 1e-9 relative."""
+    import joint_reference_friction as jrf
+    from assurjax._friction import THREADED_BYTES
+    from assurjax.dynamics._field import State, field_args, vector_field
+
+    scene, table, ref = aj.load_scene("watt_sixbar"), jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)
+    assert 8 * (2 * len(table)) * 8 > THREADED_BYTES  # K + 1 tangents of K pins' forces: by pair
+    model = aj.Model(scene.mechanism, scene.gravity, tuple(scene.loads) + _package_frictions(scene.mechanism, table))
+    q, w = np.array([0.3, 0.5, 0.8, 0.3, 0.6]), np.array([1.0, 2.5, -1.5, -0.7, 4.0])
+    field = jax.vmap(lambda q, w: vector_field(0.0, State(q, w), field_args(model, direction=jnp.sign(w))).omega)
+    found = jax.jit(field)(q, w)
+    expected = np.array([ref.forward(qi, wi)["wdot"] for qi, wi in zip(q, w)])
+    np.testing.assert_allclose(found, expected, rtol=1e-9, atol=1e-9)
+
+
 def _reference_case(case):
     """(package scene, q0, w0, drive (N m: a number or a function of t), t1, friction table, the
     joint-based reference model with that friction) of a case compared with the joint-based reference."""
