@@ -39,6 +39,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
+from ._jit import THREADED_BYTES
 from ._kinematics import by_name
 from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
@@ -433,11 +434,6 @@ def states_per_call(frictions) -> int | None:
     """States per call of an analysis along many states with these friction elements (None:
     all in one call), see STATES_PER_CALL."""
     return STATES_PER_CALL if len(frictions) > SUMMED_TERMS else None
-
-
-# XLA's CPU runtime runs a loop's calls across threads once an array the loop carries passes
-# this many bytes (see dynamics/_packed.py): the friction solve's loop stays under it
-THREADED_BYTES = 512
 
 
 def linearize_reactions(react, frictions, directions: int):

@@ -1,16 +1,16 @@
-"""The integrated state's scalars as one array where diffrax steps it.
+"""The integrated state as one array where diffrax steps it.
 
 diffrax steps a PyTree leaf by leaf: each leaf's share of a stage (its combination of the
 stages, its slot in their buffer, its part of the error estimate) is an operation of its
 own, and on a CPU XLA runs each as a call of its own (~20 ns each, a few per leaf and
 stage), where a scalar's arithmetic is a few flops. So in diffrax's forward mode (see
 :func:`packing_of`) the state's scalars (q, w, and the work and dissipated work when asked
-for) go to diffrax as one array, the vectors (the tracked angles, the friction elements'
-rates) as they are, and the state is unpacked wherever the package reads it (the vector
-field, the events, the step-size controller, the saved states). The vectors stay apart: in
-one array with the scalars, the stages' buffer of a mechanism with 7 friction elements
-passed 512 bytes, over which XLA's CPU runtime runs a loop's calls across threads (the Watt
-six-bar with friction: 3.4 -> 5.8 ms a run).
+for) and its vectors (the tracked angles, the friction elements' rates) go to diffrax as
+one array, and the state is unpacked wherever the package reads it (the vector field, the
+events, the step-size controller, the saved states). The vectors go in only while the
+stages' buffer stays under THREADED_BYTES, over which XLA's CPU runtime runs a loop's calls
+across threads: else they are stepped apart (the Watt six-bar with its 7 friction rates in
+the array: 3.4 -> 5.8 ms a run).
 
 At the same boundary diffrax gets the vector field's arguments as their leaves
 (:func:`flattened`: no empty tuple for its backsolve) and the term and events as Modules
@@ -23,41 +23,47 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
+from .._jit import THREADED_BYTES
 from ._field import State
 
 
 class Packed(eqx.Module):
-    """A state as diffrax steps it: its scalars stacked (..., n), its other fields as
-    they are (None where absent), see :class:`Packing`."""
+    """A state as diffrax steps it: its packed fields in one array (..., n), the fields
+    stepped apart as they are (None where there are none), see :class:`Packing`."""
 
-    scalars: Array
-    vectors: tuple | None
+    values: Array
+    apart: tuple | None
 
 
 class Packing(eqx.Module):
-    """Which of a :class:`State`'s fields are scalars (packed together), which vectors
-    (kept apart) and which absent: ``kinds`` per field, in the order of the fields; or,
-    ``kinds`` None, no packing (the state stepped as it is)."""
+    """Where each of a :class:`State`'s fields goes: ``kinds`` per field, in the order of
+    the fields, its length in the packed array (0: a scalar), ``"apart"`` (stepped as it
+    is) or None (absent); or, ``kinds`` None, no packing (the state stepped as it is)."""
 
-    kinds: tuple | None = eqx.field(static=True)  # per field: "scalar", "vector" or None
+    kinds: tuple | None = eqx.field(static=True)
 
     def pack(self, y: State) -> Packed | State:
         if self.kinds is None:
             return y
-        scalars = [v for v, kind in zip(y, self.kinds) if kind == "scalar"]
-        # None, not (), without vectors: diffrax's backsolve cannot pass an empty tuple (design notes)
-        vectors = tuple(v for v, kind in zip(y, self.kinds) if kind == "vector") or None
-        return Packed(jnp.stack(scalars, axis=-1), vectors)
+        parts = [v[..., None] if kind == 0 else v for v, kind in zip(y, self.kinds) if _packed(kind)]
+        # None, not (), with nothing apart: diffrax's backsolve cannot pass an empty tuple (design notes)
+        apart = tuple(v for v, kind in zip(y, self.kinds) if kind == "apart") or None
+        return Packed(jnp.concatenate(parts, axis=-1), apart)
 
     def unpack(self, z: Packed | State) -> State:
         """A packed state, or a stack of them (saved states: leading axes kept), as a State."""
         if self.kinds is None:
             return z
-        scalars, vectors, fields = iter(range(z.scalars.shape[-1])), iter(z.vectors or ()), []
+        start, apart, fields = 0, iter(z.apart or ()), []
         for kind in self.kinds:
-            fields.append(z.scalars[..., next(scalars)] if kind == "scalar" else next(vectors) if kind == "vector" else None)
+            if _packed(kind):
+                fields.append(z.values[..., start] if kind == 0 else z.values[..., start:start + kind])
+                start += max(kind, 1)
+            else:
+                fields.append(next(apart) if kind == "apart" else None)
         return State(*fields)
 
     def view(self, y):
@@ -66,18 +72,35 @@ class Packing(eqx.Module):
         return self.unpack(y) if isinstance(y, Packed) else y
 
 
+def _packed(kind) -> bool:
+    return isinstance(kind, int)
+
+
 UNPACKED = Packing(None)
 
 
-def packing_of(y: State, adjoint: str) -> Packing:
-    """The packing of states like ``y`` for a solve with that ``adjoint`` setting: packed
-    for diffrax's forward mode (``simulate``'s; jvp and jacfwd cost the same either way),
-    as they are for the reverse-mode adjoints, whose backward pass pays more for the
-    packing's slices and stacks than the steps save (the Watt six-bar's gradient by the
-    recursive adjoint 2.5 -> 3.0 ms packed)."""
+def packing_of(y: State, adjoint: str, solver: diffrax.AbstractSolver) -> Packing:
+    """The packing of states like ``y`` for a solve by ``solver`` with that ``adjoint``
+    setting: packed for diffrax's forward mode (``simulate``'s; jvp
+    and jacfwd cost the same either way), as they are for the reverse-mode adjoints, whose
+    backward pass pays more for the packing's slices and stacks than the steps save (the
+    Watt six-bar's gradient by the recursive adjoint 2.5 -> 3.0 ms packed). The scalars
+    are packed; the vectors too while the stages' buffer stays under THREADED_BYTES, else
+    they are stepped apart (the Watt six-bar's 7 friction rates with its 4 scalars over 7
+    stages: its run 3.4 -> 5.8 ms packed, where the press's 4 rates and 4 scalars gain 37
+    calls a step)."""
     if adjoint != "forward":
         return UNPACKED
-    return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else "vector" for v in y))
+    sizes = [None if v is None else int(np.prod(jnp.shape(v))) for v in y]
+    packs_all = _stages(solver) * sum(n or 1 for n in sizes if n is not None) * 8 <= THREADED_BYTES  # 8 bytes a float64
+    return Packing(tuple(None if v is None else 0 if jnp.ndim(v) == 0 else n if packs_all else "apart"
+                         for v, n in zip(y, sizes)))
+
+
+def _stages(solver: diffrax.AbstractSolver) -> int:
+    """The stages a step of ``solver`` keeps in its buffer (a Runge-Kutta tableau's; else 1)."""
+    tableau = getattr(solver, "tableau", None)
+    return 1 if tableau is None else len(tableau.c) + 1
 
 
 class Rebuilt(eqx.Module):

@@ -158,10 +158,11 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     checked = settings.check_assembly and table is None
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs,
                      bridge=settings.bridge, nan_unassembled=checked)
-    packing, (leaves, rebuild) = packing_of(y0, settings.adjoint), flattened(args)
+    solver = solver_for(settings)
+    packing, (leaves, rebuild) = packing_of(y0, settings.adjoint, solver), flattened(args)
     sol = diffrax.diffeqsolve(
         packed_term(packing, vector_field, rebuild),
-        solver_for(settings),
+        solver,
         t0=t0,
         t1=t1,
         dt0=_initial_step(settings, dt),
@@ -206,11 +207,11 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     check_steps(settings)
     tabulated = table is not None
     y0 = State(q0, omega0)
-    packing = packing_of(y0, settings.adjoint)
+    solver = solver_for(settings)
+    packing = packing_of(y0, settings.adjoint, solver)
     term = packed_term(packing, vector_field)
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None,
                      nan_unassembled=settings.check_assembly and not tabulated)
-    solver = solver_for(settings)
     h = (t1 - t0) / settings.steps
 
     def step(carry, k):

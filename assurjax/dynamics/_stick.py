@@ -227,7 +227,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return ~carry[-1]
 
     y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
-    packing = packing_of(y0, settings.adjoint)
+    packing = packing_of(y0, settings.adjoint, solver)
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
