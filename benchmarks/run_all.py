@@ -33,6 +33,7 @@ BENCHMARKS = {
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
     "step_calls": ("bench_step_calls.py", []),
+    "step_instructions": ("bench_step_instructions.py", []),
     "friction_precision": ("bench_friction_precision.py", ["--quick"]),
     "fast_loops": ("bench_fast_loops.py", []),
     "synthesis": ("bench_synthesis.py", ["--quick"]),

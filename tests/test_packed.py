@@ -1,0 +1,59 @@
+"""The integrated state packed into one array for diffrax (dynamics/_packed.py): a round
+trip gives the state back, and the vectors join the scalars only while the solver's
+stages' buffer stays under THREADED_BYTES."""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from assurjax._jit import THREADED_BYTES
+from assurjax.dynamics._field import State
+from assurjax.dynamics._packed import UNPACKED, packing_of
+
+
+def _state(rates: int, branch: int | None = None) -> State:
+    values = iter(np.linspace(0.1, 2.0, 3 + rates + (branch or 0)))
+    take = lambda n: jnp.asarray([next(values) for _ in range(n)])  # noqa: E731
+    return State(q=jnp.asarray(next(values)), omega=jnp.asarray(next(values)), work=jnp.asarray(next(values)),
+                 friction_rates=take(rates), branch=None if branch is None else take(branch))
+
+
+def _assert_same(a: State, b: State):
+    for x, y in zip(a, b):
+        assert (x is None) == (y is None)
+        if x is not None:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_small_vectors_join_the_scalars_and_come_back():
+    y = _state(rates=4, branch=2)  # 3 scalars + 6 values: 7 stages x 9 x 8 bytes = 504
+    assert 7 * 9 * 8 <= THREADED_BYTES
+    packing = packing_of(y, "forward", diffrax.Tsit5())
+    z = packing.pack(y)
+    assert z.apart is None and z.values.shape == (9,)
+    _assert_same(packing.unpack(z), y)
+
+
+def test_vectors_past_the_threaded_size_are_stepped_apart():
+    y = _state(rates=7)  # the Watt six-bar's seven rough pins: 7 stages x 10 x 8 bytes = 560
+    assert 7 * 10 * 8 > THREADED_BYTES
+    packing = packing_of(y, "forward", diffrax.Tsit5())
+    z = packing.pack(y)
+    assert z.values.shape == (3,) and len(z.apart) == 1
+    _assert_same(packing.unpack(z), y)
+    # a solver of fewer stages packs them
+    assert packing_of(y, "forward", diffrax.Heun()).pack(y).apart is None
+
+
+def test_saved_states_unpack_with_their_leading_axes():
+    ys = [_state(rates=4)._replace(q=jnp.asarray(float(i))) for i in range(5)]
+    packing = packing_of(ys[0], "forward", diffrax.Tsit5())
+    stacked = jax.tree.map(lambda *v: jnp.stack(v), *[packing.pack(y) for y in ys])
+    out = packing.unpack(stacked)
+    np.testing.assert_array_equal(np.asarray(out.q), np.arange(5.0))
+    np.testing.assert_array_equal(np.asarray(out.friction_rates), np.stack([np.asarray(y.friction_rates) for y in ys]))
+
+
+def test_reverse_mode_adjoints_step_the_state_as_it_is():
+    assert packing_of(_state(rates=4), "recursive", diffrax.Tsit5()) is UNPACKED
