@@ -409,6 +409,8 @@ def spectral_bound(magnitudes):
     couple per metre, the pin's couple the force times metres: their product is what counts);
     the square's is nearer (on the quick-return with friction everywhere 0.3 against 0.5-1.1;
     its spectral radius 0.14-0.19)."""
+    if magnitudes.size * 8 <= THREADED_BYTES:  # made once for its readers, where each made its own
+        magnitudes = jax.lax.optimization_barrier(magnitudes)
     bound = _ostrowski(magnitudes)
     if magnitudes.shape[0] <= SUMMED_TERMS:  # K^3 products
         square = sum(jnp.outer(magnitudes[:, j], magnitudes[j]) for j in range(magnitudes.shape[0]))
