@@ -49,16 +49,16 @@ def add_xla_flag(flag: str, setting: str) -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
 
 
+# XLA's CPU runtime runs a loop's calls across threads once an array the loop carries passes
+# this many bytes: the integration's stages (dynamics/_packed.py), the friction solve's
+# reactions and its consistency bound's slopes (_friction.py) keep their arrays under it
+THREADED_BYTES = 512
+
 # XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
 # function instead of running its operations one at a time; a simulation's integration loop
 # is over the default threshold. Above it, a compiled simulation runs 1.5-8x faster
 # (benchmarks/bench_fast_loops.py). An XLA flag, read once per process at its first
 # compile: offered (enable_fast_loops), never set for the user.
-# XLA's CPU runtime runs a loop's calls across threads once an array the loop carries passes
-# this many bytes: the integration's stages (dynamics/_packed.py) and the friction solve's
-# loop (_friction.py) keep their arrays under it where they can
-THREADED_BYTES = 512
-
 FAST_LOOPS_SETTING = "xla_cpu_small_while_loop_byte_threshold"
 FAST_LOOPS_FLAG = f"--xla_backend_extra_options={FAST_LOOPS_SETTING}=1000000000"
 

@@ -33,6 +33,10 @@ def test_small_vectors_join_the_scalars_and_come_back():
     z = packing.pack(y)
     assert z.apart is None and z.values.shape == (9,)
     _assert_same(packing.unpack(z), y)
+    empty = _state(rates=4, branch=0)  # a vector of no values takes no place
+    packing = packing_of(empty, "forward", diffrax.Tsit5())
+    assert packing.pack(empty).values.shape == (7,)
+    _assert_same(packing.unpack(packing.pack(empty)), empty)
 
 
 def test_vectors_past_the_threaded_size_are_stepped_apart():

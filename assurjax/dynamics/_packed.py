@@ -19,11 +19,12 @@ At the same boundary diffrax gets the vector field's arguments as their leaves
 
 from __future__ import annotations
 
+import math
+
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array
 
 from .._jit import THREADED_BYTES
@@ -40,15 +41,16 @@ class Packed(eqx.Module):
 
 class Packing(eqx.Module):
     """Where each of a :class:`State`'s fields goes: ``kinds`` per field, in the order of
-    the fields, its length in the packed array (0: a scalar), ``"apart"`` (stepped as it
-    is) or None (absent); or, ``kinds`` None, no packing (the state stepped as it is)."""
+    the fields, ``"scalar"`` or a vector's length (into the packed array), ``"apart"``
+    (stepped as it is) or None (absent); or, ``kinds`` None, no packing (the state stepped
+    as it is)."""
 
     kinds: tuple | None = eqx.field(static=True)
 
     def pack(self, y: State) -> Packed | State:
         if self.kinds is None:
             return y
-        parts = [v[..., None] if kind == 0 else v for v, kind in zip(y, self.kinds) if _packed(kind)]
+        parts = [v[..., None] if kind == "scalar" else v for v, kind in zip(y, self.kinds) if _packed(kind)]
         # None, not (), with nothing apart: diffrax's backsolve cannot pass an empty tuple (design notes)
         apart = tuple(v for v, kind in zip(y, self.kinds) if kind == "apart") or None
         return Packed(jnp.concatenate(parts, axis=-1), apart)
@@ -59,9 +61,12 @@ class Packing(eqx.Module):
             return z
         start, apart, fields = 0, iter(z.apart or ()), []
         for kind in self.kinds:
-            if _packed(kind):
-                fields.append(z.values[..., start] if kind == 0 else z.values[..., start:start + kind])
-                start += max(kind, 1)
+            if kind == "scalar":
+                fields.append(z.values[..., start])
+                start += 1
+            elif _packed(kind):
+                fields.append(z.values[..., start:start + kind])
+                start += kind
             else:
                 fields.append(next(apart) if kind == "apart" else None)
         return State(*fields)
@@ -73,7 +78,7 @@ class Packing(eqx.Module):
 
 
 def _packed(kind) -> bool:
-    return isinstance(kind, int)
+    return kind == "scalar" or isinstance(kind, int)
 
 
 UNPACKED = Packing(None)
@@ -81,19 +86,18 @@ UNPACKED = Packing(None)
 
 def packing_of(y: State, adjoint: str, solver: diffrax.AbstractSolver) -> Packing:
     """The packing of states like ``y`` for a solve by ``solver`` with that ``adjoint``
-    setting: packed for diffrax's forward mode (``simulate``'s; jvp
-    and jacfwd cost the same either way), as they are for the reverse-mode adjoints, whose
-    backward pass pays more for the packing's slices and stacks than the steps save (the
-    Watt six-bar's gradient by the recursive adjoint 2.5 -> 3.0 ms packed). The scalars
-    are packed; the vectors too while the stages' buffer stays under THREADED_BYTES, else
-    they are stepped apart (the Watt six-bar's 7 friction rates with its 4 scalars over 7
-    stages: its run 3.4 -> 5.8 ms packed, where the press's 4 rates and 4 scalars gain 37
-    calls a step)."""
+    setting: packed for diffrax's forward mode (``simulate``'s; jvp and jacfwd cost the
+    same either way), as they are for the reverse-mode adjoints, whose backward pass pays
+    more for the packing's slices and stacks than the steps save (the Watt six-bar's
+    gradient by the recursive adjoint 2.5 -> 3.0 ms packed). The scalars are packed; the
+    vectors too while the stages' buffer stays under THREADED_BYTES, else they are stepped
+    apart (the Watt six-bar's 7 friction rates with its 4 scalars over 7 stages: its run
+    3.4 -> 5.8 ms packed, where the press's 4 rates and 4 scalars gain 37 calls a step)."""
     if adjoint != "forward":
         return UNPACKED
-    sizes = [None if v is None else int(np.prod(jnp.shape(v))) for v in y]
-    packs_all = _stages(solver) * sum(n or 1 for n in sizes if n is not None) * 8 <= THREADED_BYTES  # 8 bytes a float64
-    return Packing(tuple(None if v is None else 0 if jnp.ndim(v) == 0 else n if packs_all else "apart"
+    sizes = [None if v is None else math.prod(jnp.shape(v)) for v in y]
+    packs_vectors = _stages(solver) * sum(n for n in sizes if n is not None) * 8 <= THREADED_BYTES  # 8 bytes a float64
+    return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else n if packs_vectors else "apart"
                          for v, n in zip(y, sizes)))
 
 
