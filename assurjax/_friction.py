@@ -39,7 +39,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
-from ._jit import THREADED_BYTES
+from ._jit import stays_unthreaded
 from ._kinematics import by_name
 from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
@@ -409,7 +409,7 @@ def spectral_bound(magnitudes):
     couple per metre, the pin's couple the force times metres: their product is what counts);
     the square's is nearer (on the quick-return with friction everywhere 0.3 against 0.5-1.1;
     its spectral radius 0.14-0.19)."""
-    if magnitudes.size * 8 <= THREADED_BYTES:  # made once for its readers, where each made its own
+    if stays_unthreaded(magnitudes.size):  # made once for its readers, where each made its own
         magnitudes = jax.lax.optimization_barrier(magnitudes)
     bound = _ostrowski(magnitudes)
     if magnitudes.shape[0] <= SUMMED_TERMS:  # K^3 products
@@ -452,7 +452,7 @@ def linearize_reactions(react, frictions, directions: int):
     in its 73 joints: 146 calls per right-hand side)."""
     kinds = {f.pair: f.kind for f in frictions}
     width = sum(3 if kind == "P" else 2 for kind in kinds.values())  # a force, and a prismatic pair's couple
-    packs = len(frictions) <= SUMMED_TERMS and directions * width * 8 <= THREADED_BYTES  # 8 bytes a float64
+    packs = len(frictions) <= SUMMED_TERMS and stays_unthreaded(directions * width)
     unravel = []
 
     def packed(v):

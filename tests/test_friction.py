@@ -888,12 +888,12 @@ def _package_frictions(mechanism, table: dict, parts: int = 1):
 
 def test_pairs_read_one_by_one_give_the_reference_acceleration():
     """The Watt six-bar with friction in its seven pins: its reactions' tangents (8 x 14 doubles)
-    pass ``_friction.THREADED_BYTES``, so the law reads them pair by pair, not packed (the
+    pass ``_jit.THREADED_BYTES``, so the law reads them pair by pair, not packed (the
     slider-crank's path, checked by the reference case below). dw/dt of the package's vector
     field at moving states, both directions, against the joint-based reference's forward
     dynamics to 1e-9 relative."""
     import joint_reference_friction as jrf
-    from assurjax._friction import THREADED_BYTES
+    from assurjax._jit import THREADED_BYTES
     from assurjax.dynamics._field import State, field_args, vector_field
 
     scene, table, ref = aj.load_scene("watt_sixbar"), jrf.WATT_FRICTION, jrf.watt_sixbar(0.3, 1.0)

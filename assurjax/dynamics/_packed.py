@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._jit import THREADED_BYTES
+from .._jit import stays_unthreaded
 from ._field import State
 
 
@@ -96,7 +96,7 @@ def packing_of(y: State, adjoint: str, solver: diffrax.AbstractSolver) -> Packin
     if adjoint != "forward":
         return UNPACKED
     sizes = [None if v is None else math.prod(jnp.shape(v)) for v in y]
-    packs_vectors = _stages(solver) * sum(n for n in sizes if n is not None) * 8 <= THREADED_BYTES  # 8 bytes a float64
+    packs_vectors = stays_unthreaded(_stages(solver) * sum(n for n in sizes if n is not None))
     return Packing(tuple(None if v is None else "scalar" if jnp.ndim(v) == 0 else n if packs_vectors else "apart"
                          for v, n in zip(y, sizes)))
 
