@@ -3,6 +3,8 @@ python3) and must run without error. They check their own numbers with asserts
 against closed forms and the joint-based reference. Notebooks that take more than
 about 40 s, and the joint-friction notebook (~25 s), are marked slow (run with ``pytest -m slow``)."""
 
+import copy
+import warnings
 from pathlib import Path
 
 import pytest
@@ -20,6 +22,29 @@ SLOW = {
 }
 
 
+# A cell's limit: the notebooks run in under a minute. Twice a cell has stalled with its kernel
+# idle and no reply until nbclient's limit (ipykernel 7.4, and 6.31 in the widgets cell of 01,
+# which finishes in seconds; 0 of 23 runs of that notebook alone, two at a time, stalled): a
+# notebook whose cell times out is run once more in a fresh kernel, so that one stall costs
+# minutes, not the run. An error in a cell still fails at once.
+CELL_TIMEOUT = 300
+
+
+def _execute(nb, path: Path):
+    """The notebook ``nb`` executed with ``path`` as its working directory (see CELL_TIMEOUT)."""
+    for attempt in (1, 2):
+        run = copy.deepcopy(nb)
+        client = nbclient.NotebookClient(run, timeout=CELL_TIMEOUT, kernel_name="python3",
+                                         resources={"metadata": {"path": str(path)}})
+        try:
+            client.execute()
+            return run
+        except nbclient.exceptions.CellTimeoutError:
+            if attempt == 2:
+                raise
+            warnings.warn("a notebook cell stalled past its time limit; running the notebook once more in a fresh kernel")
+
+
 def _params():
     for path in sorted(NOTEBOOKS.glob("*.ipynb")):
         marks = [pytest.mark.slow] if path.name in SLOW else []
@@ -30,8 +55,7 @@ def _params():
 def test_notebook_runs(path):
     nb = nbformat.read(path, as_version=4)
     assert all(not cell.get("outputs") for cell in nb.cells if cell.cell_type == "code"), "store notebooks without outputs"
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}})
-    client.execute()
+    _execute(nb, NOTEBOOKS)
 
 
 def test_runtime_notebook_runs_without_benchmark_results(tmp_path):
@@ -39,8 +63,7 @@ def test_runtime_notebook_runs_without_benchmark_results(tmp_path):
     (tmp_path / "benchmarks").mkdir()
     (tmp_path / "notebooks").mkdir()
     nb = nbformat.read(NOTEBOOKS / "06_runtime_vs_error.ipynb", as_version=4)
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path / "notebooks")}})
-    client.execute()
+    nb = _execute(nb, tmp_path / "notebooks")
     text = "".join(o.get("text", "") for cell in nb.cells for o in cell.get("outputs", []))
     assert "work_precision.json is missing" in text
 
