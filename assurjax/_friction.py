@@ -539,12 +539,13 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     the iteration's root.
 
     ``iterate=False``: Newton's method alone, for the solves batched within one analysis
-    (the output samples of up to SUMMED_TERMS elements, the reactions' two directions): with
+    (the reactions' two directions, vmapped states of up to SUMMED_TERMS elements): with
     both loops in the batched reactions program XLA's CPU runtime stalled in 3 of 5 runs of
     ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on). A batch
     of simulations (``simulate`` with an array of starts) keeps the iteration: 14 runs of
     16 starts did not stall; so do the output samples of more elements, where Newton's
-    Jacobian costs most (``dynamics._field.acceleration_and_reduction``)."""
+    Jacobian costs most (``dynamics._field.acceleration_and_reduction``), and those of up to
+    SUMMED_TERMS elements, solved one after another (``dynamics._solution.outputs``)."""
     k = len(frictions)
     coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega

@@ -313,17 +313,21 @@ def acceleration_at(model: Model, t, y: State):
     return acceleration_and_reduction(model, t, y)[0]
 
 
-def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0):
+def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0, iterate: bool | None = None):
     """(:func:`acceleration_at`, the reduction and the Kinematics it was computed on): one
-    analysis for dw/dt and the energies of an output sample."""
+    analysis for dw/dt and the energies of an output sample. ``iterate``: how the friction is
+    solved (``solve_friction``); None: for a vmapped analysis, Newton's method alone up to
+    SUMMED_TERMS elements, past them the iteration (4x cheaper than Newton's K x K Jacobian and LU)."""
     frictions = frictions_of(model.loads)
     if not frictions:
         red, kin = _reduce(model, t, y, bridge)
         return red.acceleration(y.omega), red, kin
     # moving, the friction of its direction; at rest, of the direction it would break away in.
-    # One solve per sample, batched: Newton's method alone up to SUMMED_TERMS elements (see
-    # solve_friction); past them the iteration, 4x cheaper than Newton's K x K Jacobian and LU
-    f = frictional(model, t, y, jnp.sign(y.omega), bridge, iterate=len(frictions) > SUMMED_TERMS)
+    # The signs as an array of zeros (read at the state), as a simulation's right-hand side
+    # passes them: with a state of the same parts and the iteration, the two calls share one
+    # trace (see _solution.outputs)
+    f = frictional(model, t, y, jnp.sign(y.omega), bridge, jnp.zeros(len(frictions)),
+                   iterate=len(frictions) > SUMMED_TERMS if iterate is None else iterate)
     red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
     at_rest = jnp.where(rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0, a, 0.0)
     return jnp.where(y.omega != 0, a, at_rest), red, kin

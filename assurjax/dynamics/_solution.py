@@ -8,9 +8,11 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._friction import SUMMED_TERMS, frictions_of
 from .._loads import potential_energy
 from .._tracking import branch_mapping
 from .._mechanism import Mechanism, Pose, positions
@@ -110,7 +112,8 @@ def no_outputs() -> dict:
 def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool = False) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).
-    One vmapped evaluation per saved time: the reduction gives dw/dt and J_red
+    One vmapped evaluation per saved time (with up to SUMMED_TERMS friction elements, one
+    after another: :func:`_serial_friction`): the reduction gives dw/dt and J_red
     (T = J_red w^2 / 2), its position analysis gives points, angles and V.
     ``flags``: also every group's ok flag at every time (``out["ok"]``, (times, groups);
     then the full position analysis is made even where only some points are asked for)."""
@@ -120,12 +123,16 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
     if not any_outputs(settings):
         return out
 
+    serial = _serial_friction(model, settings)
+
     def sample(t, q, w, stacked):
         z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
             if settings.domega:  # (with friction, its solve gives the reduction too)
-                values["domega"], red, kin = acceleration_and_reduction(model, t, State(q, w, branch=stacked), settings.bridge)
+                y = _integrated_state(model, settings, q, w, stacked) if serial else State(q, w, branch=stacked)
+                values["domega"], red, kin = acceleration_and_reduction(model, t, y, settings.bridge,
+                                                                        iterate=True if serial else None)
             else:  # the energies alone need no friction solve
                 red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
             pose = Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
@@ -146,10 +153,38 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
             values.update(_rates(mechanism, q, w, alpha, z, settings))
         return values
 
-    out.update(jax.vmap(sample)(t, q, w, near))
+    rows = (t, q, w, near)
+    out.update(jax.lax.map(lambda row: sample(*row), rows) if serial else jax.vmap(sample)(*rows))
     if settings.energies:
         out["total"] = out["kinetic"] + out["potential"]
     return out
+
+
+def _serial_friction(model: Model, settings: Settings) -> bool:
+    """Whether the outputs' dw/dt solve their friction one sample after another: up to
+    SUMMED_TERMS elements (past them, vmapped in chunks, see ``_friction.states_per_call``).
+    Then each sample's solve is the integration's own right-hand side's (the fixed-point
+    iteration, the same trace: the outputs' program traces no friction solve of its own, and
+    its batched Newton's method, with its K x K Jacobians and LU, is gone from it)."""
+    k = len(frictions_of(model.loads))
+    return settings.domega and 0 < k <= SUMMED_TERMS
+
+
+def quadratures(model: Model, settings: Settings, exact: bool) -> dict:
+    """The work terms an integrated state carries (0 at the start) or None: ``work`` and
+    ``dissipated`` with energies asked, along the exact reduction (``exact``)."""
+    zero = jnp.zeros(())
+    tracked = settings.energies and exact
+    return dict(work=zero if tracked else None,
+                dissipated=zero if tracked and any(load.dissipative for load in model.loads) else None)
+
+
+def _integrated_state(model: Model, settings: Settings, q, w, branch) -> State:
+    """A saved state with the parts the integration carries (and the friction's rates, whose
+    values the analysis does not read), so that the friction analysis of an output sample
+    is the right-hand side's trace."""
+    return State(q, w, **quadratures(model, settings, exact=settings.reduction != "table"), branch=branch,
+                 friction_rates=jnp.zeros(len(frictions_of(model.loads))))
 
 
 def _rates(mechanism, q, w, alpha, near, settings: Settings) -> dict:

@@ -32,8 +32,8 @@ from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
-from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, replaced, saved_rows,
-                        to_host, trim)
+from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
+                        saved_rows, to_host, trim)
 from ._stick import batch_settings, jammed_members, stick_slip, with_jam_status
 from ._table import ReducedTable, build_table, build_table_core
 
@@ -181,13 +181,10 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
 
 def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:
     """(q0, w0) and the quadratures and branch the settings ask for."""
-    zero = jnp.zeros(())
-    exact = table is None
     return State(
         q=q0,
         omega=omega0,
-        work=zero if settings.energies and exact else None,
-        dissipated=zero if settings.energies and exact and any(load.dissipative for load in model.loads) else None,
+        **quadratures(model, settings, exact=table is None),
         # the branch travels with the state, starting on the fixed modes
         branch=stacked_branch(model.mechanism, branch_angles(model.mechanism, positions(model.mechanism, q0)))
         if settings.branch == "tracked" else None,
