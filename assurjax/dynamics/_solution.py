@@ -123,16 +123,18 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
     if not any_outputs(settings):
         return out
 
-    serial = _serial_friction(model, settings)
+    rows = (t, q, w, near)
+    # up to SUMMED_TERMS friction elements, dw/dt one sample after another (see _serial_friction)
+    solved = jax.lax.map(lambda row: _serial_acceleration(model, settings, *row), rows) if _serial_friction(
+        model, settings) else None
 
-    def sample(t, q, w, stacked):
+    def sample(t, q, w, stacked, solved):
         z = branch_mapping(mechanism, stacked)
         values = {}
         if settings.domega or settings.energies:
             if settings.domega:  # (with friction, its solve gives the reduction too)
-                y = _integrated_state(model, settings, q, w, stacked) if serial else State(q, w, branch=stacked)
-                values["domega"], red, kin = acceleration_and_reduction(model, t, y, settings.bridge,
-                                                                        iterate=True if serial else None)
+                values["domega"], red, kin = solved if solved is not None else acceleration_and_reduction(
+                    model, t, State(q, w, branch=stacked), settings.bridge)
             else:  # the energies alone need no friction solve
                 red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, w, t, near=z, bridge=settings.bridge)
             pose = Pose(points=kin.points, coms=kin.coms, angles=kin.angles, ok=kin.ok)
@@ -153,8 +155,7 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
             values.update(_rates(mechanism, q, w, alpha, z, settings))
         return values
 
-    rows = (t, q, w, near)
-    out.update(jax.lax.map(lambda row: sample(*row), rows) if serial else jax.vmap(sample)(*rows))
+    out.update(jax.vmap(sample)(*rows, solved))
     if settings.energies:
         out["total"] = out["kinetic"] + out["potential"]
     return out
@@ -165,9 +166,17 @@ def _serial_friction(model: Model, settings: Settings) -> bool:
     SUMMED_TERMS elements (past them, vmapped in chunks, see ``_friction.states_per_call``).
     Then each sample's solve is the integration's own right-hand side's (the fixed-point
     iteration, the same trace: the outputs' program traces no friction solve of its own, and
-    its batched Newton's method, with its K x K Jacobians and LU, is gone from it)."""
+    its batched Newton's method, with its K x K Jacobians and LU, is gone from it). Only that
+    solve: the rest of a sample stays vmapped (the whole sample one after another cost
+    ~40 us a sample on the Watt six-bar, most of it the calls of its other outputs)."""
     k = len(frictions_of(model.loads))
     return settings.domega and 0 < k <= SUMMED_TERMS
+
+
+def _serial_acceleration(model: Model, settings: Settings, t, q, w, branch):
+    """:func:`acceleration_and_reduction` of one saved state, by the right-hand side's trace."""
+    return acceleration_and_reduction(model, t, _integrated_state(model, settings, q, w, branch), settings.bridge,
+                                      iterate=True)
 
 
 def quadratures(model: Model, settings: Settings, exact: bool) -> dict:
