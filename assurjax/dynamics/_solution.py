@@ -112,9 +112,10 @@ def no_outputs() -> dict:
 def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool = False) -> dict:
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).
-    One vmapped evaluation per saved time (with up to SUMMED_TERMS friction elements, one
-    after another: :func:`_serial_friction`): the reduction gives dw/dt and J_red
-    (T = J_red w^2 / 2), its position analysis gives points, angles and V.
+    One vmapped evaluation per saved time (with up to SUMMED_TERMS friction elements, their
+    friction solved first, one sample after another: :func:`_serial_friction`): the
+    reduction gives dw/dt and J_red (T = J_red w^2 / 2), its position analysis gives points,
+    angles and V.
     ``flags``: also every group's ok flag at every time (``out["ok"]``, (times, groups);
     then the full position analysis is made even where only some points are asked for)."""
     mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
@@ -167,8 +168,8 @@ def _serial_friction(model: Model, settings: Settings) -> bool:
     Then each sample's solve is the integration's own right-hand side's (the fixed-point
     iteration, the same trace: the outputs' program traces no friction solve of its own, and
     its batched Newton's method, with its K x K Jacobians and LU, is gone from it). Only that
-    solve: the rest of a sample stays vmapped (the whole sample one after another cost
-    ~40 us a sample on the Watt six-bar, most of it the calls of its other outputs)."""
+    solve: the rest of a sample stays vmapped (the whole sample one after another: the Watt
+    six-bar's 201 samples 18.9 against 18.2 ms a call)."""
     k = len(frictions_of(model.loads))
     return settings.domega and 0 < k <= SUMMED_TERMS
 
