@@ -428,7 +428,8 @@ CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_fri
 # than SUMMED_TERMS elements: each state's friction solve carries the statics' (K + 1) x K x 2
 # tangents (86 kB with the strandbeest's 73 joints), and one vmap over all the states works past
 # the CPU's caches (2-3x the cost per state of a vmap over 64). They go this many at a time
-# through one program compiled for a chunk, called once per chunk.
+# through one program compiled for a chunk, called once per chunk. (simulate's samples solve their
+# friction one after another since, dynamics._solution._serial_friction; their chunks stay.)
 STATES_PER_CALL = 64
 
 
@@ -543,9 +544,9 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     both loops in the batched reactions program XLA's CPU runtime stalled in 3 of 5 runs of
     ``assurjax run press_with_friction`` (its concurrency-optimized scheduler on). A batch
     of simulations (``simulate`` with an array of starts) keeps the iteration: 14 runs of
-    16 starts did not stall; so do the output samples of more elements, where Newton's
-    Jacobian costs most (``dynamics._field.acceleration_and_reduction``), and those of up to
-    SUMMED_TERMS elements, solved one after another (``dynamics._solution.outputs``)."""
+    16 starts did not stall; so do ``simulate``'s output samples, solved one after another
+    (``dynamics._solution.outputs``), and vmapped states of more elements, where Newton's
+    Jacobian costs most (``dynamics._field.acceleration_and_reduction``)."""
     k = len(frictions)
     coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
     viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
