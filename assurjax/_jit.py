@@ -59,6 +59,7 @@ def stays_unthreaded(doubles: int) -> bool:
     """Whether an array of that many float64 values stays under THREADED_BYTES."""
     return 8 * doubles <= THREADED_BYTES
 
+
 # XLA's CPU backend compiles a while loop that touches few bytes per iteration into one
 # function instead of running its operations one at a time; a simulation's integration loop
 # is over the default threshold. Above it, a compiled simulation runs 1.5-8x faster

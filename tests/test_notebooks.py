@@ -24,7 +24,7 @@ SLOW = {
 
 # A cell's limit: the notebooks run in under a minute. Twice a cell has stalled with its kernel
 # idle and no reply until nbclient's limit (ipykernel 7.4, and 6.31 in the widgets cell of 01,
-# which finishes in seconds; 0 of 23 runs of that notebook alone, two at a time, stalled): a
+# which finishes in seconds; 0 of 30 runs of that notebook alone, two at a time, stalled): a
 # notebook whose cell times out is run once more in a fresh kernel, so that one stall costs
 # minutes, not the run. An error in a cell still fails at once.
 CELL_TIMEOUT = 300

@@ -113,9 +113,8 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
     """Only what the settings ask for: dw/dt, energies, point trajectories, link angles.
     ``near``: saved link angles of a tracked branch (None: the fixed modes).
     One vmapped evaluation per saved time (with friction, dw/dt's friction solved first, one
-    sample after another: :func:`_serial_friction`): the
-    reduction gives dw/dt and J_red (T = J_red w^2 / 2), its position analysis gives points,
-    angles and V.
+    sample after another: :func:`_serial_friction`): the reduction gives dw/dt and J_red
+    (T = J_red w^2 / 2), its position analysis gives points, angles and V.
     ``flags``: also every group's ok flag at every time (``out["ok"]``, (times, groups);
     then the full position analysis is made even where only some points are asked for)."""
     mechanism, gravity, loads = model.mechanism, model.gravity, model.loads
