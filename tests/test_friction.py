@@ -798,6 +798,38 @@ def test_gradient_in_mu_through_a_standstill_and_reversal(slider, t1):
     np.testing.assert_allclose(float(forward), float(fd), rtol=1e-5)
 
 
+@pytest.mark.parametrize("iterate", [True, False], ids=["fixed point", "newton"])
+def test_acceleration_gradient_in_mu_against_differences(slider, iterate):
+    """d(dw/dt)/d mu at moving states of the slider-crank, both directions, mu = 0.2 and 1 in
+    every pair: the derivative of the friction solve (the implicit function theorem, through
+    optimistix) in reverse and forward mode against central differences, for the fixed-point
+    iteration the integration takes and for Newton's method alone (its fallback, and the
+    batched analyses' solve). The default suite's check of gradients in mu; through whole
+    runs (stick segments, standstills, reversals) they are in the slow suite."""
+    from assurjax.dynamics._field import State, frictional
+
+    def alpha(mu, q, w):
+        model = aj.Model(slider.mechanism, slider.gravity, tuple(slider.loads) + frictions(slider.mechanism, mu))
+        f = frictional(model, 0.0, State(q, w), jnp.sign(w), iterate=iterate)
+        return jnp.where(f.consistent, f.alpha, jnp.nan)
+
+    h = 1e-6
+
+    @jax.jit
+    @jax.vmap  # over the states; one program for both values of mu
+    def derivatives(mu, q, w):
+        fd = (alpha(mu + h, q, w) - alpha(mu - h, q, w)) / (2 * h)
+        return fd, jax.grad(alpha)(mu, q, w), jax.jacfwd(alpha)(mu, q, w)
+
+    q = jnp.array([0.3, 1.2, 2.5, 4.0, 5.5, 0.9])
+    w = jnp.array([2.0, -1.5, 3.0, -0.5, 1.0, -4.0])
+    for mu in (0.2, 1.0):
+        fd, reverse, forward = derivatives(jnp.full(q.shape, mu), q, w)
+        assert np.all(np.isfinite(fd)) and np.min(np.abs(fd)) > 1e-3, fd  # consistent, and friction acts at every state
+        np.testing.assert_allclose(reverse, fd, rtol=1e-8, atol=1e-7)  # agree to ~1e-10 (differences: ~1e-12 / h)
+        np.testing.assert_allclose(forward, fd, rtol=1e-8, atol=1e-7)
+
+
 # mu = 5 on pin A and on a 5 mm slider block, none elsewhere: the structure of frictions() (run()'s program)
 STRONG = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
           aj.SlideFriction("slider/ground", 5.0, 0.005))
