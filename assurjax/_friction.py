@@ -428,8 +428,8 @@ CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_fri
 # than SUMMED_TERMS elements: each state's friction solve carries the statics' (K + 1) x K x 2
 # tangents (86 kB with the strandbeest's 73 joints), and one vmap over all the states works past
 # the CPU's caches (2-3x the cost per state of a vmap over 64). They go this many at a time
-# through one program compiled for a chunk, called once per chunk. (simulate's samples solve their
-# friction one after another since, dynamics._solution._serial_friction; their chunks stay.)
+# through one program compiled for a chunk, called once per chunk. (simulate's output samples
+# solve their friction one after another, dynamics._solution._serial_friction, in these chunks.)
 STATES_PER_CALL = 64
 
 
