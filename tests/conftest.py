@@ -34,6 +34,19 @@ def pytest_configure(config):
     assurjax.enable_compilation_cache(os.environ[SHARED_CACHE])
 
 
+def pytest_sessionfinish(session):
+    """On a pytest-xdist worker, free the compiled programs before it reports its end (xdist's
+    own hook sends that after this one): freed at exit, after the report, they could outlast the
+    few seconds the controller waits, and its interrupt printed a KeyboardInterrupt warning."""
+    if hasattr(session.config, "workerinput"):
+        import gc
+
+        import jax
+
+        jax.clear_caches()
+        gc.collect()
+
+
 def pytest_unconfigure(config):
     if config.stash.get(_CACHE_OWNER, False):
         shutil.rmtree(os.environ.pop(SHARED_CACHE), ignore_errors=True)
