@@ -38,7 +38,7 @@ def pytest_configure(config):
 def _free_compiled_programs():
     """Free a test file's compiled programs when it ends (``jax.clear_caches``): a file reuses
     its own, another file finds those it shares on disk (the session's compilation cache). Kept,
-    they grew a worker to 5.2 GB in the default suite (9.3 GB in the slow one); freed, to 2.3 GB.
+    they grew a worker of the default suite to 5.2 GB; freed, to 2.3 GB (docs/CONTRIBUTING.md).
     On a pytest-xdist worker this also frees the last file's before the worker reports its end:
     freed at exit, after the report, they could outlast the few seconds the controller waits, and
     its interrupt printed a KeyboardInterrupt warning."""
