@@ -61,7 +61,7 @@ class AbstractFriction(AbstractLoad):
     def _set_law(self, pair: str, coefficient, viscous) -> None:
         """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0)."""
         for key, value in (("coefficient", coefficient), ("viscous", viscous)):
-            check_value(MechanismError, f"{type(self).__name__}: {key}", value, nonnegative=True)
+            check_value(MechanismError, f"{type(self).__name__}: {key}", value, shape=(), nonnegative=True)
         self.pair = pair
         self.coefficient, self.viscous = jnp.asarray(coefficient, dtype=float), jnp.asarray(viscous, dtype=float)
         self.velocity_dependent = True
@@ -119,7 +119,7 @@ class JointFriction(AbstractFriction):
 
     def __init__(self, joint: str, coefficient, radius, *, viscous=0.0):
         self._set_law(joint, coefficient, viscous)
-        check_value(MechanismError, "JointFriction: radius", radius, nonnegative=True)
+        check_value(MechanismError, "JointFriction: radius", radius, shape=(), nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
     def rate_terms(self, mechanism, x, dx):
@@ -155,7 +155,7 @@ class SlideFriction(AbstractFriction):
 
     def __init__(self, pair: str, coefficient, length, *, viscous=0.0):
         self._set_law(pair, coefficient, viscous)
-        check_value(MechanismError, "SlideFriction: length", length, positive=True)
+        check_value(MechanismError, "SlideFriction: length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
 
     def _direction(self, kin, p):

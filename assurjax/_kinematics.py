@@ -21,6 +21,7 @@ from ._geometry import wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
 from ._positions import stacked_positions
+from ._values import check_values
 
 
 class Kinematics(eqx.Module):
@@ -347,7 +348,11 @@ def kinematics(
     """
     if order not in (0, 1, 2):
         raise AssurjaxError(f"order must be 0, 1 or 2, got {order}")
+    check_values(AssurjaxError, "kinematics", q=q, omega=omega, alpha=alpha)
     q = jnp.asarray(q, dtype=float)
+    for name, value in (("omega", omega), ("alpha", alpha)):
+        if not _broadcasts_to(np.shape(value), q.shape):
+            raise AssurjaxError(f"kinematics: {name} of shape {np.shape(value)} does not broadcast to q's shape {q.shape}")
     omega, alpha = (jnp.broadcast_to(jnp.asarray(v, dtype=q.dtype), q.shape) for v in (omega, alpha))
     pts = None if points is None else tuple(points)
     if pts is not None:
@@ -358,6 +363,13 @@ def kinematics(
     if check:
         raise_if_not_assembled(mechanism, kin.ok, q)
     return kin
+
+
+def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
+    try:
+        return np.broadcast_shapes(shape, target) == target
+    except ValueError:
+        return False
 
 
 def first_failure(mechanism: Mechanism, ok, q):
@@ -419,6 +431,7 @@ def inverse_kinematics(
         quantity = _point_coordinate(mechanism, quantity)
     elif not callable(quantity):
         raise AssurjaxError(f"inverse kinematics: quantity must be (point, 'x' | 'y') or a function of the pose, got {quantity!r}")
+    check_values(AssurjaxError, "inverse kinematics", shape=(), value=value, q0=q0)
     value = jnp.asarray(value, dtype=float)
     q, ok = _inverse_jit(mechanism, by_structure(quantity), value, jnp.asarray(q0, dtype=float), rtol, atol, max_steps)
     if not isinstance(ok, jax.core.Tracer) and not bool(ok):

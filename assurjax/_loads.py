@@ -32,15 +32,17 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
+import weakref
 from typing import Any, ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
-from ._values import check_value
+from ._values import check_value, found_words, shape_words
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import COM_PREFIX, Mechanism, Pose
 from .groups._base import GROUND
@@ -59,9 +61,11 @@ class Polynomial(eqx.Module):
     def __init__(self, coefficients, variable: str = "q"):
         if variable not in VARIABLES:
             raise MechanismError(f"Polynomial: variable must be one of {VARIABLES}, got {variable!r}")
+        check_value(MechanismError, "Polynomial: coefficients", coefficients)
+        if np.ndim(coefficients) != 1 or np.size(coefficients) == 0:
+            raise MechanismError(f"Polynomial: coefficients must be a list of numbers c0, c1, ..., got {found_words(np.shape(coefficients))}")
         self.coefficients = jnp.asarray(coefficients, dtype=float)
         self.variable = variable
-        check_value(MechanismError, "Polynomial: coefficients", self.coefficients)
 
     def __call__(self, q, omega, t):
         x = {"q": q, "omega": omega, "t": t}[self.variable]
@@ -155,12 +159,48 @@ def _has_time_form(value, *, functions: bool = False) -> bool:
     return functions and callable(value)
 
 
-def _as_value(v, where: str):
-    """A load value: a function or form as it is, a number (or array) checked finite."""
+def _as_value(v, where: str, shape: tuple[int, ...] = ()):
+    """A load value: a function or form as it is (what it returns is checked by
+    :func:`check_loads`), a number (or 2-vector, ``shape``) checked finite."""
     if callable(v):
         return v
-    check_value(MechanismError, where, v)
+    check_value(MechanismError, where, v, shape=shape)
     return jnp.asarray(v, dtype=float)
+
+
+# a function's output shape, traced once per function (tracing it costs ~1 ms, at every call
+# of a stage that takes the loads); functions that cannot be weakly referenced are traced each time
+_OUTPUT_SHAPES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _output_shape(fn) -> tuple[int, ...]:
+    try:
+        return _OUTPUT_SHAPES[fn]
+    except (KeyError, TypeError):  # not seen yet, or not hashable
+        pass
+    scalar = jax.ShapeDtypeStruct((), jnp.result_type(float))
+    found = jax.eval_shape(lambda q, omega, t: evaluate(fn, q, omega, t), scalar, scalar, scalar).shape
+    try:
+        _OUTPUT_SHAPES[fn] = found
+    except TypeError:
+        pass
+    return found
+
+
+def _output_problem(value, shape: tuple[int, ...]) -> str | None:
+    """What is wrong with what a function or form given as a load value returns (its shape,
+    found by tracing it once without computing anything), or None; numbers are checked where
+    they are given."""
+    if not callable(value):
+        return None
+    if isinstance(value, Vector):
+        for axis, component in (("x", value.x), ("y", value.y)):
+            if (problem := _output_problem(component, ())) is not None:
+                return f"Vector component {axis}, {problem}"
+        found = (2,)
+    else:
+        found = _output_shape(value)
+    return None if found == shape else f"a function of (q, omega, t), must return {shape_words(shape)}, it returns {found_words(found)}"
 
 
 # ---------------------------------------------------------------------------- base class
@@ -185,15 +225,17 @@ class AbstractLoad(eqx.Module):
     def time_dependent(self) -> bool:
         """True when the load's values depend on time t (forms in t; functions are not
         inspected here: a table build probes them)."""
-        return any(_has_time_form(v) for v in self._values())
+        return any(_has_time_form(v) for v in self._values().values())
 
     def may_depend_on_time(self) -> bool:
         """:meth:`time_dependent`, or some value is a function (not inspected: it may read t)."""
-        return any(_has_time_form(v, functions=True) for v in self._values())
+        return any(_has_time_form(v, functions=True) for v in self._values().values())
 
-    def _values(self) -> tuple:
-        """The load's value fields (numbers, forms or functions)."""
-        return ()
+    value_shape: ClassVar[tuple[int, ...]] = ()  # of each value field: a number (a force: a 2-vector)
+
+    def _values(self) -> dict[str, Any]:
+        """The load's value fields by name (numbers, forms or functions)."""
+        return {}
 
     def check(self, mechanism: Mechanism) -> None:
         """Raise :class:`MechanismError` naming an unknown point or link."""
@@ -347,11 +389,13 @@ class PointForce(AbstractLoad):
 
     def __init__(self, point: str, force, *, link: str | None = None, velocity_dependent: bool | None = None):
         self.point, self.link = point, _carrier_argument(link)
-        self.force = _as_value(force, "PointForce: force")
+        self.force = _as_value(force, "PointForce: force", (2,))
         self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
 
+    value_shape: ClassVar[tuple[int, ...]] = (2,)
+
     def _values(self):
-        return (self.force,)
+        return {"force": self.force}
 
     def check(self, mechanism):
         _check_point(mechanism, self.point, self.link, f"force on point '{self.point}'", "link")
@@ -382,7 +426,7 @@ class Couple(AbstractLoad):
         self.velocity_dependent = _velocity_dependent(moment, flag=velocity_dependent)
 
     def _values(self):
-        return (self.moment,)
+        return {"moment": self.moment}
 
     def check(self, mechanism):
         if self.link not in mechanism.links:
@@ -451,9 +495,9 @@ class Spring(_TwoPoint):
 
     def __init__(self, a: str, b: str, stiffness, free_length=0.0, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = _two_ends("Spring", a, b, links)
+        check_value(MechanismError, "Spring: stiffness", stiffness, shape=(), nonnegative=True)
+        check_value(MechanismError, "Spring: free_length", free_length, shape=(), nonnegative=True)
         self.stiffness, self.free_length = jnp.asarray(stiffness, dtype=float), jnp.asarray(free_length, dtype=float)
-        check_value(MechanismError, "Spring: stiffness", stiffness, nonnegative=True)
-        check_value(MechanismError, "Spring: free_length", free_length, nonnegative=True)
         self.velocity_dependent = False
 
     def _length(self, mechanism, config):
@@ -483,8 +527,8 @@ class Damper(_TwoPoint):
 
     def __init__(self, a: str, b: str, coefficient, *, links: tuple[str | None, str | None] = (None, None)):
         self.points, self.links = _two_ends("Damper", a, b, links)
+        check_value(MechanismError, "Damper: coefficient", coefficient, shape=(), nonnegative=True)
         self.coefficient = jnp.asarray(coefficient, dtype=float)
-        check_value(MechanismError, "Damper: coefficient", coefficient, nonnegative=True)
         self.velocity_dependent = True
 
     def wrenches(self, mechanism, kin, t):
@@ -514,8 +558,8 @@ class RotaryDamper(AbstractLoad):
 
     def __init__(self, joint: str, coefficient):
         self.joint = joint
+        check_value(MechanismError, "RotaryDamper: coefficient", coefficient, shape=(), nonnegative=True)
         self.coefficient = jnp.asarray(coefficient, dtype=float)
-        check_value(MechanismError, "RotaryDamper: coefficient", coefficient, nonnegative=True)
         self.velocity_dependent = True
 
     def check(self, mechanism):
@@ -555,7 +599,7 @@ class Drive(AbstractLoad):
         self.velocity_dependent = _velocity_dependent(value, flag=velocity_dependent)
 
     def _values(self):
-        return (self.value,)
+        return {"value": self.value}
 
     def effort(self, mechanism, q, omega, t):
         return evaluate(self.value, q, omega, t)
@@ -576,9 +620,9 @@ class MotorLine(AbstractLoad):
     velocity_dependent: bool = eqx.field(static=True, default=True)
 
     def __init__(self, stall, no_load_speed):
+        check_value(MechanismError, "MotorLine: stall", stall, shape=())
+        check_value(MechanismError, "MotorLine: no_load_speed", no_load_speed, shape=(), positive=True)
         self.stall, self.no_load_speed = jnp.asarray(stall, dtype=float), jnp.asarray(no_load_speed, dtype=float)
-        check_value(MechanismError, "MotorLine: stall", stall)
-        check_value(MechanismError, "MotorLine: no_load_speed", no_load_speed, positive=True)
         self.velocity_dependent = True
 
     def effort(self, mechanism, q, omega, t):
@@ -594,6 +638,9 @@ def check_loads(mechanism: Mechanism, loads) -> None:
         if not isinstance(load, AbstractLoad):
             raise MechanismError(f"load #{i + 1}: expected an assurjax load (PointForce, Couple, Spring, ...), got {type(load).__name__}")
         load.check(mechanism)
+        for name, value in type(load)._values(load).items():  # through the class: no bound-method module
+            if (problem := _output_problem(value, load.value_shape)) is not None:
+                raise MechanismError(f"{type(load).__name__}: {name}, {problem}")
 
 
 def any_velocity_dependent(loads) -> bool:

@@ -24,6 +24,7 @@ multi-process computation.
 
 from __future__ import annotations
 
+import numbers
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -38,8 +39,10 @@ from ._errors import AssurjaxError
 from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
+from ._values import check_values
 
 BATCH_AXIS = "batch"
+MAX_COPIES = 10_000_000  # perturb: a batch of the Watt six-bar this large holds ~2.4 GB of arrays
 
 
 # --------------------------------------------------------------------------- building batches
@@ -106,6 +109,9 @@ def perturb(
     coordinate, so every link length moves by up to about ``relative``).
     Perturbed copies may fail to assemble: check ``Kinematics.ok``.
     """
+    if not (isinstance(n, numbers.Integral) and 0 < n <= MAX_COPIES):
+        raise AssurjaxError(f"perturb: n must be a positive integer, at most {MAX_COPIES}, got {n!r}")
+    check_values(AssurjaxError, "perturb", shape=(), relative=relative, absolute=absolute)
     select = point_coordinates if select is None else select
     chosen = select(mechanism)
     leaves, treedef = jax.tree.flatten(chosen)
@@ -271,6 +277,7 @@ def batch_kinematics(
         unknown = [p for p in pts if p not in dict(mechanisms.owner)]
         if unknown:
             raise AssurjaxError(f"unknown point(s) {unknown}; the mechanisms have {list(mechanisms.point_names)}")
+    check_values(AssurjaxError, "batch_kinematics", q=q, omega=omega, alpha=alpha)
     q = np.asarray(q, dtype=float)
     if q_per_mechanism and (q.ndim == 0 or q.shape[0] != n):
         raise AssurjaxError(f"q_per_mechanism=True needs q with a leading axis of {n} (the batch size), got shape {q.shape}")
@@ -334,6 +341,9 @@ def batch_simulate(
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
+    check_values(AssurjaxError, "batch_simulate", shape=(), q0=q0, omega0=omega0, t1=t1)
+    if not t1 > t0:
+        raise AssurjaxError(f"batch_simulate: t1 must be later than t0 = {t0}, got {t1}")
     options = settings_from(scene, **settings)
     options = options._replace(reduction="exact") if options.reduction == "auto" else options
     options = batch_settings(options, scene.loads)

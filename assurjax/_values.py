@@ -25,9 +25,32 @@ def concrete(x) -> np.ndarray | None:
         return None
 
 
-def value_problem(x, *, positive: bool = False, nonnegative: bool = False, nonzero_vector: bool = False) -> str | None:
+def shape_words(shape: tuple[int, ...]) -> str:
+    """A wanted ``shape`` in words: "a single number", "a 2-vector (x, y)", "an array of shape (3,)"."""
+    return "a single number" if shape == () else "a 2-vector (x, y)" if shape == (2,) else f"an array of shape {shape}"
+
+
+def shape_problem(x, shape: tuple[int, ...]) -> str | None:
+    """What is wrong with the shape of ``x`` (a number, an array or a tracer) for ``shape``, or None."""
+    try:
+        found = np.shape(x)
+    except Exception:  # not array-like: value_problem says so
+        return None
+    return None if found == shape else f"must be {shape_words(shape)}, got {found_words(found)}"
+
+
+def found_words(shape: tuple[int, ...]) -> str:
+    """A given array's ``shape`` in words: "a single number", "an array of shape (2,)"."""
+    return "a single number" if shape == () else f"an array of shape {shape}"
+
+
+def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = False, nonnegative: bool = False,
+                  nonzero_vector: bool = False) -> str | None:
     """What is wrong with a concrete number or array ``x`` ("must be finite, got inf"...), or None.
-    Tracers are not checked. ``nonzero_vector``: the last axis holds vectors that must not be zero."""
+    ``shape``: the shape it must have (checked on tracers too; their values are not checked).
+    ``nonzero_vector``: the last axis holds vectors that must not be zero."""
+    if shape is not None and (problem := shape_problem(x, shape)) is not None:
+        return problem
     v = concrete(x)
     if v is None:
         return None
@@ -43,6 +66,14 @@ def value_problem(x, *, positive: bool = False, nonnegative: bool = False, nonze
     if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
         return f"must be a non-zero vector, got {shown}"
     return None
+
+
+def check_values(error: type[Exception], where: str, *, shape: tuple[int, ...] | None = None, **values) -> None:
+    """Raise ``error("{where}: {name} {problem}")`` for the first of ``values`` (by name) that
+    :func:`value_problem` finds wrong: not finite, of absurd size, or not of ``shape``."""
+    for name, x in values.items():
+        if (problem := value_problem(x, shape=shape)) is not None:
+            raise error(f"{where}: {name} {problem}")
 
 
 def check_value(error: type[Exception], where: str, x, **ranges) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import assurjax
-from assurjax import AssemblyError, Link, Mechanism, MechanismError, SceneError, groups
+from assurjax import AssemblyError, Link, Mechanism, MechanismError, SceneError, groups, synthesis
 
 FOUR_BAR = {
     "scene": {"name": "four_bar"},
@@ -245,6 +245,51 @@ def test_unknown_point_in_kinematics():
         assurjax.kinematics(mech, 0.1, points=["Q"])
 
 
+@pytest.mark.parametrize(
+    "call, fragments",
+    [
+        (lambda m: assurjax.kinematics(m, [0.1, np.nan]), ["kinematics: q", "finite", "nan"]),
+        (lambda m: assurjax.kinematics(m, np.zeros(3), omega=np.ones(2)), ["kinematics: omega", "(2,)", "q's shape (3,)"]),
+        (lambda m: assurjax.kinematics(m, 0.1, alpha=np.inf), ["kinematics: alpha", "finite"]),
+        (lambda m: assurjax.reactions(m, ([0.1, 0.2], np.nan, 0.0)), ["state 'omega'", "finite"]),
+        (lambda m: assurjax.reactions(m, (np.zeros(3), np.zeros(2), 0.0)), ["must broadcast together", "q (3,)", "omega (2,)"]),
+        (lambda m: assurjax.static_torque(m, [0.1, np.inf]), ["state 'q'", "finite"]),
+        (lambda m: assurjax.inverse_dynamics(m, lambda t: t, [0.0, np.nan]), ["inverse_dynamics", "times t", "finite"]),
+        (lambda m: assurjax.inverse_dynamics(m, lambda t: jnp.stack([t, t]), [0.0, 0.1]),
+         ["inverse_dynamics", "motion q(t)", "a single number", "shape (2,)"]),
+        (lambda m: assurjax.inverse_kinematics(m, ("B", "x"), np.nan, 0.5), ["inverse kinematics: value", "finite"]),
+        (lambda m: assurjax.inverse_kinematics(m, ("B", "x"), 0.1, [0.5, 0.6]), ["inverse kinematics: q0", "a single number"]),
+        (lambda m: assurjax.batch_kinematics(assurjax.stack_mechanisms([m, m]), [0.1, np.nan]), ["batch_kinematics: q", "finite"]),
+        (lambda m: assurjax.perturb(m, jax.random.key(0), 4, relative=np.inf), ["perturb: relative", "finite"]),
+        (lambda m: assurjax.perturb(m, jax.random.key(0), 10**9), ["perturb: n", "at most 10000000"]),
+    ],
+)
+def test_states_given_to_the_analyses_are_checked(call, fragments):
+    """Numbers that are not finite, or arrays that do not fit together, are named before anything
+    is traced (not a group 'that cannot assemble at q = nan', not a broadcasting error from JAX)."""
+    with raises(assurjax.AssurjaxError, *fragments):
+        call(scene().mechanism)
+
+
+@pytest.mark.parametrize(
+    "call, fragments",
+    [
+        (lambda s: synthesis.final_state(s, [0.5, 1.0]), ["'t1'", "a single number", "shape (2,)"]),
+        (lambda s: synthesis.final_state(s, np.nan), ["'t1'", "finite"]),
+        (lambda s: synthesis.final_state(s, 1.0, q0=np.inf), ["'q0'", "finite"]),
+        (lambda s: synthesis.final_state(s, -1.0, adjoint="quadrature"), ["'t1'", "later than t0"]),
+        (lambda s: synthesis.standstill_time(s, omega0=[0.0, 1.0]), ["'omega0'", "a single number"]),
+        (lambda s: assurjax.simulate(s, t1=[0.5, 1.0]), ["'t1'", "a single number"]),
+        (lambda s: assurjax.batch_simulate(s, assurjax.stack_mechanisms([s.mechanism] * 2), t1=[0.5, 1.0]),
+         ["batch_simulate: t1", "a single number"]),
+        (lambda s: assurjax.batch_simulate(s, assurjax.stack_mechanisms([s.mechanism] * 2), q0=np.nan), ["batch_simulate: q0", "finite"]),
+    ],
+)
+def test_runs_of_the_synthesis_check_their_start_and_horizon(call, fragments):
+    with raises(assurjax.AssurjaxError, *fragments):
+        call(scene())
+
+
 def test_formation_must_start_with_a_driver():
     def edit(d):
         d["formation"].reverse()
@@ -352,11 +397,46 @@ def test_iterative_group_substeps_are_bounded():
         (lambda: load_forms.PointForce("B", [float("nan"), 0.0]), ["PointForce", "force", "finite"]),
         (lambda: assurjax.JointFriction("A", -0.1, 0.01), ["JointFriction", "coefficient", "non-negative"]),
         (lambda: assurjax.SlideFriction("B", 0.1, 0.0), ["SlideFriction", "length", "must be positive"]),
+        # shapes: each value is a number (a force a 2-vector), named with what was given
+        (lambda: assurjax.JointFriction("A", [0.1, 0.2], 0.01), ["JointFriction", "coefficient", "a single number", "shape (2,)"]),
+        (lambda: assurjax.JointFriction("A", 0.1, np.ones((1, 1))), ["JointFriction", "radius", "a single number", "shape (1, 1)"]),
+        (lambda: assurjax.JointFriction("A", 0.1, 0.01, viscous=[0.0]), ["JointFriction", "viscous", "shape (1,)"]),
+        (lambda: assurjax.SlideFriction("B", 0.1, [0.05, 0.1]), ["SlideFriction", "length", "a single number"]),
+        (lambda: load_forms.Spring("A", "B", [1.0, 2.0]), ["Spring", "stiffness", "a single number"]),
+        (lambda: load_forms.Damper("A", "B", [1.0, 2.0]), ["Damper", "coefficient", "a single number"]),
+        (lambda: load_forms.RotaryDamper("A", [1.0, 2.0]), ["RotaryDamper", "coefficient", "a single number"]),
+        (lambda: load_forms.MotorLine(1.0, [10.0, 20.0]), ["MotorLine", "no_load_speed", "a single number"]),
+        (lambda: load_forms.Couple("crank", [1.0, 2.0]), ["Couple", "moment", "a single number", "shape (2,)"]),
+        (lambda: load_forms.Drive([1.0, 2.0]), ["Drive", "value", "a single number"]),
+        (lambda: load_forms.PointForce("B", [1.0, 2.0, 3.0]), ["PointForce", "force", "a 2-vector", "shape (3,)"]),
+        (lambda: load_forms.PointForce("B", 1.0), ["PointForce", "force", "a 2-vector", "got a single number"]),
+        (lambda: load_forms.Vector([1.0, 2.0], 0.0), ["Vector", "x", "a single number"]),
+        (lambda: load_forms.Polynomial([[1.0, 2.0]]), ["Polynomial", "coefficients", "c0, c1", "shape (1, 2)"]),
     ],
 )
 def test_python_loads_reject_bad_values(build, fragments):
     with raises(MechanismError, *fragments):
         build()
+
+
+@pytest.mark.parametrize(
+    "load, fragments",
+    [
+        (load_forms.Drive(lambda q, w, t: jnp.stack([q, w])), ["Drive", "value", "must return a single number", "shape (2,)"]),
+        (load_forms.Couple("coupler", load_forms.Vector(0.0, 1.0)), ["Couple", "moment", "must return a single number", "shape (2,)"]),
+        (load_forms.PointForce("B", lambda q, w, t: jnp.zeros(3)), ["PointForce", "force", "must return a 2-vector", "shape (3,)"]),
+        (load_forms.PointForce("B", load_forms.Polynomial([1.0, 2.0])), ["PointForce", "force", "must return a 2-vector", "a single number"]),
+        (load_forms.PointForce("B", load_forms.Vector(lambda q, w, t: jnp.ones(2), 0.0)), ["PointForce", "force", "component x", "must return a single number"]),
+    ],
+)
+def test_a_function_giving_the_wrong_shape_is_named_before_tracing(load, fragments):
+    """A load value given as a function or form is traced once (its shape only) when a scene or model
+    takes it: a wrong shape is named there, not found deep inside a compiled program."""
+    watt = scene()
+    with raises(MechanismError, *fragments):
+        watt.with_loads(watt.loads + (load,))
+    with raises(MechanismError, *fragments):
+        assurjax.simulate(watt, loads=(load,), t1=0.01)
 
 
 def test_simulation_keywords_and_scene_share_the_messages():

@@ -2,6 +2,7 @@
 positions (tests/joint_reference.py) and central finite differences."""
 
 import os
+import re
 import sys
 import warnings
 
@@ -267,3 +268,21 @@ def test_ground_guides_drawn_through_the_sliding_points():
             xy = frames.points[p][frames.ok]
             distances = [np.max(np.abs(u[0] * (xy - base)[:, 1] - u[1] * (xy - base)[:, 0])) for base, u in lines]
             assert min(distances) < 1e-9, (name, p, distances)
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda m: viz.animate(m, np.linspace(0.0, 1.0, 10_001)), "at most 10000 frames"),
+        (lambda m: viz.animate(m, [0.1, 0.2], interval_ms=0.0), "interval_ms must be positive"),
+        (lambda m: viz.animate(m, [0.1, np.nan]), "q must be finite"),
+        (lambda m: viz.animation_html(viz.animate(m, [0.1, 0.2]), fps=0), "fps must be positive"),
+        (lambda m: viz.save_gif(viz.animate(m, [0.1, 0.2]), "never.gif", fps=np.inf), "fps must be finite"),
+        (lambda m: viz.player(viz.animate(m, [0.1, 0.2]), fps=5000), "fps must be at most 1000"),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # refused before rendering
+def test_animation_requests_are_checked_and_bounded(watt, call, message):
+    with pytest.raises(assurjax.AssurjaxError, match=re.escape(message)):
+        call(watt)
+    plt.close("all")

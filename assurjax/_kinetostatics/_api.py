@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
+from .._values import found_words, value_problem
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
@@ -336,6 +337,23 @@ def _state(state):
     return q, omega, alpha, 0.0 if t is None else t
 
 
+STATE_NAMES = ("q", "omega", "domega", "t")
+
+
+def _checked_shape(state) -> tuple[int, ...]:
+    """The common shape of (q, omega, domega, t); raise naming one that is not finite, or
+    their shapes where they do not broadcast together (traced values: shapes only)."""
+    for name, value in zip(STATE_NAMES, state):
+        if (problem := value_problem(value)) is not None:
+            raise AssurjaxError(f"state '{name}': {problem}")
+    shapes = [np.shape(v) for v in state]
+    try:
+        return jnp.broadcast_shapes(*shapes)
+    except ValueError:
+        raise AssurjaxError("a state's q, omega, domega and t must broadcast together, got shapes "
+                            + ", ".join(f"{n} {s}" for n, s in zip(STATE_NAMES, shapes))) from None
+
+
 def _wanted_groups(mechanism: Mechanism, joints) -> tuple[int, ...] | None:
     if joints is None:
         return None
@@ -401,8 +419,13 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     >>> r.driving.shape
     (101,)
     """
+    if (problem := value_problem(t)) is not None:
+        raise AssurjaxError(f"inverse_dynamics: the times t {problem}")
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
+        found = jax.eval_shape(motion, jax.ShapeDtypeStruct((), t.dtype)).shape
+        if found != ():
+            raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a single number at a time t, it returns {found_words(found)}")
         q, omega, alpha = _derivatives(motion, t)
     else:
         if not isinstance(motion, (tuple, list)) or len(motion) != 3:
@@ -445,8 +468,8 @@ def _run(scene, state, joints, method, check, *, static):
     model = as_model(scene)
     mechanism = model.mechanism
     groups = _wanted_groups(mechanism, joints)
+    shape = _checked_shape(state)
     q = jnp.asarray(state[0], dtype=float)
-    shape = jnp.broadcast_shapes(q.shape, *(jnp.shape(v) for v in state[1:]))
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
     forces, couples, driving, ok, friction, friction_power, friction_ok = _batched(model, (q, omega, alpha, t), method, groups,
                                                                                   static)

@@ -198,12 +198,12 @@ def check_simulation_table(table: Mapping, where: str = "[simulation]", schema: 
 
 def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     """(field, what is wrong) with a starting state and time span, or None: finite values of
-    sane magnitude, t1 later than t0. Arrays (a batch of starts) are checked elementwise;
-    tracers are not checked. Shared by the scene loader's [state] and ``simulate``'s keywords."""
+    sane magnitude, t0 and t1 single numbers, t1 later than t0. Arrays of starts (a batch) are
+    checked elementwise; tracers by their shapes only. Shared by the scene loader's [state] and ``simulate``'s keywords."""
     if _plain_state_ok(q0, omega0, t0, t1):  # the common case, decided without NumPy (~30 us less per call)
         return None
-    for key, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
-        if (problem := value_problem(value)) is not None:
+    for key, value, shape in (("q0", q0, None), ("omega0", omega0, None), ("t0", t0, ()), ("t1", t1, ())):
+        if (problem := value_problem(value, shape=shape)) is not None:
             return key, problem
     start, end = concrete(t0), concrete(t1)
     if start is not None and end is not None and not np.all(end > start):

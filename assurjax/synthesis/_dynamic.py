@@ -36,8 +36,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .._errors import AssurjaxError
+from .._values import value_problem
 from ..dynamics._field import arrival_acceleration
-from ..dynamics._settings import fixed_step_from, settings_from
+from ..dynamics._settings import fixed_step_from, settings_from, state_problem
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
 
@@ -55,12 +57,27 @@ def _settings(scene, settings: dict, **fixed):
     return opts._replace(reduction="exact") if opts.reduction == "auto" else opts
 
 
+def _check_start(scene, q0, omega0, t1) -> None:
+    """Raise :class:`assurjax.AssurjaxError` naming a start or horizon (the caller's, else the
+    scene's [state]) that is not a finite single number, or a t1 not later than t0; traced values
+    have their shapes checked only."""
+    state = scene.state
+    values = {"q0": state.get("q0", 0.0) if q0 is None else q0, "omega0": state.get("omega0", 0.0) if omega0 is None else omega0,
+              "t0": state.get("t0", 0.0), "t1": state.get("t1", 1.0) if t1 is None else t1}
+    for key in ("q0", "omega0"):
+        if (problem := value_problem(values[key], shape=())) is not None:
+            raise AssurjaxError(f"setting '{key}': {problem}")
+    if (problem := state_problem(**values)) is not None:
+        raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
+
+
 def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", **settings):
     """(q(T), omega(T)) of the scene's motion from its initial state to ``t1`` (s),
     without stop events; differentiable with respect to every array of ``scene``
     (mechanism parameters, gravity, load values). ``settings``: fields of
     :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``, ``dt``,
     ``max_steps``) over the scene's ``[simulation]``."""
+    _check_start(scene, q0, omega0, t1)
     if adjoint in SENSITIVITY_ROUTES:
         q, w, _ = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return q, w
@@ -87,6 +104,7 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     With ``adjoint="quadrature"`` or ``"sensitivity"`` the same formula is applied to
     the forward sensitivities at t* (one solve for the whole gradient).
     """
+    _check_start(scene, q0, omega0, t1)
     if adjoint in SENSITIVITY_ROUTES:
         t_star, ok, _ = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return t_star, ok

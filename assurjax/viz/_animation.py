@@ -21,9 +21,13 @@ import numpy as np
 from matplotlib.animation import FuncAnimation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+from .._errors import AssurjaxError
 from .._mechanism import Mechanism
+from .._values import check_value
 from ._draw import MechanismDrawing, place_legend
 from ._frames import mechanism_frames
+
+MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
 
 
 def animate(
@@ -55,6 +59,9 @@ def animate(
     >>> anim = assurjax.viz.animate(mech, np.linspace(0, 2 * np.pi, 60), trace=["E"])
     >>> assurjax.viz.save_gif(anim, "watt.gif")
     """
+    if np.size(q) > MAX_FRAMES:
+        raise AssurjaxError(f"animate: at most {MAX_FRAMES} frames (values of q), got {np.size(q)}: take every k-th sample, q[::k]")
+    check_value(AssurjaxError, "animate: interval_ms", interval_ms, shape=(), positive=True)
     velocities = tuple(velocities)
     frames = mechanism_frames(mechanism, q, omega, velocities=bool(velocities))
     if ax is None:
@@ -127,6 +134,7 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     **Example:**
     >>> assurjax.viz.save_gif(assurjax.viz.animate(mech, np.linspace(0, 6.28, 36)), "mech.gif")
     """
+    _check_fps(fps)
     from PIL import Image
 
     path = Path(path)
@@ -135,6 +143,12 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     rest = [Image.fromarray(im).quantize(palette=first, dither=Image.Dither.NONE) for im in images[1:]]
     first.save(path, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)
     return path
+
+
+def _check_fps(fps) -> None:
+    check_value(AssurjaxError, "fps", fps, shape=(), positive=True)
+    if fps > 1000:
+        raise AssurjaxError(f"fps must be at most 1000 (frames per second), got {fps}")
 
 
 def ffmpeg_available() -> bool:
@@ -152,6 +166,7 @@ def save_mp4(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     >>> if assurjax.viz.ffmpeg_available():
     ...     assurjax.viz.save_mp4(anim, "mech.mp4")
     """
+    _check_fps(fps)
     exe = shutil.which("ffmpeg")
     if exe is None:
         raise FileNotFoundError("ffmpeg is not on the PATH: cannot write an MP4 (save_gif needs no external program)")
@@ -206,6 +221,7 @@ def animation_html(anim: FuncAnimation, *, fps: int = 20) -> str:
     >>> from IPython.display import HTML
     >>> HTML(assurjax.viz.animation_html(anim))
     """
+    _check_fps(fps)
     images = render_frames(anim)
     plt.close(anim._fig)
     frames = ",".join(f'"{base64.b64encode(_png(im)).decode()}"' for im in images)
@@ -221,6 +237,7 @@ def player(anim: FuncAnimation, *, fps: int = 20):
     **Example:**
     >>> assurjax.viz.player(assurjax.viz.animate(mech, np.linspace(0, 6.28, 60)))
     """
+    _check_fps(fps)
     import ipywidgets as widgets
 
     images = [_png(im) for im in render_frames(anim)]
