@@ -283,9 +283,11 @@ def test_states_given_to_the_analyses_are_checked(call, fragments):
         (lambda s: assurjax.batch_simulate(s, assurjax.stack_mechanisms([s.mechanism] * 2), t1=[0.5, 1.0]),
          ["batch_simulate: t1", "a single number"]),
         (lambda s: assurjax.batch_simulate(s, assurjax.stack_mechanisms([s.mechanism] * 2), q0=np.nan), ["batch_simulate: q0", "finite"]),
+        (lambda s: assurjax.simulate(s, events=[lambda t, q, w: q, lambda t, q, w: jnp.stack([q, w])]),
+         ["events", "event #2 returns an array of shape (2,)"]),
     ],
 )
-def test_runs_of_the_synthesis_check_their_start_and_horizon(call, fragments):
+def test_runs_check_their_start_horizon_and_events(call, fragments):
     with raises(assurjax.AssurjaxError, *fragments):
         call(scene())
 

@@ -18,7 +18,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
-from .._values import MAGNITUDE_LIMIT, all_finite, concrete, value_problem
+from .._values import MAGNITUDE_LIMIT, all_finite, concrete, found_words, value_problem
 from ._packed import UNPACKED, Packing
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
@@ -302,9 +302,13 @@ def check(settings: Settings) -> None:
                                        (f"the baseline solver {settings.solver!r}", settings.solver in BASELINES)) if on]
         if fixed:
             raise AssurjaxError(f"setting 'max_step' bounds the adaptive steps; with {fixed[0]} every step is fixed")
-    for cond in settings.events:
+    scalar = jax.ShapeDtypeStruct((), jnp.result_type(float))
+    for i, cond in enumerate(settings.events):
         if not callable(cond):
             raise AssurjaxError(f"events must be functions cond(t, q, omega), got {type(cond).__name__}")
+        found = jax.eval_shape(cond, scalar, scalar, scalar).shape  # traced for its shape only
+        if found != ():
+            raise AssurjaxError(f"events: each cond(t, q, omega) must return a single number; event #{i + 1} returns {found_words(found)}")
 
 
 def solver_for(settings: Settings) -> diffrax.AbstractSolver:
