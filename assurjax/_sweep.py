@@ -107,7 +107,8 @@ def perturb(
     with ``u1``, ``u2`` independent and uniform in [-1, 1]; unselected arrays are
     broadcast. ``select`` picks a pytree of arrays (default: every point
     coordinate, so every link length moves by up to about ``relative``).
-    Perturbed copies may fail to assemble: check ``Kinematics.ok``.
+    Perturbed copies may fail to assemble: check ``Kinematics.ok``. ``n``: at most
+    10 million.
     """
     if not (isinstance(n, numbers.Integral) and 0 < n <= MAX_COPIES):
         raise AssurjaxError(f"perturb: n must be a positive integer, at most {MAX_COPIES}, got {n!r}")

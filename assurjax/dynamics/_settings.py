@@ -199,7 +199,8 @@ def check_simulation_table(table: Mapping, where: str = "[simulation]", schema: 
 def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     """(field, what is wrong) with a starting state and time span, or None: finite values of
     sane magnitude, t0 and t1 single numbers, t1 later than t0. Arrays of starts (a batch) are
-    checked elementwise; tracers by their shapes only. Shared by the scene loader's [state] and ``simulate``'s keywords."""
+    checked elementwise; tracers by their shapes only. Shared by the scene loader's [state] and
+    ``simulate``'s keywords."""
     if _plain_state_ok(q0, omega0, t0, t1):  # the common case, decided without NumPy (~30 us less per call)
         return None
     for key, value, shape in (("q0", q0, None), ("omega0", omega0, None), ("t0", t0, ()), ("t1", t1, ())):

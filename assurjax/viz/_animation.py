@@ -50,7 +50,7 @@ def animate(
     ``velocities``; ``t`` (s) is shown in the title when given (a simulation);
     ``trace`` points get their whole path drawn, over ``trace_q`` when given (e.g.
     every sample of a simulation: smoother than the frames alone). Frames where the mechanism does
-    not assemble are drawn faded.
+    not assemble are drawn faded. At most 10,000 frames (each is drawn and rendered).
 
     Returns a matplotlib ``FuncAnimation``; write it with :func:`save_gif` or
     :func:`save_mp4`, show it in a notebook with :func:`animation_html` or :func:`player`.
