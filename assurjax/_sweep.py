@@ -334,7 +334,7 @@ def batch_simulate(
     read ``valid``, ``event``, ``t_stop`` and ``result`` per mechanism (a batch
     member that locks up or fails does not stop the others).
     """
-    from .dynamics._settings import fixed_step_from, settings_from
+    from .dynamics._settings import check_single_start, fixed_step_from, settings_from
     from .dynamics._solve import simulate_core
     from .dynamics._stick import batch_settings
 
@@ -342,9 +342,7 @@ def batch_simulate(
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
-    check_values(AssurjaxError, "batch_simulate", shape=(), q0=q0, omega0=omega0, t1=t1)
-    if not t1 > t0:
-        raise AssurjaxError(f"batch_simulate: t1 must be later than t0 = {t0}, got {t1}")
+    check_single_start(q0, omega0, t0, t1)
     options = settings_from(scene, **settings)
     options = options._replace(reduction="exact") if options.reduction == "auto" else options
     options = batch_settings(options, scene.loads)

@@ -3,6 +3,8 @@ both reject a bad value with the same words (the caller adds where the value is)
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -49,6 +51,8 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     """What is wrong with a concrete number or array ``x`` ("must be finite, got inf"...), or None.
     ``shape``: the shape it must have (checked on tracers too; their values are not checked).
     ``nonzero_vector``: the last axis holds vectors that must not be zero."""
+    if type(x) in (int, float) and shape in (None, ()) and _plain_number_ok(x, positive, nonnegative):
+        return None  # the common case, decided without NumPy (~25 us less per value)
     if shape is not None and (problem := shape_problem(x, shape)) is not None:
         return problem
     v = concrete(x)
@@ -66,6 +70,10 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
         return f"must be a non-zero vector, got {shown}"
     return None
+
+
+def _plain_number_ok(x: float, positive: bool, nonnegative: bool) -> bool:
+    return math.isfinite(x) and abs(x) <= MAGNITUDE_LIMIT and (x > 0 or not positive) and (x >= 0 or not nonnegative)
 
 
 def check_values(error: type[Exception], where: str, *, shape: tuple[int, ...] | None = None, **values) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
-from .._values import found_words, value_problem
+from .._values import check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
@@ -341,11 +341,11 @@ STATE_NAMES = ("q", "omega", "domega", "t")
 
 
 def _checked_shape(state) -> tuple[int, ...]:
-    """The common shape of (q, omega, domega, t); raise naming one that is not finite, or
-    their shapes where they do not broadcast together (traced values: shapes only)."""
-    for name, value in zip(STATE_NAMES, state):
-        if (problem := value_problem(value)) is not None:
-            raise AssurjaxError(f"state '{name}': {problem}")
+    """The common shape of (q, omega, domega, t); raise naming one that is not finite (t
+    first: inverse_dynamics computes the others from it), or their shapes where they do not
+    broadcast together (traced values: shapes only)."""
+    q, omega, alpha, t = state
+    check_values(AssurjaxError, "state", t=t, q=q, omega=omega, domega=alpha)
     shapes = [np.shape(v) for v in state]
     try:
         return jnp.broadcast_shapes(*shapes)
@@ -419,13 +419,8 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     >>> r.driving.shape
     (101,)
     """
-    if (problem := value_problem(t)) is not None:
-        raise AssurjaxError(f"inverse_dynamics: the times t {problem}")
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
-        found = jax.eval_shape(motion, jax.ShapeDtypeStruct((), t.dtype)).shape
-        if found != ():
-            raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a single number at a time t, it returns {found_words(found)}")
         q, omega, alpha = _derivatives(motion, t)
     else:
         if not isinstance(motion, (tuple, list)) or len(motion) != 3:
@@ -439,7 +434,10 @@ def _derivatives(motion, t):
 
     def rates(t):
         def first(t):
-            return jax.jvp(motion, (t,), (jnp.ones_like(t),))
+            q, w = jax.jvp(motion, (t,), (jnp.ones_like(t),))
+            if jnp.shape(q) != ():  # read while it is traced here anyway
+                raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a single number at a time t, it returns {found_words(jnp.shape(q))}")
+            return q, w
 
         (q, w), (_, a) = jax.jvp(first, (t,), (jnp.ones_like(t),))
         return q, w, a

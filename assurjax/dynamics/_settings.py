@@ -212,6 +212,16 @@ def state_problem(q0, omega0, t0, t1) -> tuple[str, str] | None:
     return None
 
 
+def check_single_start(q0, omega0, t0, t1) -> None:
+    """Raise :class:`assurjax.AssurjaxError` naming a start or span of one run (not a batch of
+    starts) that :func:`state_problem` rejects or that is not a single number."""
+    for key, value in (("q0", q0), ("omega0", omega0)):
+        if (problem := value_problem(value, shape=())) is not None:
+            raise AssurjaxError(f"setting '{key}': {problem}")
+    if (problem := state_problem(q0, omega0, t0, t1)) is not None:
+        raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
+
+
 def _plain_state_ok(*values) -> bool:
     """True for Python numbers (not bool, not NumPy) that the checks of state_problem accept:
     finite, of magnitude at most MAGNITUDE_LIMIT, t1 > t0. False: let those checks decide."""

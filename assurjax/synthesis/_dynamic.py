@@ -36,10 +36,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._errors import AssurjaxError
-from .._values import value_problem
 from ..dynamics._field import arrival_acceleration
-from ..dynamics._settings import fixed_step_from, settings_from, state_problem
+from ..dynamics._settings import check_single_start, fixed_step_from, settings_from
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
 
@@ -58,17 +56,10 @@ def _settings(scene, settings: dict, **fixed):
 
 
 def _check_start(scene, q0, omega0, t1) -> None:
-    """Raise :class:`assurjax.AssurjaxError` naming a start or horizon (the caller's, else the
-    scene's [state]) that is not a finite single number, or a t1 not later than t0; traced values
-    have their shapes checked only."""
+    """:func:`check_single_start` of the caller's start and horizon, else the scene's [state]."""
     state = scene.state
-    values = {"q0": state.get("q0", 0.0) if q0 is None else q0, "omega0": state.get("omega0", 0.0) if omega0 is None else omega0,
-              "t0": state.get("t0", 0.0), "t1": state.get("t1", 1.0) if t1 is None else t1}
-    for key in ("q0", "omega0"):
-        if (problem := value_problem(values[key], shape=())) is not None:
-            raise AssurjaxError(f"setting '{key}': {problem}")
-    if (problem := state_problem(**values)) is not None:
-        raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
+    check_single_start(state.get("q0", 0.0) if q0 is None else q0, state.get("omega0", 0.0) if omega0 is None else omega0,
+                       state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1)
 
 
 def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", **settings):
