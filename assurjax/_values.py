@@ -3,8 +3,6 @@ both reject a bad value with the same words (the caller adds where the value is)
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -73,7 +71,8 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
 
 
 def _plain_number_ok(x: float, positive: bool, nonnegative: bool) -> bool:
-    return math.isfinite(x) and abs(x) <= MAGNITUDE_LIMIT and (x > 0 or not positive) and (x >= 0 or not nonnegative)
+    # the magnitude test also fails for nan and inf, and compares a huge int exactly (no conversion to float)
+    return abs(x) <= MAGNITUDE_LIMIT and (x > 0 or not positive) and (x >= 0 or not nonnegative)
 
 
 def check_values(error: type[Exception], where: str, *, shape: tuple[int, ...] | None = None, **values) -> None:
