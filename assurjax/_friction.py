@@ -25,7 +25,7 @@ from __future__ import annotations
 import abc
 
 from collections.abc import Callable
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import equinox.internal as eqxi
@@ -547,77 +547,118 @@ def solve_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     16 starts did not stall; so do ``simulate``'s output samples, solved one after another
     (``dynamics._solution.outputs``), and vmapped states of more elements, where Newton's
     Jacobian costs most (``dynamics._field.acceleration_and_reduction``)."""
-    k = len(frictions)
-    coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
-    viscous = jnp.stack([f.viscous for f in frictions]) * rates * omega
-
-    def law(u, scale=1.0):  # scale: of the Coulomb terms, for the continuation below
-        return -scale * coulomb(u) * signs - viscous
-
-    def newton(u0, scale=1.0):
-        def residual(u, _):
-            return u - law(u, scale)
-
-        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), u0, max_steps=64,
-                             throw=False)
-        # Painleve's paradox: where the effective inertia is not positive the friction feeds the
-        # reactions faster than inertia resists: no consistent motion has the assumed signs, the
-        # mechanism jams (K x K Jacobians: a few forward passes of the linear law)
-        factors = plain_lu_factor(jax.jacfwd(residual)(sol.value, None))
-        consistent = lu_determinant(factors) > 0
-        if inertial is not None:  # and the statics alone not self-locked (see the docstring)
-            along = jax.jvp(lambda s: law_along(sol.value, s, scale), (0.0,), (1.0,))[1]
-            consistent &= 1.0 + jnp.sum(inertial[1] * plain_lu_solve(factors, along)) > 0
-        return sol.value, (sol.result == optx.RESULTS.successful) & consistent
-
-    def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
-        moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], per_unit_acceleration(inertial[0]))
-        return -scale * _coulomb_limits(mechanism, kin, frictions, moved, reactions[1])(u) * signs
-
-    def robust_newton(u0):
-        """Newton from u0; where its root is not consistent, Newton's method again, continued
-        in mu from 0 (where u = -viscous) in CONTINUATION_STEPS steps, each from the last
-        root: the root on the branch of moderate friction. With strong friction the law has
-        several roots, and Newton's method from u0 can land on one that is not consistent
-        while this one is (a slider-crank, mu = 5 on a 5 mm block: a consistent root at
-        dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with det(I - dlaw/du) < 0, which
-        stopped the run as a jam). The attempts are one scan, so that the program holds one
-        Newton's method (two: first calls 35 % longer)."""
-        n = CONTINUATION_STEPS
-
-        def attempt(carry, i):
-            u, ok, last, go = carry
-
-            def run():
-                start = jnp.where(i == 0, u0, jnp.where(i == 1, -viscous, last))
-                v, found = newton(start, jnp.where(i == 0, 1.0, i / n))
-                # attempt 0 stands where consistent; the continuation ends at its last step or where it fails (a jam)
-                done = jnp.where(i == 0, found, ~found | (i == n))
-                keep = go & ((i == 0) | (i == n))
-                return jnp.where(keep, v, u), jnp.where(keep, found, ok), jnp.where(go, v, last), go & ~done
-
-            # a scan (reverse mode goes through it) whose attempts run only while some member needs them
-            return jax.lax.cond(eqxi.unvmap_any(go), run, lambda: carry), None
-
-        init = (u0, jnp.asarray(False), u0, jnp.asarray(True))
-        (u, ok, _, _), _ = jax.lax.scan(attempt, init, jnp.arange(n + 1))
-        return u, ok
-
-    u0 = law(jnp.zeros(k))
     if not iterate:
-        return robust_newton(u0)
+        law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
+        return _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
+                              law(jnp.zeros(len(frictions))))
+    fixed = iterate_friction(mechanism, frictions, reactions, kin, rates, signs, omega, inertial=inertial)
+    return finish_friction(mechanism, frictions, reactions, kin, rates, signs, omega, fixed, inertial=inertial)
+
+
+class FixedPoint(NamedTuple):
+    """The outcome of :func:`iterate_friction`: its start u0 = law(0), its root, whether it
+    converged, and whether that root is taken as it is (``settled``: consistent by the bound)."""
+
+    u0: Array
+    value: Array
+    converged: Array
+    settled: Array
+
+
+def iterate_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, *,
+                     inertial=None) -> FixedPoint:
+    """The fixed-point iteration of :func:`solve_friction` and its consistency bound: the
+    part of the solve that runs at every right-hand side (:func:`finish_friction` the rest)."""
+    law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
+    u0 = law(jnp.zeros(len(frictions)))
     fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=1e-12, atol=1e-12), u0,
                              max_steps=FIXED_POINT_STEPS, throw=False)
     converged = fixed.result == optx.RESULTS.successful
     # det(I - S) > 0 where a bound of S's spectral radius is below 1 (S at a fixed acceleration)
     settled = converged if inertial is None else converged & (
         spectral_bound(_static_slopes(mechanism, kin, frictions, reactions, inertial, fixed.value)) < 1.0)
+    return FixedPoint(u0, fixed.value, converged, settled)
 
-    def fallback():  # Newton from u0 where the iteration failed, from its root where only the bound did
-        u, ok = robust_newton(jnp.where(converged, fixed.value, u0))
-        return jnp.where(settled, fixed.value, u), settled | ok
+
+def finish_friction(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, fixed: FixedPoint, *,
+                    inertial=None):
+    """(u, ok) of :func:`solve_friction` from the iteration's outcome: its root where it is
+    settled, else Newton's method (from u0 where the iteration failed, from its root where
+    only the bound did)."""
+    def fallback():
+        u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
+                               jnp.where(fixed.converged, fixed.value, fixed.u0))
+        return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
 
     # on whether any member of a batch failed (unbatched: under vmap a cond on a per-member
     # test runs both branches for every member, and Newton's was most of a batched
     # right-hand side: slider-crank 1.55 -> 1.1 us, Watt six-bar 3.5 -> 1.6 us per state)
-    return jax.lax.cond(eqxi.unvmap_any(~settled), fallback, lambda: (fixed.value, jnp.array(True)))
+    return jax.lax.cond(eqxi.unvmap_any(~fixed.settled), fallback, lambda: (fixed.value, jnp.array(True)))
+
+
+def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
+    """The friction law u -> law(u) of :func:`solve_friction` (``scale``: of its Coulomb terms)."""
+    coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
+    viscous = _viscous(frictions, rates, omega)
+
+    def law(u, scale=1.0):
+        return -scale * coulomb(u) * signs - viscous
+
+    return law
+
+
+def _viscous(frictions, rates, omega):
+    return jnp.stack([f.viscous for f in frictions]) * rates * omega
+
+
+def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0):
+    """Newton's method from u0 on the law of :func:`solve_friction`; where its root is not
+    consistent, Newton's method again, continued in mu from 0 (where u = -viscous) in
+    CONTINUATION_STEPS steps, each from the last root: the root on the branch of moderate
+    friction. With strong friction the law has several roots, and Newton's method from u0 can
+    land on one that is not consistent while this one is (a slider-crank, mu = 5 on a 5 mm
+    block: a consistent root at dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with
+    det(I - dlaw/du) < 0, which stopped the run as a jam). The attempts are one scan, so that
+    the program holds one Newton's method (two: first calls 35 % longer). Returns (u, ok)."""
+    law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
+    viscous = _viscous(frictions, rates, omega)
+
+    def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
+        moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], per_unit_acceleration(inertial[0]))
+        return -scale * _coulomb_limits(mechanism, kin, frictions, moved, reactions[1])(u) * signs
+
+    def newton(start, scale=1.0):
+        def residual(u, _):
+            return u - law(u, scale)
+
+        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), start,
+                             max_steps=64, throw=False)
+        # Painleve's paradox: where the effective inertia is not positive the friction feeds the
+        # reactions faster than inertia resists: no consistent motion has the assumed signs, the
+        # mechanism jams (K x K Jacobians: a few forward passes of the linear law)
+        factors = plain_lu_factor(jax.jacfwd(residual)(sol.value, None))
+        consistent = lu_determinant(factors) > 0
+        if inertial is not None:  # and the statics alone not self-locked (see solve_friction)
+            along = jax.jvp(lambda s: law_along(sol.value, s, scale), (0.0,), (1.0,))[1]
+            consistent &= 1.0 + jnp.sum(inertial[1] * plain_lu_solve(factors, along)) > 0
+        return sol.value, (sol.result == optx.RESULTS.successful) & consistent
+
+    n = CONTINUATION_STEPS
+
+    def attempt(carry, i):
+        u, ok, last, go = carry
+
+        def run():
+            start = jnp.where(i == 0, u0, jnp.where(i == 1, -viscous, last))
+            v, found = newton(start, jnp.where(i == 0, 1.0, i / n))
+            # attempt 0 stands where consistent; the continuation ends at its last step or where it fails (a jam)
+            done = jnp.where(i == 0, found, ~found | (i == n))
+            keep = go & ((i == 0) | (i == n))
+            return jnp.where(keep, v, u), jnp.where(keep, found, ok), jnp.where(go, v, last), go & ~done
+
+        # a scan (reverse mode goes through it) whose attempts run only while some member needs them
+        return jax.lax.cond(eqxi.unvmap_any(go), run, lambda: carry), None
+
+    init = (u0, jnp.asarray(False), u0, jnp.asarray(True))
+    (u, ok, _, _), _ = jax.lax.scan(attempt, init, jnp.arange(n + 1))
+    return u, ok

@@ -19,6 +19,7 @@ import threading
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax._src import core as _jax_core
 
@@ -227,3 +228,134 @@ def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:
         worker.join()
     if failure:
         raise failure[0]
+
+
+# ---------------------------------------------------------------------------- regions
+# XLA's CPU runtime calls each kernel of a program on its own (a few hundred instructions of
+# dispatch each), and a right-hand side of this package is hundreds of small kernels. A call
+# tagged ``xla_cpu_small_call`` (the tag XLA gives a small while loop it hoists) is compiled
+# into one kernel instead, its loops and branches included: a region. XLA keeps such a call
+# (``inlineable=false``) and compiles it with its older, whole-computation code generator,
+# which (1) aborts the process on a parameter the computation does not use: every input is
+# read once into an extra result, the touch, and the arguments pass an optimization barrier,
+# which XLA does not fold through (else it replaces a parameter by the constant a call site
+# passes, and the parameter is unused again); (2) cannot call libraries (LAPACK, host
+# callbacks): a region's body takes _linalg's plain LU, and a body holding such a call runs as
+# an ordinary call. Verified on the XLA of the JAX versions below (CPU): elsewhere, or with the
+# environment variable ASSURJAX_REGIONS=0, every region is an ordinary nested jit.
+REGIONS_SETTING = "ASSURJAX_REGIONS"
+REGIONS_JAX = ((0, 10),)  # (major, minor) of the JAX versions whose XLA was verified
+_SMALL_CALL = {"inlineable": "false", "xla_cpu_small_call": "true"}
+# primitives that become library or host calls on a CPU: a region's kernel cannot make them
+_LIBRARY_CALLS = ("lu", "lu_pivots_to_permutation", "triangular_solve", "cholesky", "cholesky_update", "eigh", "eig",
+                  "svd", "qr", "geqrf", "geqp3", "householder_product", "schur", "hessenberg", "tridiagonal",
+                  "tridiagonal_solve", "fft", "top_k", "custom_call", "sort")
+# the most values an array inside a region may hold: a region is for many small operations;
+# on larger arrays XLA's own kernels do better (the strandbeest, arrays of 274 values and with
+# friction 10,804: its first simulate() 17 % and 39 % longer as a region, and no faster warm)
+REGION_LARGEST = 256
+_REGION_STATE = threading.local()
+
+
+def regions_enabled() -> bool:
+    """Whether regions compile into one kernel in this process (see above)."""
+    if os.environ.get(REGIONS_SETTING, "1") == "0":
+        return False
+    try:
+        version = tuple(int(part) for part in jax.__version__.split(".")[:2])
+        return version in REGIONS_JAX and jax.default_backend() == "cpu"
+    except (ValueError, RuntimeError):
+        return False
+
+
+def in_region() -> bool:
+    """True while a region's body is traced (its linear algebra must not call LAPACK)."""
+    return getattr(_REGION_STATE, "depth", 0) > 0
+
+
+@contextlib.contextmanager
+def _tracing_region():
+    _REGION_STATE.depth = getattr(_REGION_STATE, "depth", 0) + 1
+    try:
+        yield
+    finally:
+        _REGION_STATE.depth -= 1
+
+
+def _largest(jaxpr) -> int:
+    sizes = [int(np.prod(v.aval.shape)) for eqn in jaxpr.eqns for v in eqn.outvars if hasattr(v.aval, "shape")]
+    return max(sizes + [max((_largest(sub) for eqn in jaxpr.eqns for sub in _subjaxprs(eqn)), default=0)])
+
+
+def _holds_library_call(jaxpr) -> bool:
+    for eqn in jaxpr.eqns:
+        name = eqn.primitive.name
+        if name in _LIBRARY_CALLS or "callback" in name:
+            return True
+        for sub in _subjaxprs(eqn):
+            if _holds_library_call(sub):
+                return True
+    return False
+
+
+def _subjaxprs(eqn):
+    for value in eqn.params.values():
+        for item in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(item, _jax_core.ClosedJaxpr):
+                yield item.jaxpr
+            elif isinstance(item, _jax_core.Jaxpr):
+                yield item
+
+
+def region(fun):
+    """``fun`` as a nested jit that XLA's CPU backend compiles into one kernel where it is
+    called inside a traced program (see above); at the top level, or where regions are off,
+    an ordinary :func:`jit`. Its arguments and results are pytrees (arrays and static parts)."""
+    plain = jit(fun)
+    outputs = {}  # the non-array part of each traced body's result, by its inputs' structure
+
+    def body(arrays, rest: Static):
+        with _tracing_region():
+            out = fun(*combine(arrays, rest))
+        out_arrays, outputs[rest] = split_arrays(out)
+        # every input read once: the first entry of each, summed in one fusion (see above)
+        firsts = [jnp.ravel(a)[0].astype(float) for a in jax.tree.leaves(arrays)]
+        return out_arrays, jnp.sum(jnp.stack(firsts)) if firsts else jnp.zeros(())
+
+    compiled = jax.jit(body, static_argnums=1)
+
+    def arrays_of(arrays, rest: Static):  # fun's array results, by the ordinary nested jit
+        return split_arrays(plain(*combine(arrays, rest)))[0]
+
+    # derivatives by the ordinary jit: its transpose may hold operations a region's kernel
+    # cannot make (a gather's transpose is a scatter)
+    @functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
+    def tagged(arrays, rest: Static):
+        # no argument a constant XLA could fold into the computation (see above)
+        out_arrays, touch = compiled(jax.lax.optimization_barrier(arrays), rest)
+        # the read kept beside the results (an optimization barrier: XLA keeps every operand)
+        return jax.lax.optimization_barrier((out_arrays, _tag(touch)))[0]
+
+    @tagged.defjvp
+    def _(rest, primals, tangents):
+        return jax.jvp(lambda a: arrays_of(a, rest), primals, tangents)
+
+    @functools.wraps(fun)
+    def call(*args):
+        if at_top_level() or in_region() or not regions_enabled():
+            return plain(*args)
+        arrays, rest = split_arrays(args)
+        if any(a.size == 0 for a in jax.tree.leaves(arrays)):
+            return plain(*args)  # an empty input has no entry to read
+        traced = compiled.trace(arrays, rest)  # JAX's trace, reused by the call below
+        if _largest(traced.jaxpr.jaxpr) > REGION_LARGEST or _holds_library_call(traced.jaxpr.jaxpr):
+            return plain(*args)
+        return combine(tagged(arrays, rest), outputs[rest])
+
+    return call
+
+
+def _tag(value):
+    from jax.experimental.xla_metadata import set_xla_metadata
+
+    return set_xla_metadata(value, **_SMALL_CALL)

@@ -20,7 +20,7 @@ import jax.scipy.linalg as jsl
 import lineax as lx
 from jaxtyping import Array
 
-from ._jit import fast_loops
+from ._jit import fast_loops, in_region
 
 
 def lu_factor(a: Array) -> tuple[Array, Array]:
@@ -28,18 +28,18 @@ def lu_factor(a: Array) -> tuple[Array, Array]:
     :func:`lu_solve`: LAPACK's, or plain ones with :func:`assurjax.enable_fast_loops` (a
     loop holding a LAPACK call is not compiled into one function). LAPACK's compile faster
     (the triad with friction's first call 1.3 s shorter), so they stay the default."""
-    return plain_lu_factor(a) if fast_loops() else jsl.lu_factor(a)
+    return plain_lu_factor(a) if fast_loops() or in_region() else jsl.lu_factor(a)
 
 
 def lu_solve(factors: tuple[Array, Array], b: Array) -> Array:
     """x with a x = b from :func:`lu_factor`."""
-    return plain_lu_solve(factors, b) if fast_loops() else jsl.lu_solve(factors, b)
+    return plain_lu_solve(factors, b) if fast_loops() or in_region() else jsl.lu_solve(factors, b)
 
 
 def small_solver() -> lx.AbstractLinearSolver:
     """lineax's solver for a small system inside a right-hand side (the friction's Newton
     fallback): :class:`PlainLU` with fast loops, lineax's LU otherwise (see :func:`lu_factor`)."""
-    return PlainLU() if fast_loops() else lx.LU()
+    return PlainLU() if fast_loops() or in_region() else lx.LU()
 
 
 def plain_lu_factor(a: Array) -> tuple[Array, Array]:

@@ -261,8 +261,10 @@ def test_tracked_motion_matches_exact_solution(nfb_motion):
     assert np.ptp(theta) > 5 * np.pi  # it really went round
     np.testing.assert_allclose(sol.q, theta, atol=1e-6)
     np.testing.assert_allclose(sol.omega, omega, atol=1e-5)
-    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=1e-6)
-    np.testing.assert_allclose(sol.points[f"B{n}"], parallelogram(n, theta), atol=1e-6)
+    # the crossings amplify round-off: the same program compiled three ways (regions on or off,
+    # XLA's concurrency-optimized scheduler on or off) ends 2e-8 to 1.2e-6 from the exact motion
+    np.testing.assert_allclose(sol.points["B0"], parallelogram(0, theta), atol=2e-6)
+    np.testing.assert_allclose(sol.points[f"B{n}"], parallelogram(n, theta), atol=2e-6)
     np.testing.assert_allclose(np.sin(np.asarray(sol.angles[f"coupler{n - 1}"])), 0.0, atol=1e-6)  # couplers translate
 
 

@@ -19,13 +19,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction,
-                         stacked_rate_terms, without_roundoff)
-from .._jit import jit
+from .._friction import (SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches, frictions_of, iterate_friction,
+                         linearize_reactions, solve_friction, stacked_rate_terms, without_roundoff)
+from .._jit import region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
@@ -80,25 +81,62 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     """dy/dt of the reduced link (see the module docstring)."""
     if args.table is not None:
         return State(y.omega, args.table.acceleration(y.q, y.omega))
+    if not frictions_of(args.model.loads):
+        return _field(t, y, args)
+    # with friction: the field with the iteration's root, where it is settled (a region); else,
+    # rarely, again with the solve's fallback (outside the region, see _friction_start)
+    rates, at, start = _settled_field(t, y, args)
+    return jax.lax.cond(eqxi.unvmap_any(~start.fixed.settled), lambda: _field_from(t, y, args, at, start),
+                        lambda: rates)
+
+
+@region
+def _field(t, y: State, args: FieldArgs) -> State:
+    at = _evaluated_at(y, args)
+    return _checked(y, args, *_rates(t, at, args, None))
+
+
+@region
+def _settled_field(t, y: State, args: FieldArgs):
+    at = _evaluated_at(y, args)
+    start = _start(args.model, t, at, args.direction, kinematic_coefficients(args.model, at, args.bridge),
+                   args.rate_signs, True)
+    settled = _assembled(start, start.fixed.value, jnp.array(True), at)
+    return _checked(y, args, *_rates(t, at, args, settled)), at, start
+
+
+def _field_from(t, y: State, args: FieldArgs, at: State, start) -> State:
+    return _checked(y, args, *_rates(t, at, args, _finish(args.model, at, start)))
+
+
+def _evaluated_at(y: State, args: FieldArgs) -> State:
+    """The state the field is evaluated at: y, or with ``nan_unassembled`` 0 where y is not
+    finite. A stage after one that met NaN is evaluated at a finite state and its NaN put
+    back (:func:`_checked`): reverse mode through a rejected step then meets no NaN
+    derivative (0 * NaN)."""
     if not args.nan_unassembled:
-        return _rates(t, y, args)[0]
-    # A stage after one that met NaN is evaluated at a finite state and its NaN put back:
-    # reverse mode through a rejected step then meets no NaN derivative (0 * NaN).
+        return y
     finite = all_finite(y)
-    rates, ok = _rates(t, jax.tree.map(lambda v: jnp.where(finite, v, 0.0), y), args)
-    assembles = finite & jnp.all(ok)
+    return jax.tree.map(lambda v: jnp.where(finite, v, 0.0), y)
+
+
+def _checked(y: State, args: FieldArgs, rates: State, ok) -> State:
+    """The rates, NaN with ``nan_unassembled`` where y is not finite or a group cannot assemble."""
+    if not args.nan_unassembled:
+        return rates
+    assembles = all_finite(y) & jnp.all(ok)
     return jax.tree.map(lambda v: jnp.where(assembles, v, jnp.nan), rates)
 
 
-def _rates(t, y: State, args: FieldArgs):
-    """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table."""
+def _rates(t, y: State, args: FieldArgs, f: Frictional | None):
+    """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table; ``f``: the
+    friction analysis at the state, where the model has friction."""
     model = args.model
     slopes = None
-    if frictions_of(model.loads):
+    if f is not None:
         # the Coulomb signs of the segment (its direction of motion, the signs of the rates
         # d phi_k/dq), frozen until w returns to 0 or a rate changes sign (events end the
         # segment there): the field stays smooth inside a segment
-        f = frictional(model, t, y, args.direction, args.bridge, args.rate_signs)
         red, kin, alpha, friction_power, consistent, slopes = f.red, f.kin, f.alpha, f.power, f.consistent, f.raw_slopes
         # direction 0: held at rest by the friction (a stick segment): nothing moves; at rest
         # (w = 0) an acceleration not in the direction of motion, or no consistent friction:
@@ -156,8 +194,8 @@ def frictional(model: Model, t, y: State, direction, bridge: float = 0.0, rate_s
     # arrays: the nested jit below would take Python numbers as static and trace per value
     t, direction = jnp.asarray(t, dtype=float), jnp.asarray(direction, dtype=float)
     if coeffs is not None:
-        return _frictional_at(model, t, y, direction, coeffs, rate_signs, iterate)
-    return _frictional(model, t, y, direction, bridge, rate_signs, iterate)
+        return _finish(model, y, _friction_start_at(model, t, y, direction, coeffs, rate_signs, iterate))
+    return _finish(model, y, _friction_start(model, t, y, direction, bridge, rate_signs, iterate))
 
 
 def kinematic_coefficients(model: Model, y: State, bridge: float = 0.0):
@@ -165,20 +203,40 @@ def kinematic_coefficients(model: Model, y: State, bridge: float = 0.0):
     return branch_coefficients(model.mechanism, y.q, near=near(model, y), bridge=bridge)
 
 
-# A nested jit: a simulation with friction solves it in several places (the solver's stages,
-# its first step's size, each segment's start, the outputs); traced once and reused, where
-# each trace costs ~0.4 s (XLA inlines it: the compiled program is unchanged).
-@jit
-def _frictional(model: Model, t, y: State, direction, bridge: float, rate_signs, iterate: bool) -> Frictional:
-    return _friction_analysis(model, t, y, direction, kinematic_coefficients(model, y, bridge), rate_signs, iterate)
+# A region (one kernel, _jit.region): a simulation with friction solves it in several places
+# (the solver's stages, its first step's size, each segment's start, the outputs); traced once
+# and reused, where each trace costs ~0.4 s. The rare Newton fallback stays outside it, in a
+# cond after it: a region's kernel is handed every buffer of its computation at each call,
+# taken or not (the press's step 13.9 -> 10.0 us).
+@region
+def _friction_start(model: Model, t, y: State, direction, bridge: float, rate_signs, iterate: bool) -> _Start:
+    return _start(model, t, y, direction, kinematic_coefficients(model, y, bridge), rate_signs, iterate)
 
 
-@jit
-def _frictional_at(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> Frictional:
-    return _friction_analysis(model, t, y, direction, coeffs, rate_signs, iterate)
+@region
+def _friction_start_at(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> _Start:
+    return _start(model, t, y, direction, coeffs, rate_signs, iterate)
 
 
-def _friction_analysis(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> Frictional:
+class _Start(NamedTuple):
+    """The friction analysis up to its fallback: the reduction and its kinematics, the rates
+    (cleaned, their slopes cleaned and raw), the statics linear in u (and its inertial part),
+    the Coulomb signs times the direction, and the iteration's outcome, or with ``iterate``
+    off Newton's (u, ok)."""
+
+    red: object
+    kin: object
+    rates: Array
+    slopes: Array
+    raw_slopes: Array
+    linear: object
+    inertial: object
+    signs: Array
+    fixed: FixedPoint | None
+    solved: tuple | None
+
+
+def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> _Start:
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
     # statics) would otherwise make XLA compute each point apart (Watt six-bar RHS 4.2 -> 3.8 us)
@@ -189,14 +247,34 @@ def _friction_analysis(model: Model, t, y: State, direction, coeffs, rate_signs,
     rates, slopes, raw_slopes = _rates_and_slopes(mechanism, frictions, coeffs)
     signs = jnp.sign(rates) if rate_signs is None else jnp.where(rate_signs != 0, rate_signs, jnp.sign(rates))
     direction = jnp.where(direction != 0, direction, rest_side(red.force))
+    alpha0 = _acceleration(red, rates, jnp.zeros(len(frictions)), y.omega)
+    linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha0, rates / red.inertia)
+    signs = signs * direction
+    if not iterate:
+        solved = solve_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial, iterate=False)
+        return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, None, solved)
+    fixed = iterate_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial)
+    return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, fixed, None)
 
-    def alpha_of(u):
-        return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.sum(rates * u), y.omega)
 
-    linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha_of(jnp.zeros(len(frictions))), rates / red.inertia)
-    u, ok = solve_friction(mechanism, frictions, linear, kin, rates, signs * direction, y.omega, inertial=inertial,
-                           iterate=iterate)
-    return Frictional(red, kin, alpha_of(u), jnp.sum(rates * u) * y.omega, ok, rates, slopes, raw_slopes)
+def _finish(model: Model, y: State, start: _Start) -> Frictional:
+    if start.fixed is None:
+        u, ok = start.solved
+    else:
+        u, ok = finish_friction(model.mechanism, frictions_of(model.loads), start.linear, start.kin, start.rates,
+                                start.signs, y.omega, start.fixed, inertial=start.inertial)
+    return _assembled(start, u, ok, y)
+
+
+def _assembled(start: _Start, u, ok, y: State) -> Frictional:
+    red, rates = start.red, start.rates
+    return Frictional(red, start.kin, _acceleration(red, rates, u, y.omega), jnp.sum(rates * u) * y.omega, ok, rates,
+                      start.slopes, start.raw_slopes)
+
+
+def _acceleration(red, rates, u, omega):
+    """dw/dt with the friction values u: their generalized force sum_k u_k dphi_k/dq added."""
+    return reduced_acceleration(red.inertia, red.dinertia, red.force + jnp.sum(rates * u), omega)
 
 
 def rest_side(force):
