@@ -16,6 +16,7 @@ import contextlib
 import functools
 import os
 import threading
+import weakref
 
 import equinox as eqx
 import jax
@@ -241,8 +242,11 @@ def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:
 # which XLA does not fold through (else it replaces a parameter by the constant a call site
 # passes, and the parameter is unused again); (2) cannot call libraries (LAPACK, host
 # callbacks): a region's body takes _linalg's plain LU, and a body holding such a call runs as
-# an ordinary call. Verified on the XLA of the JAX versions below (CPU): elsewhere, or with the
-# environment variable ASSURJAX_REGIONS=0, every region is an ordinary nested jit.
+# an ordinary call; (3) emits no scatter, which a gather's transpose is: a region's derivatives
+# are those of the ordinary call (custom_jvp). Past REGION_LARGEST values in an array XLA's own
+# kernels do better, and the region is an ordinary call too. Verified on the XLA of the JAX
+# versions below (CPU): elsewhere, or with the environment variable ASSURJAX_REGIONS=0, every
+# region is an ordinary nested jit (docs/design-notes.md, "Regions").
 REGIONS_SETTING = "ASSURJAX_REGIONS"
 REGIONS_JAX = ((0, 10),)  # (major, minor) of the JAX versions whose XLA was verified
 _SMALL_CALL = {"inlineable": "false", "xla_cpu_small_call": "true"}
@@ -285,6 +289,19 @@ def _tracing_region():
 def _largest(jaxpr) -> int:
     sizes = [int(np.prod(v.aval.shape)) for eqn in jaxpr.eqns for v in eqn.outvars if hasattr(v.aval, "shape")]
     return max(sizes + [max((_largest(sub) for eqn in jaxpr.eqns for sub in _subjaxprs(eqn)), default=0)])
+
+
+_FITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # by the traced body's jaxpr
+
+
+def _fits_region(traced) -> bool:
+    """No array past REGION_LARGEST values and no library call: none in the jaxpr's primitives,
+    and none in the body as lowered (a custom call, whatever primitive made it)."""
+    jaxpr = traced.jaxpr.jaxpr
+    if jaxpr not in _FITS:
+        _FITS[jaxpr] = (_largest(jaxpr) <= REGION_LARGEST and not _holds_library_call(jaxpr)
+                        and "custom_call" not in traced.lower().as_text())
+    return _FITS[jaxpr]
 
 
 def _holds_library_call(jaxpr) -> bool:
@@ -348,7 +365,7 @@ def region(fun):
         if any(a.size == 0 for a in jax.tree.leaves(arrays)):
             return plain(*args)  # an empty input has no entry to read
         traced = compiled.trace(arrays, rest)  # JAX's trace, reused by the call below
-        if _largest(traced.jaxpr.jaxpr) > REGION_LARGEST or _holds_library_call(traced.jaxpr.jaxpr):
+        if not _fits_region(traced):
             return plain(*args)
         return combine(tagged(arrays, rest), outputs[rest])
 
