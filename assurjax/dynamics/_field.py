@@ -354,8 +354,9 @@ def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     friction of a motion in direction s; dw/dt is 0 where that friction has no consistent
     solution (jammed). One friction solve: the other direction cannot start. ``coeffs``: see
     :func:`frictional`."""
-    # the signs as an array of zeros (read at the state): a simulation's right-hand side passes
-    # an array there, so that both calls share one trace (~0.3 s of a first call)
+    # the signs as an array of zeros (read at the state), as the output samples and the stick
+    # segments pass them, so that these calls share one trace of _friction_start (~0.3 s of a
+    # first call; the right-hand side traces its own region, _settled_field)
     unset = jnp.zeros(len(frictions_of(model.loads)))
     f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset, coeffs=coeffs)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
