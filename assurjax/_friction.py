@@ -78,8 +78,8 @@ class AbstractFriction(AbstractLoad):
 
     def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
         """The relative rate per unit driving velocity (rad or m per unit of q), from the
-        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles);
-        exactly 0 where it is round-off (see :func:`without_roundoff`)."""
+        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles and
+        rotations by name, :meth:`assurjax.Coefficients.named`); exactly 0 where it is round-off (see :func:`without_roundoff`)."""
         rate, terms = self.rate_terms(mechanism, x, dx)
         return without_roundoff(rate, jnp.sum(jnp.abs(terms)))
 
@@ -158,14 +158,14 @@ class SlideFriction(AbstractFriction):
         check_value(MechanismError, "SlideFriction: length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
 
-    def _direction(self, kin, p):
-        return rotation(kin.angles[p.on])  # the slider's x axis lies along the guide
+    def _direction(self, kin, p):  # the slider's x axis lies along the guide
+        return rotation(kin.angles[p.on]) if kin.rotations is None else kin.rotations[p.on]
 
     def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         at = _point(mechanism, x, p.point)
         (on, on_terms), (by, by_terms) = _material_rate(x, dx, p.on, at), _material_rate(x, dx, p.by, at)
-        return dot(on - by, rotation(x[2][p.on])), jnp.stack([on_terms, by_terms])
+        return dot(on - by, x[3][p.on]), jnp.stack([on_terms, by_terms])
 
     def unit_wrenches(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]

@@ -17,7 +17,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from ._errors import AssemblyError, AssurjaxError
-from ._geometry import wrap_angle
+from ._geometry import perp, rotation, wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
 from ._positions import stacked_positions
@@ -30,7 +30,8 @@ class Kinematics(eqx.Module):
     Dicts are keyed by point name (``points``...) or link name (``coms``...,
     ``angles``...). Accelerations are None when not asked for (``order=1``).
     ``ok`` has one flag per group (False: cannot assemble at that q). With a
-    batch of q every array gets the batch shape in front.
+    batch of q every array gets the batch shape in front. ``rotations``: the links'
+    (cos, sin) where the kinematics was built from :class:`Coefficients` (else None).
     """
 
     q: Array
@@ -46,6 +47,7 @@ class Kinematics(eqx.Module):
     angular_velocities: dict[str, Array] | None
     angular_accelerations: dict[str, Array] | None
     ok: Array
+    rotations: dict[str, Array] | None = None  # read, where at hand, instead of cos and sin of an angle
 
 
 def _many_outputs(mechanism: Mechanism, points, what: tuple[bool, bool]) -> bool:
@@ -68,7 +70,7 @@ def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tup
     materialize = _many_outputs(mechanism, points, what)
 
     def every(q):  # every point: the stacked analysis, no per-name arrays in between
-        (xp, xc, xa), ok, (names["points"], links) = stacked_positions(mechanism, q)
+        (xp, xc, xa, _), ok, (names["points"], links) = stacked_positions(mechanism, q)
         names["coms"] = links if want_coms else ()
         names["angles"] = links if want_angles else ()
         return (xp, xc if want_coms else None, xa if want_angles else None), ok
@@ -118,10 +120,14 @@ class Coefficients(eqx.Module):
     dicts (points (m), coms (m), angles (rad)); ``dx``/``d2x`` are None when not asked
     for. ``ok``: one flag per group (False: cannot assemble).
 
-    Held as ``stacked``: for each order a triple of arrays (points (P, 2), coms (L, 2),
-    angles (L,)) whose rows are named by ``names`` = (point names, link names); the
+    Held as ``stacked``: for each order the arrays (points (P, 2), coms (L, 2), angles (L,),
+    rotations (L, 2)) whose rows are named by ``names`` = (point names, link names); the
     dicts are views on them, so work on every link (the reduction) is a few array
-    operations instead of a few per name."""
+    operations instead of a few per name. ``rotations`` are the links' (cos, sin) as the
+    position analysis found them, and their derivatives: what needs a link's rotation
+    reads it, where its cosine and sine, taken of its angle at each reader, were copied by
+    XLA into every computation reading them (the press with friction: 21 sines and cosines
+    per right-hand side, 3 needed)."""
 
     q: Array
     stacked: tuple
@@ -141,7 +147,7 @@ class Coefficients(eqx.Module):
         return self.named(2)
 
     def named(self, order: int) -> tuple | None:
-        """The order's (points, coms, angles) as dicts by name (leading batch axes kept)."""
+        """The order's (points, coms, angles, rotations) as dicts by name (leading batch axes kept)."""
         return by_name(self.stacked[order], self.names)
 
     def link_angles(self, order: int) -> dict | None:
@@ -160,23 +166,25 @@ class Coefficients(eqx.Module):
             vel = jax.tree.map(lambda d: d * omega, dx)
         if alpha is not None:
             acc = jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
-        named = lambda arrays: (None, None, None) if arrays is None else by_name(arrays, self.names)  # noqa: E731
+        named = lambda arrays: (None, None, None) if arrays is None else by_name(arrays, self.names)[:3]  # noqa: E731
         (points, coms, angles), v, a = named(x), named(vel), named(acc)
         return Kinematics(
             q=self.q, omega=omega, alpha=jnp.zeros_like(self.q) if alpha is None else jnp.asarray(alpha, dtype=float),
             points=points, velocities=v[0], accelerations=a[0],
             coms=coms, com_velocities=v[1], com_accelerations=a[1],
             angles=angles, angular_velocities=v[2], angular_accelerations=a[2],
-            ok=self.ok,
+            ok=self.ok, rotations=by_name(x, self.names)[3],
         )
 
 
 def by_name(arrays, names) -> tuple | None:
-    """(points (..., P, 2), coms (..., L, 2), angles (..., L)) as three dicts by name."""
+    """(points (..., P, 2), coms (..., L, 2), angles (..., L), rotations (..., L, 2)) as
+    dicts by name."""
     if arrays is None:
         return None
     points, links = names
-    return _rows(arrays[0], points, vectors=True), _rows(arrays[1], links, vectors=True), _rows(arrays[2], links)
+    return (_rows(arrays[0], points, vectors=True), _rows(arrays[1], links, vectors=True), _rows(arrays[2], links),
+            _rows(arrays[3], links, vectors=True))
 
 
 def _rows(array, names, *, vectors: bool = False) -> dict:
@@ -241,9 +249,10 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
         nodes = jax.vmap(lambda s, n: coefficients(mechanism, q + s, order=2, near=n))(steps, predicted)
         weights = jnp.asarray(BRIDGE_WEIGHTS)
         combine = lambda v: jnp.tensordot(weights, v, axes=1)  # noqa: E731
-        (points, coms, angles), dx, d2x = nodes.stacked
+        (points, coms, angles, _), dx, d2x = nodes.stacked
         angles = angles[0] + wrap_angle(angles - angles[0])  # continuous across +-pi
-        stacked = (jax.tree.map(combine, (points, coms, angles)), jax.tree.map(combine, dx), jax.tree.map(combine, d2x))
+        stacked = _rotations_of_angles(jax.tree.map(combine, (points, coms, angles)), jax.tree.map(combine, dx[:3]),
+                                       jax.tree.map(combine, d2x[:3]))
         bridged = Coefficients(q=q, stacked=stacked, ok=jnp.ones_like(plain.ok), names=plain.names)  # every node assembles
         # a node that cannot assemble: the branch ends there (a limit position), nothing to bridge
         crossing = jnp.all(nodes.ok)
@@ -251,6 +260,15 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
 
     # a NaN distance (coincident joints exactly) counts as inside the window
     return jax.lax.cond(~(distance >= window), interpolate, lambda: plain)
+
+
+def _rotations_of_angles(x, dx, d2x):
+    """The three orders' (points, coms, angles) with the links' rotations and their
+    derivatives taken from the angles (interpolated coefficients: no frames to read)."""
+    rot = rotation(x[2])
+    turned = perp(rot)
+    return (x + (rot,), dx + (turned * dx[2][..., None],),
+            d2x + (turned * d2x[2][..., None] - rot * (dx[2] ** 2)[..., None],))
 
 
 def branch_coefficients(mechanism: Mechanism, q, *, near=None, bridge: float = 0.0) -> Coefficients:

@@ -108,10 +108,11 @@ def _assembled(mechanism: Mechanism, q, near):
 
 
 def stacked_positions(mechanism: Mechanism, q, near: Mapping | None = None):
-    """The position analysis of every point, centre of mass and link angle as three stacked
-    arrays, ``((points (P, 2), coms (L, 2), angles (L,)), ok, (point names, link names))``,
-    rows in the order of :func:`positions`' dicts. What is computed on them (the kinematic
-    coefficients, the reduction) takes a few operations instead of a few per name."""
+    """The position analysis of every point, centre of mass and link angle as stacked
+    arrays, ``((points (P, 2), coms (L, 2), angles (L,), rotations (L, 2)), ok, (point names,
+    link names))``, rows in the order of :func:`positions`' dicts; ``rotations``: the links'
+    (cos, sin) as the analysis found them (no trigonometry). What is computed on them (the
+    kinematic coefficients, the reduction) takes a few operations instead of a few per name."""
     return _stacked_positions(mechanism, jnp.asarray(q, dtype=float), near)
 
 
@@ -125,7 +126,7 @@ def _stacked_positions(mechanism: Mechanism, q, near):
     pose = _pose_per_name(mechanism, table, ok, points)  # small mechanisms: name by name fuses best
     stacked = tuple(jnp.stack([d[k] for k in names]) for d, names in
                     ((pose.points, points), (pose.coms, moving), (pose.angles, moving)))
-    return stacked, ok, (points, moving)
+    return stacked + (jnp.stack([table[k].rot for k in moving]),), ok, (points, moving)
 
 
 def _every_group(mechanism: Mechanism) -> tuple[int, ...]:
@@ -155,7 +156,7 @@ def _pose_stacked(mechanism: Mechanism, table: FrameTable, ok, wanted_points) ->
     """The Pose computed for all points, centres of mass and angles at once from the
     stacked frames, then split by name (a few operations per name instead of a dozen)."""
     moving = [name for name in table.links if name != GROUND]
-    points, coms, angles = _stacked_arrays(mechanism, table, wanted_points, moving)
+    points, coms, angles, _ = _stacked_arrays(mechanism, table, wanted_points, moving)
     return Pose(
         points={p: points[n] for n, p in enumerate(wanted_points)},
         coms={k: coms[n] for n, k in enumerate(moving)},
@@ -165,7 +166,8 @@ def _pose_stacked(mechanism: Mechanism, table: FrameTable, ok, wanted_points) ->
 
 
 def _stacked_arrays(mechanism: Mechanism, table: FrameTable, points, moving):
-    """(points (P, 2), coms (L, 2), angles (L,)) of the named points and moving links, from the stacked frames."""
+    """(points (P, 2), coms (L, 2), angles (L,), rotations (L, 2)) of the named points and
+    moving links, from the stacked frames."""
     links = mechanism.all_links()
     owner = dict(mechanism.owner)
     origins, rots = table.stacked()
@@ -174,9 +176,10 @@ def _stacked_arrays(mechanism: Mechanism, table: FrameTable, points, moving):
         rows = np.asarray(rows, dtype=int)
         return origins[rows] + rotate(local, rots[rows])
 
+    moving_rots = rots[np.asarray([table.index(k) for k in moving], dtype=int)]
     return (place(_stack_params([links[owner[p]].points[p] for p in points]), [table.index(owner[p]) for p in points]),
             place(_stack_params([links[k].com for k in moving]), [table.index(k) for k in moving]),
-            heading(rots[np.asarray([table.index(k) for k in moving], dtype=int)]))
+            heading(moving_rots), moving_rots)
 
 
 def _stack_params(values: list, dtype=float):

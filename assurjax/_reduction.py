@@ -111,13 +111,13 @@ def _torque_terms(mechanism: Mechanism, coeffs: Coefficients, mass, gravity, loa
     for load in loads:
         for link, f, m in load.wrenches(mechanism, kin, t):
             force, moment = force.at[row[link]].add(f), moment.at[row[link]].add(m)
-    _, dg, dth = coeffs.stacked[1]
+    dg, dth = coeffs.stacked[1][1:3]
     return jnp.sum(force * dg, axis=-1) + moment * dth
 
 
 def _inertia_terms(mass, inertia, coeffs: Coefficients):
     """Per link: m_j |dG_j/dq|^2 + J_j (dtheta_j/dq)^2 and its q-derivative (eqs. 5-6)."""
-    (_, dg, dth), (_, d2g, d2th) = coeffs.stacked[1], coeffs.stacked[2]
+    (dg, dth), (d2g, d2th) = coeffs.stacked[1][1:3], coeffs.stacked[2][1:3]
     j = mass * jnp.sum(dg * dg, axis=-1) + inertia * dth**2
     dj = 2.0 * (mass * jnp.sum(dg * d2g, axis=-1) + inertia * dth * d2th)
     return j, dj

@@ -114,7 +114,8 @@ def _solver(group, pairs, method: str):
 
 
 def _geometry(kin: Kinematics) -> Geometry:
-    return Geometry(kin.points, kin.coms, {k: rotation(a) for k, a in kin.angles.items()})
+    rotations = kin.rotations if kin.rotations is not None else {k: rotation(a) for k, a in kin.angles.items()}
+    return Geometry(kin.points, kin.coms, rotations)
 
 
 def _known_wrenches(mechanism: Mechanism, kin: Kinematics, wrenches) -> dict:
