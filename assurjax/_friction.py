@@ -396,7 +396,7 @@ def _ostrowski(magnitudes):
     """Ostrowski's bound of a square matrix's spectral radius from its entries' magnitudes:
     every eigenvalue lies within sqrt(R_i C_i) of some diagonal entry (R_i, C_i: row i's and
     column i's other entries summed)."""
-    diagonal = jnp.diagonal(magnitudes)
+    diagonal = magnitudes[np.arange(len(magnitudes)), np.arange(len(magnitudes))]
     rows, columns = jnp.sum(magnitudes, axis=1) - diagonal, jnp.sum(magnitudes, axis=0) - diagonal
     return jnp.max(diagonal + jnp.sqrt(rows * columns))
 
@@ -468,7 +468,7 @@ def linearize_reactions(react, frictions, directions: int):
     else:
         read = packed if packs else react
     reactions0, linear = jax.linearize(read, jnp.zeros(directions))
-    tangents = jax.vmap(linear)(jnp.eye(directions))
+    tangents = jax.vmap(linear)(np.eye(directions))  # a literal: jnp.eye is an iota XLA computes at each call
     if not packs:
         return reactions0, tangents
     return PairReactions(reactions0, unravel[0]), PairReactions(tangents, unravel[0])
