@@ -357,18 +357,23 @@ def region(fun):
     def _(rest, primals, tangents):
         return jax.jvp(lambda a: arrays_of(a, rest), primals, tangents)
 
-    @functools.wraps(fun)
-    def call(*args):
+    def fits(*args) -> bool:
+        """Whether a call with these arguments compiles into one kernel (see ``call``)."""
         if at_top_level() or in_region() or not regions_enabled():
-            return plain(*args)
+            return False
         arrays, rest = split_arrays(args)
         if any(a.size == 0 for a in jax.tree.leaves(arrays)):
-            return plain(*args)  # an empty input has no entry to read
-        traced = compiled.trace(arrays, rest)  # JAX's trace, reused by the call below
-        if not _fits_region(traced):
+            return False  # an empty input has no entry to read
+        return _fits_region(compiled.trace(arrays, rest))  # JAX's trace, reused by the call
+
+    @functools.wraps(fun)
+    def call(*args):
+        if not fits(*args):
             return plain(*args)
+        arrays, rest = split_arrays(args)
         return combine(tagged(arrays, rest), outputs[rest])
 
+    call.fits = fits
     return call
 
 

@@ -26,7 +26,7 @@ from jaxtyping import Array
 
 from .._friction import (SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches, frictions_of, iterate_friction,
                          linearize_reactions, solve_friction, stacked_rate_terms, without_roundoff)
-from .._jit import region
+from .._jit import jit, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
@@ -83,13 +83,19 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
         return State(y.omega, args.table.acceleration(y.q, y.omega))
     if not frictions_of(args.model.loads):
         return _field(t, y, args)
-    # with friction: the field with the iteration's root, where it is settled (a region); else,
-    # rarely, the whole analysis again with the solve's fallback (see _friction_start). The
-    # region hands back only the rates: its kernel is handed a pointer to each buffer it reads
-    # or writes at every call, and the analysis's results were 49 more (the press's step
-    # 108.7k -> 105.9k instructions, callgrind)
-    rates, settled = _settled_field(t, y, args)
-    return jax.lax.cond(eqxi.unvmap_any(~settled), lambda: _solved_field(t, y, args), lambda: rates)
+    # with friction: the field with the iteration's root, where it is settled; else, rarely,
+    # again with the solve's fallback (outside the region, see _friction_start). As a region
+    # the field hands back only its rates, and the fallback redoes the analysis: a region's
+    # kernel is handed a pointer to every buffer it reads or writes at each call (the
+    # analysis's results: the press's step 103.0k -> 90.8k instructions, callgrind). Where the
+    # field is no region, the fallback takes the analysis from it: done again, it is compiled
+    # twice (the strandbeest with friction in 73 joints: its first call 19.9 -> 28.3 s)
+    if _settled_rates.fits(t, y, args):
+        rates, settled = _settled_rates(t, y, args)
+        return jax.lax.cond(eqxi.unvmap_any(~settled), lambda: _solved_field(t, y, args), lambda: rates)
+    rates, at, start = _settled_field(t, y, args)
+    return jax.lax.cond(eqxi.unvmap_any(~start.fixed.settled), lambda: _field_from(t, y, args, at, start),
+                        lambda: rates)
 
 
 @region
@@ -99,18 +105,34 @@ def _field(t, y: State, args: FieldArgs) -> State:
 
 
 @region
+def _settled_rates(t, y: State, args: FieldArgs):
+    rates, _, start = _settled(t, y, args)
+    return rates, start.fixed.settled
+
+
+@jit
 def _settled_field(t, y: State, args: FieldArgs):
+    return _settled(t, y, args)
+
+
+def _settled(t, y: State, args: FieldArgs):
+    """The field with the iteration's root (taken where it is settled), the state it was
+    evaluated at and the friction analysis."""
     at = _evaluated_at(y, args)
     start = _start(args.model, t, at, args.direction, kinematic_coefficients(args.model, at, args.bridge),
                    args.rate_signs, True)
     settled = _assembled(start, start.fixed.value, jnp.array(True), at)
-    return _checked(y, args, *_rates(t, at, args, settled)), start.fixed.settled
+    return _checked(y, args, *_rates(t, at, args, settled)), at, start
 
 
 def _solved_field(t, y: State, args: FieldArgs) -> State:
     at = _evaluated_at(y, args)
-    f = frictional(args.model, t, at, args.direction, args.bridge, args.rate_signs)
-    return _checked(y, args, *_rates(t, at, args, f))
+    return _checked(y, args, *_rates(t, at, args, frictional(args.model, t, at, args.direction, args.bridge,
+                                                             args.rate_signs)))
+
+
+def _field_from(t, y: State, args: FieldArgs, at: State, start) -> State:
+    return _checked(y, args, *_rates(t, at, args, _finish(args.model, at, start)))
 
 
 def _evaluated_at(y: State, args: FieldArgs) -> State:
