@@ -79,7 +79,8 @@ class AbstractFriction(AbstractLoad):
     def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
         """The relative rate per unit driving velocity (rad or m per unit of q), from the
         positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles and
-        rotations by name, :meth:`assurjax.Coefficients.named`); exactly 0 where it is round-off (see :func:`without_roundoff`)."""
+        rotations by name, ``Coefficients.named``); exactly 0 where it is round-off (see
+        :func:`without_roundoff`)."""
         rate, terms = self.rate_terms(mechanism, x, dx)
         return without_roundoff(rate, jnp.sum(jnp.abs(terms)))
 

@@ -116,9 +116,9 @@ def taylor(fn: Callable, q, order: int):
 
 class Coefficients(eqx.Module):
     """Positions and kinematic coefficients of every point, centre of mass and link at
-    one driving coordinate: ``x``, ``dx`` = dx/dq, ``d2x`` = d2x/dq2, each a triple of
-    dicts (points (m), coms (m), angles (rad)); ``dx``/``d2x`` are None when not asked
-    for. ``ok``: one flag per group (False: cannot assemble).
+    one driving coordinate: ``x``, ``dx`` = dx/dq, ``d2x`` = d2x/dq2, each dicts by name
+    (points (m), coms (m), angles (rad), rotations (cos, sin)); ``dx``/``d2x`` are None
+    when not asked for. ``ok``: one flag per group (False: cannot assemble).
 
     Held as ``stacked``: for each order the arrays (points (P, 2), coms (L, 2), angles (L,),
     rotations (L, 2)) whose rows are named by ``names`` = (point names, link names); the

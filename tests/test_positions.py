@@ -148,3 +148,22 @@ def test_points_subset_solves_the_needed_part_of_a_chain():
     assert list(part.points) == ["B5"] and set(part.angles) == solved
     np.testing.assert_allclose(np.asarray(part.points["B5"]), np.asarray(whole.points["B5"]), rtol=0, atol=1e-15)
     assert bool(np.all(np.asarray(part.ok)))
+
+
+@pytest.mark.parametrize("name", ["slider_crank", "triad_mechanism", "strandbeest"])
+def test_coefficients_carry_the_links_rotations_and_their_derivatives(name):
+    """The kinematic coefficients' rotations (read by the statics and the slider friction
+    instead of cos and sin of an angle) are (cos, sin) of the link angles, and their first
+    and second derivatives along q are those of (cos theta(q), sin theta(q)) by the chain
+    rule from the angles' own coefficients: for names placed one by one (slider-crank), an
+    iterative group (triad) and the stacked analysis of a large mechanism (strandbeest)."""
+    from assurjax._kinematics import coefficients
+
+    mechanism = assurjax.load_scene(name).mechanism
+    c = coefficients(mechanism, jnp.asarray(0.7))
+    (_, _, theta, rot), (_, _, d_theta, d_rot), (_, _, d2_theta, d2_rot) = c.stacked
+    cos, sin = np.cos(theta), np.sin(theta)
+    np.testing.assert_allclose(rot, np.stack([cos, sin], axis=-1), atol=1e-12)
+    np.testing.assert_allclose(d_rot, np.stack([-sin, cos], axis=-1) * d_theta[:, None], atol=1e-10)
+    expected = (np.stack([-sin, cos], axis=-1) * d2_theta[:, None] - np.stack([cos, sin], axis=-1) * (d_theta**2)[:, None])
+    np.testing.assert_allclose(d2_rot, expected, atol=1e-8)
