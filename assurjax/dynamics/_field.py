@@ -87,7 +87,8 @@ def vector_field(t, y: State, args: FieldArgs) -> State:
     # again with the solve's fallback (outside the region, see _friction_start). As a region
     # the field hands back only its rates, and the fallback redoes the analysis: a region's
     # kernel is handed a pointer to every buffer it reads or writes at each call (the
-    # analysis's results: the press's step 103.0k -> 90.8k instructions, callgrind). Where the
+    # analysis's results: the press's step 103.0k -> 90.8k instructions, callgrind; the price,
+    # a second region to compile, the fallback's: first calls 0.4-2 s longer). Where the
     # field is no region, the fallback takes the analysis from it: done again, it is compiled
     # twice (the strandbeest with friction in 73 joints: its first call 19.9 -> 28.3 s)
     if _settled_rates.fits(t, y, args):
