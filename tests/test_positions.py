@@ -160,7 +160,12 @@ def test_coefficients_carry_the_links_rotations_and_their_derivatives(name):
     from assurjax._kinematics import coefficients
 
     mechanism = assurjax.load_scene(name).mechanism
-    c = coefficients(mechanism, jnp.asarray(0.7))
+    assert_rotations_follow_angles(coefficients(mechanism, jnp.asarray(0.7)))
+
+
+def assert_rotations_follow_angles(c):
+    """``c``'s rotations are (cos, sin) of its angles, their derivatives those of
+    (cos theta(q), sin theta(q)) by the chain rule from the angles' coefficients."""
     (_, _, theta, rot), (_, _, d_theta, d_rot), (_, _, d2_theta, d2_rot) = c.stacked
     cos, sin = np.cos(theta), np.sin(theta)
     np.testing.assert_allclose(rot, np.stack([cos, sin], axis=-1), atol=1e-12)

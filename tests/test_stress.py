@@ -590,13 +590,9 @@ def test_bridged_coefficients_carry_rotations_of_their_angles(nfb, q):
     """Inside a bridged window the coefficients are interpolated, and their rotations (read
     by the statics and the slider friction) are taken from the interpolated angles: (cos,
     sin) of the angles, their derivatives by the chain rule from the angles' coefficients."""
+    from test_positions import assert_rotations_follow_angles
+
     from assurjax._kinematics import bridged_coefficients
 
     q = jnp.asarray(q)
-    c = bridged_coefficients(nfb.mechanism, q, near=parallelogram_angles(N_SWEEP, q))
-    (_, _, theta, rot), (_, _, d_theta, d_rot), (_, _, d2_theta, d2_rot) = c.stacked
-    cos, sin = np.cos(theta), np.sin(theta)
-    np.testing.assert_allclose(rot, np.stack([cos, sin], axis=-1), atol=1e-12)
-    np.testing.assert_allclose(d_rot, np.stack([-sin, cos], axis=-1) * d_theta[:, None], atol=1e-10)
-    expected = (np.stack([-sin, cos], axis=-1) * d2_theta[:, None] - np.stack([cos, sin], axis=-1) * (d_theta**2)[:, None])
-    np.testing.assert_allclose(d2_rot, expected, atol=1e-8)
+    assert_rotations_follow_angles(bridged_coefficients(nfb.mechanism, q, near=parallelogram_angles(N_SWEEP, q)))

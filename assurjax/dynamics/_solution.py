@@ -164,9 +164,10 @@ def outputs(model: Model, t, q, w, settings: Settings, near=None, *, flags: bool
 def _serial_friction(model: Model, settings: Settings) -> bool:
     """Whether the outputs' dw/dt solve their friction one sample after another: wherever
     dw/dt is asked with friction. Each sample's solve is then the integration's own
-    right-hand side's method (the fixed-point iteration; the trace of _field._friction_start,
-    which the segments' starts share, where it was a batched Newton's method of its own; up to SUMMED_TERMS elements its batched Newton's method, with
-    its K x K Jacobians and LU, is gone from it; past them its vmapped iteration, whose
+    right-hand side's method (the fixed-point iteration, in the trace of
+    _field._friction_start, which the segments' starts share; up to SUMMED_TERMS elements its
+    batched Newton's method, with its K x K Jacobians and LU, is gone from the outputs'
+    program; past them its vmapped iteration, whose
     tangents worked past the CPU's caches: the strandbeest with friction in its 73 joints,
     0.2 s and 201 samples, 271 -> 239 ms warm, first call 38.3 -> 36.2 s). Only that solve: the
     rest of a sample stays vmapped (the whole sample one after another: the Watt six-bar's
