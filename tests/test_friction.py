@@ -740,6 +740,35 @@ def test_friction_solve_batched(slider):
     np.testing.assert_allclose(np.asarray(u[:, 0]), -0.1 / (1.0 + 0.1 * np.asarray(b_weak)), rtol=1e-12)
 
 
+def test_iteration_stops_within_its_tolerance(slider):
+    """The fixed-point iteration at the tolerance a simulation gives it (1e-2 of the
+    integrator's, not below 1e-12) against the closed-form root of u = -0.1 (1 + b u): within
+    c / (1 - c) of that tolerance, c = 0.1 |b| the law's slope (the bound the tolerance's
+    docstring names)."""
+    from assurjax._friction import iterate_friction, iteration_tolerance, linearize_reactions
+
+    assert iteration_tolerance(1e-8, 1e-8) == pytest.approx(1e-10) and iteration_tolerance(1e-6, 1e-9) == pytest.approx(1e-11)
+    assert iteration_tolerance(1e-12, 1e-12) == iteration_tolerance(1e-10, 1e-3) == 1e-12
+    element = aj.JointFriction("O", 0.5, 0.2)
+
+    @jax.jit
+    def roots(b):
+        react = lambda u: ({"O": jnp.stack([1.0 + b * u[0], 0.0])}, {})  # noqa: E731
+        linear = linearize_reactions(react, (element,), 1)
+        return [iterate_friction(slider.mechanism, (element,), linear, None, jnp.zeros(1), jnp.ones(1), 0.0,
+                                 tolerance=tolerance) for tolerance in (1e-10, 1e-12)]
+
+    stopped_sooner = []
+    for b in (0.5, -3.0, 3.0):  # slopes the iteration takes (below ~0.4, see FIXED_POINT_STEPS)
+        exact, c = -0.1 / (1.0 + 0.1 * b), 0.1 * abs(b)
+        found = roots(b)
+        for fixed, tolerance in zip(found, (1e-10, 1e-12)):
+            assert bool(fixed.converged)
+            assert abs(float(fixed.value[0]) - exact) <= c / (1 - c) * tolerance * (1 + abs(exact))
+        stopped_sooner.append(float(found[0].value[0]) != float(found[1].value[0]))
+    assert any(stopped_sooner)  # the looser tolerance is the one applied
+
+
 @pytest.mark.slow  # 15-22 s of compiles; the default suite ran 9:41-11:05 in CI runs on a shared machine
 def test_batch_of_starts_equals_single_runs():
     """A batch of simulations with friction (the driven press from rest: break-away, Coulomb

@@ -172,3 +172,19 @@ def assert_rotations_follow_angles(c):
     np.testing.assert_allclose(d_rot, np.stack([-sin, cos], axis=-1) * d_theta[:, None], atol=1e-10)
     expected = (np.stack([-sin, cos], axis=-1) * d2_theta[:, None] - np.stack([cos, sin], axis=-1) * (d_theta**2)[:, None])
     np.testing.assert_allclose(d2_rot, expected, atol=1e-8)
+
+
+def test_crank_turn_and_its_derivatives_in_closed_form():
+    """The crank's (cos q, sin q), computed once with derivatives from itself (a custom jvp):
+    its value, first and second derivatives in forward and reverse mode against -sin, cos and
+    -cos, -sin; a non-finite angle stays non-finite."""
+    from assurjax.groups._drivers import turn
+
+    for q in (0.7, -2.9, 31.4):
+        c, s = np.cos(q), np.sin(q)
+        np.testing.assert_array_equal(np.asarray(turn(q)), [c, s])
+        for first in (jax.jacfwd(turn)(q), jax.jacrev(turn)(q)):
+            np.testing.assert_allclose(np.asarray(first), [-s, c], rtol=0, atol=1e-15)
+        for second in (jax.jacfwd(jax.jacfwd(turn))(q), jax.jacrev(jax.jacfwd(turn))(q)):
+            np.testing.assert_allclose(np.asarray(second), [-c, -s], rtol=0, atol=1e-15)
+    assert not np.any(np.isfinite(np.asarray(turn(jnp.inf))))

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches, frictions_of, iterate_friction,
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches, frictions_of, iterate_friction,
                          linearize_reactions, solve_friction, stacked_rate_terms, without_roundoff)
 from .._jit import jit, region
 from .._kinematics import branch_coefficients
@@ -66,6 +66,8 @@ class FieldArgs(eqx.Module):
     rate_signs: Array | None = None
     coeffs: object = None  # a stick segment's kinematic coefficients (its q stays; see frictional)
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
+    # the friction iteration's tolerance at each right-hand side (_friction.iteration_tolerance)
+    friction_tolerance: float = eqx.field(static=True, default=FIXED_POINT_TOLERANCE)
     # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
     nan_unassembled: bool = eqx.field(static=True, default=False)
 
@@ -121,7 +123,7 @@ def _settled(t, y: State, args: FieldArgs):
     evaluated at and the friction analysis."""
     at = _evaluated_at(y, args)
     start = _start(args.model, t, at, args.direction, kinematic_coefficients(args.model, at, args.bridge),
-                   args.rate_signs, True)
+                   args.rate_signs, True, args.friction_tolerance)
     settled = _assembled(start, start.fixed.value, jnp.array(True), at)
     return _checked(y, args, *_rates(t, at, args, settled)), at, start
 
@@ -263,7 +265,8 @@ class _Start(NamedTuple):
     solved: tuple | None
 
 
-def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool) -> _Start:
+def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool,
+           tolerance: float = FIXED_POINT_TOLERANCE) -> _Start:
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
     # statics) would otherwise make XLA compute each point apart (Watt six-bar RHS 4.2 -> 3.8 us)
@@ -280,7 +283,8 @@ def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bo
     if not iterate:
         solved = solve_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial, iterate=False)
         return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, None, solved)
-    fixed = iterate_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial)
+    fixed = iterate_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial,
+                             tolerance=tolerance)
     return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, fixed, None)
 
 

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of
+from .._friction import frictions_of, iteration_tolerance
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
@@ -134,7 +134,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
     def segment(start, y, direction, signs, stuck, step, coeffs):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
-                         bridge=settings.bridge, nan_unassembled=settings.check_assembly)
+                         bridge=settings.bridge, nan_unassembled=settings.check_assembly,
+                         friction_tolerance=iteration_tolerance(settings.rtol, settings.atol))
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
