@@ -422,23 +422,25 @@ def spectral_bound(magnitudes):
 # Fixed-point steps before Newton takes over: within them the iteration converges to 1e-12
 # only while it contracts by ~0.4 per step or better, so its error stays below the tolerance.
 FIXED_POINT_STEPS = 32
-# The iteration's tolerance (relative and absolute, per element): at most this, and inside a
-# simulation's integration a fraction of its own tolerance (see iteration_tolerance)
+CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_friction's robust_newton)
+
+
+# The iteration's tolerance (relative and absolute, per element): this, and inside a
+# simulation's integration a fraction of the integration's own (see iteration_tolerance)
 FIXED_POINT_TOLERANCE = 1e-12
 INTEGRATION_FRACTION = 1e-2
 
 
 def iteration_tolerance(rtol: float, atol: float) -> float:
     """The fixed-point tolerance of the friction solve inside an integration at (rtol, atol):
-    INTEGRATION_FRACTION of the tighter, not below FIXED_POINT_TOLERANCE. As diffrax's implicit
-    solvers take their nonlinear solve's tolerance from the step-size controller: the solve's
-    error, below c / (1 - c) of it where the iteration contracts by c (~0.03 on the press), is
-    then ~1e-4 of what the steps are allowed, and the iteration stops ~1.5 steps sooner at the
-    default 1e-8 (8.9 -> 7.3 law evaluations per right-hand side of the press); at tight
-    tolerances it stays at FIXED_POINT_TOLERANCE, where the right-hand side would otherwise
-    carry the iteration's error into the steps' error estimates."""
+    INTEGRATION_FRACTION of the tighter, as diffrax's implicit solvers take their nonlinear
+    solve's tolerance from the step-size controller. The solve's error, below c / (1 - c) of
+    it where the iteration contracts by c (~0.03 on the press), is then ~3e-4 of what the
+    steps are allowed, and the iteration stops ~1.5 steps sooner at the default 1e-8 (8.9 ->
+    7.3 law evaluations per right-hand side of the press). Not below FIXED_POINT_TOLERANCE:
+    nearer the round-off of the law's evaluation the iteration would not settle, and every
+    right-hand side would go on to Newton's method."""
     return max(FIXED_POINT_TOLERANCE, INTEGRATION_FRACTION * min(rtol, atol))
-CONTINUATION_STEPS = 4  # steps in mu of the friction's last fallback (solve_friction's robust_newton)
 
 
 # Analyses along many states (simulate's output samples, reactions along a motion) with more

@@ -24,8 +24,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches, frictions_of, iterate_friction,
-                         linearize_reactions, solve_friction, stacked_rate_terms, without_roundoff)
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches,
+                         frictions_of, iterate_friction, linearize_reactions, solve_friction, stacked_rate_terms,
+                         without_roundoff)
 from .._jit import jit, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
