@@ -747,7 +747,8 @@ def test_iteration_stops_within_its_tolerance(slider):
     docstring names)."""
     from assurjax._friction import iterate_friction, iteration_tolerance, linearize_reactions
 
-    assert iteration_tolerance(1e-8, 1e-8) == pytest.approx(1e-10) and iteration_tolerance(1e-6, 1e-9) == pytest.approx(1e-11)
+    assert iteration_tolerance(1e-8, 1e-8) == pytest.approx(1e-10)
+    assert iteration_tolerance(1e-6, 1e-9) == pytest.approx(1e-11)
     assert iteration_tolerance(1e-12, 1e-12) == iteration_tolerance(1e-10, 1e-3) == 1e-12
     element = aj.JointFriction("O", 0.5, 0.2)
 
