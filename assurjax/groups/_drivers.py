@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._geometry import V2
+from .._geometry import V2, perp, rotation
 from ._base import GROUND, AbstractGroup, Link, Placement, frame_from_rotation_xy
 
 
@@ -21,14 +21,14 @@ def turn(q):
     pair itself (below), not from sines and cosines of their own: one pair per right-hand side
     (the press's step 5.7k -> 1.4k instructions in libm with friction, 2.3k -> 1.4k without)."""
     one = q * 0.0 + 1.0
-    return jnp.stack([jnp.cos(q), jnp.sin(q)]) / one
+    return rotation(q) / one
 
 
 @turn.defjvp
 def _(primals, tangents):
     (q,), (dq,) = primals, tangents
-    rotation = turn(q)
-    return rotation, jnp.stack([-rotation[1], rotation[0]]) * dq
+    pair = turn(q)
+    return pair, perp(pair) * dq
 
 
 class Crank(AbstractGroup):
