@@ -95,6 +95,41 @@ def marginal_per_step(scene, loads, t1=2.0, repeats=5, **options) -> dict:
     return dict(steps=[n_short, n_long], run_s=[short, long], us_per_step=1e6 * (long - short) / (n_long - n_short))
 
 
+def interleaved_marginal_per_step(scene, variants: dict, t1=2.0, rounds=40) -> dict:
+    """:func:`marginal_per_step` of several ``variants`` (name -> loads) measured in turns:
+    each round times every variant's short and long run one after another, so that the
+    machine's load, which moves a single run's figure by 30 % and more on a shared machine,
+    is nearly the same for the variants compared within a round. Per variant: the marginal
+    step from the best times over the rounds (as :func:`marginal_per_step`) and from the
+    median times; and each round's ratio of the variants' marginal steps (the first variant
+    the denominator), whose median and quartiles are what the comparison reports."""
+    runs = {}
+    for name, loads in variants.items():
+        for t in (t1, 2 * t1):
+            kwargs = dict(loads=loads, stop=None, t1=t, samples=2)
+            steps = int(np.asarray(assurjax.simulate(scene, **kwargs).num_steps))  # compiles
+            runs[name, t] = (kwargs, steps, [])
+    for _ in range(rounds):
+        for kwargs, _, times in runs.values():
+            t0 = time.perf_counter()
+            jax.block_until_ready(assurjax.simulate(scene, **kwargs).q)
+            times.append(time.perf_counter() - t0)
+    out, per_round = {}, {}
+    for name in variants:
+        (_, n_short, short), (_, n_long, long) = runs[name, t1], runs[name, 2 * t1]
+        steps = n_long - n_short
+        per_round[name] = 1e6 * (np.asarray(long) - np.asarray(short)) / steps
+        out[name] = dict(steps=[n_short, n_long], us_per_step=1e6 * (min(long) - min(short)) / steps,
+                         us_per_step_median=1e6 * (np.median(long) - np.median(short)) / steps)
+    first, *others = variants
+    for name in others:
+        ratios = per_round[name] / per_round[first]
+        out[f"{name}_ratio"] = dict(rounds=rounds, median=float(np.median(ratios)),
+                                    quartiles=[float(np.percentile(ratios, 25)), float(np.percentile(ratios, 75))],
+                                    of_best_times=out[name]["us_per_step"] / out[first]["us_per_step"])
+    return out
+
+
 def kernels_per_step(scene, loads, t1=0.2) -> dict:
     """XLA's CPU kernel calls (fusions, copies, loops, conditionals: the runtime's thunks) per
     integration step of one ``simulate()``, counted in profiler traces of warm calls: runs to
@@ -149,9 +184,10 @@ def main():
     # keeps moving, so a longer run is more steps of the same kind: the marginal cost of a step
     press = assurjax.load_scene("press_with_friction")
     plain = tuple(load for load in press.loads if not load.needs_reactions)
-    case = dict(elements=len(press.loads) - len(plain), plain=marginal_per_step(press, plain),
-                friction=marginal_per_step(press, press.loads))
-    case["step_ratio"] = case["friction"]["us_per_step"] / case["plain"]["us_per_step"]
+    # both in turns (interleaved_marginal_per_step): the ratio is each round's, its median reported
+    case = dict(elements=len(press.loads) - len(plain),
+                **interleaved_marginal_per_step(press, dict(plain=plain, friction=press.loads)))
+    case["step_ratio"] = case["friction_ratio"]["median"]
     case["kernels"] = dict(plain=kernels_per_step(press, plain), friction=kernels_per_step(press, press.loads))
     case["kernel_ratio"] = case["kernels"]["friction"]["per_step"] / case["kernels"]["plain"]["per_step"]
     out["cases"]["press_marginal"] = case
