@@ -597,8 +597,9 @@ def iterate_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sig
         value = fixed.value
     else:
         # the iterate as K scalars, not one (K,) array: XLA's loop writes the array's entries
-        # one by one and reads it back whole at the next step, a load the CPU cannot take from
-        # those stores while they are in flight (the press's step 8.6 -> 8.2 us, same results)
+        # one by one and copies it whole at the next step, a load the CPU cannot take from
+        # those stores while they are in flight (the press's step 8.5-8.8 -> 8.1-8.5 us, same
+        # results, though 3.2k instructions more: see docs/design-notes.md)
         fixed = optx.fixed_point(lambda u, _: tuple(law(jnp.stack(u))), solver, tuple(u0),
                                  max_steps=FIXED_POINT_STEPS, throw=False)
         value = jnp.stack(fixed.value)
