@@ -591,18 +591,14 @@ def iterate_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sig
     ``tolerance``: the iteration's, see :func:`iteration_tolerance`."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     u0 = law(jnp.zeros(len(frictions)))
-    solver = optx.FixedPointIteration(rtol=tolerance, atol=tolerance)
-    if len(frictions) > SUMMED_TERMS:
-        fixed = optx.fixed_point(lambda u, _: law(u), solver, u0, max_steps=FIXED_POINT_STEPS, throw=False)
-        value = fixed.value
-    else:
-        # the iterate as K scalars, not one (K,) array: XLA's loop writes the array's entries
-        # one by one and copies it whole at the next step, a load the CPU cannot take from
-        # those stores while they are in flight (the press's step 8.5-8.8 -> 8.1-8.5 us, same
-        # results, though 3.2k instructions more: see docs/design-notes.md)
-        fixed = optx.fixed_point(lambda u, _: tuple(law(jnp.stack(u))), solver, tuple(u0),
-                                 max_steps=FIXED_POINT_STEPS, throw=False)
-        value = jnp.stack(fixed.value)
+    # up to SUMMED_TERMS elements the iterate as K scalars, not one (K,) array: XLA's loop
+    # writes the array's entries one by one and copies it whole at the next step, a load the
+    # CPU cannot take from those stores while they are in flight (the press's step 8.5-8.8 ->
+    # 8.1-8.5 us, same results, though 3.2k instructions more: see docs/design-notes.md)
+    split, join = (tuple, jnp.stack) if len(frictions) <= SUMMED_TERMS else (jnp.asarray, jnp.asarray)
+    fixed = optx.fixed_point(lambda u, _: split(law(join(u))), optx.FixedPointIteration(rtol=tolerance, atol=tolerance),
+                             split(u0), max_steps=FIXED_POINT_STEPS, throw=False)
+    value = join(fixed.value)
     converged = fixed.result == optx.RESULTS.successful
     # det(I - S) > 0 where a bound of S's spectral radius is below 1 (S at a fixed acceleration)
     settled = converged if inertial is None else converged & (
