@@ -6,8 +6,9 @@ own, and on a CPU XLA runs each as a call of its own (~20 ns each, a few per lea
 stage), where a scalar's arithmetic is a few flops. So in diffrax's forward mode (see
 :func:`packing_of`) the state's scalars (q, w, and the work and dissipated work when asked
 for) and its vectors (the tracked angles, the friction elements' rates) go to diffrax as
-one array, and the state is unpacked wherever the package reads it (the vector field, the
-events, the step-size controller, the saved states). The vectors go in only while the
+one array, and the state is unpacked wherever the package reads it (the events, the
+step-size controller, the saved states; the vector field inside its region, where the
+unpacking and the packing of the rates cost no call of their own). The vectors go in only while the
 stages' buffer stays under THREADED_BYTES, over which XLA's CPU runtime runs a loop's calls
 across threads: else they are stepped apart (the Watt six-bar with its 7 friction rates in
 the array: 3.4 -> 5.8 ms a run).
@@ -141,7 +142,7 @@ class _OnState(eqx.Module):
 
 class _PackedField(_OnState):
     def __call__(self, t, z, args):
-        return self.packing.pack(self.fn(t, self.packing.unpack(z), self.args(args)))
+        return self.fn(t, z, self.args(args), self.packing)
 
 
 class _PackedCondition(_OnState):
@@ -150,8 +151,9 @@ class _PackedCondition(_OnState):
 
 
 def packed_term(packing: Packing, field, rebuild: Rebuilt | None = None) -> diffrax.ODETerm:
-    """diffrax's term of ``field(t, State, args) -> State`` on packed states (``rebuild``:
-    the args from what diffrax passes, see :func:`flattened`)."""
+    """diffrax's term of ``field(t, z, args, packing)``: the rates of a packed state z, packed
+    alike (``_field.packed_vector_field``, which unpacks where it costs least); ``rebuild``:
+    the args from what diffrax passes, see :func:`flattened`."""
     return diffrax.ODETerm(_PackedField(packing, field, rebuild))
 
 

@@ -26,7 +26,7 @@ from .._positions import assembled
 from .._model import Model, as_model
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
-from ._field import FieldArgs, State, vector_field
+from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
@@ -161,7 +161,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     solver = solver_for(settings)
     packing, (leaves, rebuild) = packing_of(y0, settings.adjoint, solver), flattened(args)
     sol = diffrax.diffeqsolve(
-        packed_term(packing, vector_field, rebuild),
+        packed_term(packing, packed_vector_field, rebuild),
         solver,
         t0=t0,
         t1=t1,
@@ -206,7 +206,7 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     y0 = State(q0, omega0)
     solver = solver_for(settings)
     packing = packing_of(y0, settings.adjoint, solver)
-    term = packed_term(packing, vector_field)
+    term = packed_term(packing, packed_vector_field)
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None,
                      nan_unassembled=settings.check_assembly and not tabulated)
     h = (t1 - t0) / settings.steps

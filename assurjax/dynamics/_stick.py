@@ -55,7 +55,7 @@ from .._friction import frictions_of, iteration_tolerance
 from .._jit import jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, near, rest_analysis, start_kinematics, vector_field
+from ._field import FieldArgs, State, frictional, near, packed_vector_field, rest_analysis, start_kinematics
 from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
@@ -147,7 +147,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         kwargs = dict(t0=start, t1=t1, args=args, saveat=saveat, max_steps=settings.max_steps if chunk is None else chunk,
                       adjoint=adjoint_for(settings), throw=False)
         slip = lambda: unpacked(packing, diffrax.diffeqsolve(  # noqa: E731
-            packed_term(packing, vector_field), solver, stepsize_controller=lockup_controller(settings, packing),
+            packed_term(packing, packed_vector_field), solver, stepsize_controller=lockup_controller(settings, packing),
             event=packed_event(packing, slip_event), y0=packing.pack(y), dt0=dt0, **kwargs))
         # a first step of its own: diffrax's choice would add a copy of the field (its friction solve) to the program
         hold = lambda: _states_only(diffrax.diffeqsolve(  # noqa: E731
