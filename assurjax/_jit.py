@@ -204,6 +204,53 @@ def combine(arrays, rest: Static):
     return eqx.combine(arrays, rest.tree)
 
 
+class FlatLayout:
+    """Where :func:`flattened_floats` put a pytree's parts: per array leaf (the flat array
+    it went into, its shape), or None where it stays apart; and the rest (a :class:`Static`).
+    Hashable: a static argument."""
+
+    def __init__(self, treedef, places: tuple, rest: Static):
+        self.treedef, self.places, self.rest = treedef, places, rest
+        self._key = (treedef, places, rest)
+
+    def __hash__(self):
+        return hash(self._key)
+
+    def __eq__(self, other):
+        return isinstance(other, FlatLayout) and self._key == other._key
+
+    def rebuild(self, flats: tuple, others: tuple):
+        """The pytree from the ``flats`` and ``others`` of :func:`flattened_floats`."""
+        starts, others, leaves = [0] * len(flats), iter(others), []
+        for place in self.places:
+            if place is None:
+                leaves.append(next(others))
+                continue
+            k, shape = place
+            size = int(np.prod(shape))
+            leaves.append(flats[k][starts[k]:starts[k] + size].reshape(shape))
+            starts[k] += size
+        return combine(jax.tree.unflatten(self.treedef, leaves), self.rest)
+
+
+def flattened_floats(tree) -> tuple:
+    """(the float64 arrays of ``tree`` in flat arrays, its other arrays, their
+    :class:`FlatLayout`): a region's loop-invariant arguments as one or two operands. Its
+    kernel is handed a pointer per operand at every call (the press's frictionless vector
+    field, 27 operands: one step 3.2-3.3 -> 2.9 us with the model's flat); XLA makes
+    the flat arrays once, outside the integration's loops, where their parts do not change.
+    Weakly typed arrays (a link's mass given as a number) go into a flat array of their own,
+    which keeps them weak: made strong, a nested jit reading them traced again for them (the
+    Watt six-bar's first simulate() 2.1 -> 2.9 s)."""
+    arrays, rest = split_arrays(tree)
+    leaves, treedef = jax.tree.flatten(arrays)
+    kinds = [None if jnp.result_type(v) != jnp.float64 else bool(getattr(v, "weak_type", False)) for v in leaves]
+    present = sorted({kind for kind in kinds if kind is not None})
+    flats = tuple(jnp.concatenate([jnp.ravel(v) for v, kind in zip(leaves, kinds) if kind == weak]) for weak in present)
+    places = tuple(None if kind is None else (present.index(kind), jnp.shape(v)) for v, kind in zip(leaves, kinds))
+    return flats, tuple(v for v, kind in zip(leaves, kinds) if kind is None), FlatLayout(treedef, places, rest)
+
+
 def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:
     """Compile two :func:`jit_arrays` programs that run one after the other (``second``
     takes ``second_args(output of first)``): the first in a thread while the second is
