@@ -61,3 +61,35 @@ def test_saved_states_unpack_with_their_leading_axes():
 
 def test_reverse_mode_adjoints_step_the_state_as_it_is():
     assert packing_of(_state(rates=4), "recursive", diffrax.Tsit5()) is UNPACKED
+
+
+def test_field_arguments_flatten_and_come_back_with_their_types():
+    """The vector field's arguments as flat arrays (_jit.flattened_floats): the tree back as
+    it was, inside a jit too, weakly typed numbers still weak (a nested jit reading them
+    would trace again for a strong type) and other dtypes handed apart."""
+    import assurjax
+    from assurjax._jit import flattened_floats
+    from assurjax._model import as_model
+    from assurjax.dynamics._field import field_args
+
+    tree = {"mass": jnp.asarray(2.5), "points": jnp.arange(6.0).reshape(3, 2), "modes": jnp.asarray([1, -1]),
+            "name": "crank", "table": np.linspace(0.0, 1.0, 4)}
+    flats, others, layout = flattened_floats(tree)
+    assert len(flats) == 2 and len(others) == 1 and others[0].dtype == tree["modes"].dtype
+
+    def check(rebuilt, original):
+        assert jax.tree.structure(rebuilt) == jax.tree.structure(original)
+        for a, b in zip(jax.tree.leaves(rebuilt), jax.tree.leaves(original)):
+            if isinstance(b, str):
+                assert a == b
+                continue
+            assert jnp.result_type(a) == jnp.result_type(b) and getattr(a, "weak_type", False) == getattr(b, "weak_type", False)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    check(layout.rebuild(flats, others), tree)
+    traced = []  # and as a jit traces it
+    jax.jit(lambda f, o: traced.append(layout.rebuild(f, o)) or 0.0)(flats, others)
+    assert traced[0]["mass"].aval.weak_type and not traced[0]["points"].aval.weak_type
+    args = field_args(as_model(assurjax.load_scene("press_with_friction")))
+    flats, others, layout = flattened_floats(args)
+    check(layout.rebuild(flats, others), args)

@@ -8,10 +8,10 @@ stage), where a scalar's arithmetic is a few flops. So in diffrax's forward mode
 for) and its vectors (the tracked angles, the friction elements' rates) go to diffrax as
 one array, and the state is unpacked wherever the package reads it (the events, the
 step-size controller, the saved states; the vector field inside its region, where the
-unpacking and the packing of the rates cost no call of their own). The vectors go in only while the
-stages' buffer stays under THREADED_BYTES, over which XLA's CPU runtime runs a loop's calls
-across threads: else they are stepped apart (the Watt six-bar with its 7 friction rates in
-the array: 3.4 -> 5.8 ms a run).
+unpacking and the packing of the rates cost no call of their own). The vectors go in only
+while the stages' buffer stays under THREADED_BYTES, over which XLA's CPU runtime runs a
+loop's calls across threads: else they are stepped apart (the Watt six-bar with its 7
+friction rates in the array: 3.4 -> 5.8 ms a run).
 
 At the same boundary diffrax gets the vector field's arguments as their leaves
 (:func:`flattened`: no empty tuple for its backsolve) and the term and events as Modules
