@@ -83,7 +83,8 @@ def test_field_arguments_flatten_and_come_back_with_their_types():
             if isinstance(b, str):
                 assert a == b
                 continue
-            assert jnp.result_type(a) == jnp.result_type(b) and getattr(a, "weak_type", False) == getattr(b, "weak_type", False)
+            assert jnp.result_type(a) == jnp.result_type(b)
+            assert getattr(a, "weak_type", False) == getattr(b, "weak_type", False)
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     check(layout.rebuild(flats, others), tree)
