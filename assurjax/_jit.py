@@ -220,16 +220,15 @@ class FlatLayout:
         return isinstance(other, FlatLayout) and self._key == other._key
 
     def rebuild(self, flats: tuple, others: tuple):
-        """The pytree from the ``flats`` and ``others`` of :func:`flattened_floats`."""
-        starts, others, leaves = [0] * len(flats), iter(others), []
-        for place in self.places:
-            if place is None:
-                leaves.append(next(others))
-                continue
-            k, shape = place
-            size = int(np.prod(shape))
-            leaves.append(flats[k][starts[k]:starts[k] + size].reshape(shape))
-            starts[k] += size
+        """The pytree from the ``flats`` and ``others`` of :func:`flattened_floats`. Each flat
+        array is cut by one split, whose transpose is one concatenation (slices of their own
+        transposed to a padded array each, summed: the quadrature gradient of the Watt six-bar
+        ~10 % dearer)."""
+        sizes = [[int(np.prod(place[1])) for place in self.places if place is not None and place[0] == k]
+                 for k in range(len(flats))]
+        parts = [iter(jax.lax.split(flat, ks)) for flat, ks in zip(flats, sizes)]
+        others = iter(others)
+        leaves = [next(others) if place is None else next(parts[place[0]]).reshape(place[1]) for place in self.places]
         return combine(jax.tree.unflatten(self.treedef, leaves), self.rest)
 
 
