@@ -91,6 +91,26 @@ def test_field_arguments_flatten_and_come_back_with_their_types():
     traced = []  # and as a jit traces it
     jax.jit(lambda f, o: traced.append(layout.rebuild(f, o)) or 0.0)(flats, others)
     assert traced[0]["mass"].aval.weak_type and not traced[0]["points"].aval.weak_type
-    args = field_args(as_model(assurjax.load_scene("press_with_friction")))
-    flats, others, layout = flattened_floats(args)
-    check(layout.rebuild(flats, others), args)
+    model = field_args(as_model(assurjax.load_scene("press_with_friction"))).model
+    flats, others, layout = flattened_floats(model)
+    check(layout.rebuild(flats, others), model)
+    flats, others, layout = flattened_floats(model, flat=False)  # every array apart
+    assert flats == () and len(others) == len(jax.tree.leaves(model))
+    check(layout.rebuild(flats, others), model)
+
+
+def test_arrays_a_vmap_maps_are_told_from_those_it_closes_over():
+    """_jit.any_mapped, which keeps a model mapped by a vmap (a sweep over its parameters)
+    out of the field's flat arrays: the mapped argument is seen, an array closed over is
+    not, nor anything inside a traced loop's body (traced apart from the vmap)."""
+    from assurjax._jit import any_mapped
+
+    closed, seen = jnp.ones(3), []
+
+    def member(x):
+        seen.append((any_mapped(x), any_mapped(closed), any_mapped({"a": closed, "b": x})))
+        jax.lax.fori_loop(0, 2, lambda i, v: seen.append(any_mapped(v)) or v, x)
+        return x
+
+    jax.jit(jax.vmap(member))(jnp.ones((4, 2)))
+    assert seen == [(True, False, True), False]

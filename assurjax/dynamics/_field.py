@@ -16,6 +16,7 @@ is never built. With a :class:`ReducedTable` the field interpolates it instead.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import equinox as eqx
@@ -71,6 +72,8 @@ class FieldArgs(eqx.Module):
     friction_tolerance: float = eqx.field(static=True, default=FIXED_POINT_TOLERANCE)
     # NaN where some group cannot assemble: the lock-up controllers reject such steps (_settings.lockup_controller)
     nan_unassembled: bool = eqx.field(static=True, default=False)
+    # the model handed to the field's regions as flat arrays (False where a vmap maps it, _jit.any_mapped)
+    flat_model: bool = eqx.field(static=True, default=True)
 
 
 def field_args(model: Model, table: ReducedTable | None = None, *, direction=1.0) -> FieldArgs:
@@ -92,12 +95,15 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
     ``dynamics._packed.Packing``) its layout; the rates packed alike. The region takes the
     packed state whole, unpacks it and packs the rates inside its kernel: unpacked outside,
     each field was a call of its own to make (the press's step 121 -> 97 calls without
-    friction, 3.7-3.8 -> 3.3-3.4 us); and ``args`` flattened (``_jit.flattened_floats``:
+    friction, 3.7-3.8 -> 3.3-3.4 us); and the model flattened (``_jit.flattened_floats``:
     3.3 -> 2.9 us)."""
     if args.table is not None:
         y = packing.unpack(z)
         return packing.pack(State(y.omega, args.table.acceleration(y.q, y.omega)))
-    invariant = flattened_floats(args)
+    # the model as flat arrays, not the rest of args: a batch over starts has per-member
+    # values there (q0, direction), which would make the flat arrays, the model in them,
+    # per member (10 000 vmapped Watt six-bars 2.7 -> 4.3 s with all of args flattened)
+    invariant = (*flattened_floats(args.model, args.flat_model), dataclasses.replace(args, model=None))
     if not frictions_of(args.model.loads):
         return _field(t, z, *invariant, packing)
     # with friction: the field with the iteration's root, where it is settled; else, rarely,
@@ -119,16 +125,21 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
 
 
 @region
-def _field(t, z, flats, others, layout: FlatLayout, packing):
-    y, args = packing.unpack(z), layout.rebuild(flats, others)
+def _field(t, z, flats, others, layout: FlatLayout, rest: FieldArgs, packing):
+    y, args = packing.unpack(z), _rebuilt(flats, others, layout, rest)
     at = _evaluated_at(y, args)
     return packing.pack(_checked(y, args, *_rates(t, at, args, None)))
 
 
 @region
-def _settled_rates(t, z, flats, others, layout: FlatLayout, packing):
-    rates, _, start = _settled(t, packing.unpack(z), layout.rebuild(flats, others))
+def _settled_rates(t, z, flats, others, layout: FlatLayout, rest: FieldArgs, packing):
+    rates, _, start = _settled(t, packing.unpack(z), _rebuilt(flats, others, layout, rest))
     return packing.pack(rates), start.fixed.settled
+
+
+def _rebuilt(flats, others, layout: FlatLayout, rest: FieldArgs) -> FieldArgs:
+    """The field's arguments from what :func:`packed_vector_field` hands its regions."""
+    return dataclasses.replace(rest, model=layout.rebuild(flats, others))
 
 
 @jit

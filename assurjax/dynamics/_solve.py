@@ -20,7 +20,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of, states_per_call
-from .._jit import Static, checks_without_callbacks, chunk_rows, combine, compile_side_by_side, jit_arrays, split_arrays
+from .._jit import Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side, jit_arrays, split_arrays
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
@@ -157,7 +157,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected
     checked = settings.check_assembly and table is None
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=user_signs,
-                     bridge=settings.bridge, nan_unassembled=checked)
+                     bridge=settings.bridge, nan_unassembled=checked, flat_model=not any_mapped(model))
     solver = solver_for(settings)
     packing, (leaves, rebuild) = packing_of(y0, settings.adjoint, solver), flattened(args)
     sol = diffrax.diffeqsolve(
@@ -208,7 +208,7 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     packing = packing_of(y0, settings.adjoint, solver)
     term = packed_term(packing, packed_vector_field)
     args = FieldArgs(model=model, table=table, direction=jnp.sign(omega0), q0=q0, user_signs=None,
-                     nan_unassembled=settings.check_assembly and not tabulated)
+                     nan_unassembled=settings.check_assembly and not tabulated, flat_model=not any_mapped(model))
     h = (t1 - t0) / settings.steps
 
     def step(carry, k):

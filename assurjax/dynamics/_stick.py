@@ -52,7 +52,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of, iteration_tolerance
-from .._jit import jit
+from .._jit import any_mapped, jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import FieldArgs, State, frictional, near, packed_vector_field, rest_analysis, start_kinematics
@@ -122,6 +122,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # (and no break-away event, two copies of the friction solve) is needed in the program,
     # unless user events are to be watched while it rests
     holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
+    flat_model = not any_mapped(model)  # read here, outside the segments' loop (see _jit.any_mapped)
 
     def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
@@ -135,7 +136,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     def segment(start, y, direction, signs, stuck, step, coeffs):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
-                         friction_tolerance=iteration_tolerance(settings.rtol, settings.atol))
+                         friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model)
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
