@@ -39,6 +39,7 @@ BENCHMARKS = {
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),
     "gradients": ("bench_gradients.py", ["--repeats", "3"]),
+    "vmapped_paths": ("bench_vmapped_paths.py", ["--repeats", "1"]),
     "work_precision": ("bench_work_precision.py", ["--quick", "--repeats", "2"]),
     "throughput": ("bench_throughput.py", ["--max", "10000"]),
     "scaling": ("bench_scaling.py", ["--sizes", "1", "2", "5", "--repeats", "3"]),
