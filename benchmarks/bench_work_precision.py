@@ -46,7 +46,7 @@ import numpy as np
 
 import assurjax
 from assurjax.dynamics._field import State, field_args, vector_field
-from assurjax._tracking import branch_angles
+from assurjax._tracking import branch_angles, stacked_branch
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -79,7 +79,7 @@ def lean_runner(scene, solver: str, *, tracked: bool = False, table: bool = Fals
     def run(q0, w0, ts, rtol, atol):
         y0 = State(q0, w0)
         if tracked:
-            y0 = y0._replace(branch=branch_angles(mech, assurjax.positions(mech, q0)))
+            y0 = y0._replace(branch=stacked_branch(mech, branch_angles(mech, assurjax.positions(mech, q0))))
         controller = diffrax.PIDController(rtol=rtol, atol=atol)
         sol = diffrax.diffeqsolve(
             term, SOLVERS[solver](), 0.0, ts[-1], None, y0, args=field_args(assurjax.Model(mech, gravity, loads), prebuilt),
