@@ -20,7 +20,8 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of, states_per_call
-from .._jit import Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side, jit_arrays, split_arrays
+from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
+                    jit_arrays, split_arrays)
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model
