@@ -17,10 +17,6 @@ programs as before.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -57,24 +53,11 @@ print(json.dumps(out))
 """
 
 
-def _run(code_dir: str, scene: str) -> dict:
-    """One measurement in a fresh process importing the package from ``code_dir``."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([code_dir, str(HERE)]))
-    done = subprocess.run([sys.executable, "-c", CHILD, scene], env=env, capture_output=True, text=True, cwd=str(HERE))
-    if done.returncode != 0:
-        raise SystemExit(f"{scene} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def measure(code_dirs: dict, repeats: int) -> dict:
     """scene -> version -> runs, the versions interleaved."""
-    runs = {scene: {version: [] for version in code_dirs} for scene in SCENES}
-    for scene in SCENES:
-        for _ in range(repeats):
-            for version, code_dir in code_dirs.items():
-                runs[scene][version].append(_run(code_dir, scene))
-                print(scene, version, json.dumps(runs[scene][version][-1]), flush=True)
-    return runs
+    from bench_overhead import interleaved_children
+
+    return interleaved_children(CHILD, SCENES, code_dirs, repeats)
 
 
 def ratios(runs: dict) -> dict:

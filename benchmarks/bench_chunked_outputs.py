@@ -14,10 +14,6 @@ motion (first call, warm).
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -51,24 +47,11 @@ print(json.dumps(out))
 """
 
 
-def _run(code_dir: str, samples: int) -> dict:
-    """One measurement in a fresh process importing the package from ``code_dir``."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([code_dir, str(HERE)]))
-    done = subprocess.run([sys.executable, "-c", CHILD, str(samples)], env=env, capture_output=True, text=True, cwd=str(HERE))
-    if done.returncode != 0:
-        raise SystemExit(f"{samples} samples failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def measure(code_dirs: dict, repeats: int) -> dict:
     """"samples" -> version -> runs, the versions interleaved."""
-    runs = {str(n): {version: [] for version in code_dirs} for n in SAMPLES}
-    for n in SAMPLES:
-        for _ in range(repeats):
-            for version, code_dir in code_dirs.items():
-                runs[str(n)][version].append(_run(code_dir, n))
-                print(n, version, json.dumps(runs[str(n)][version][-1]), flush=True)
-    return runs
+    from bench_overhead import interleaved_children
+
+    return interleaved_children(CHILD, SAMPLES, code_dirs, repeats)
 
 
 def ratios(runs: dict) -> dict:

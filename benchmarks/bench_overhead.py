@@ -184,6 +184,27 @@ def code_versions(before: str | None, into: str) -> tuple[dict, str | None]:
     return code_dirs, short
 
 
+def child_run(child: str, code_dir: str, case) -> dict:
+    """The JSON that the Python code ``child`` prints last, run with ``case`` as its argument
+    in a fresh process importing the package from ``code_dir``."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([code_dir, str(HERE)]))
+    done = subprocess.run([sys.executable, "-c", child, str(case)], env=env, capture_output=True, text=True, cwd=str(HERE))
+    if done.returncode != 0:
+        raise SystemExit(f"{case} failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def interleaved_children(child: str, cases, code_dirs: dict, repeats: int) -> dict:
+    """str(case) -> version -> runs of :func:`child_run`, the versions interleaved run for run."""
+    runs = {str(case): {version: [] for version in code_dirs} for case in cases}
+    for case in cases:
+        for _ in range(repeats):
+            for version, code_dir in code_dirs.items():
+                runs[str(case)][version].append(child_run(child, code_dir, case))
+                print(case, version, json.dumps(runs[str(case)][version][-1]), flush=True)
+    return runs
+
+
 def versions_main(doc: str, default_out: Path, measure, ratios) -> None:
     """The command line of a benchmark that can also measure an earlier revision:
     ``--before REF``, ``--repeats``, ``--out``. ``measure(code_dirs, repeats)`` -> runs;

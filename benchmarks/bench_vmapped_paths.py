@@ -20,10 +20,6 @@ gradient: 10th percentile of 200 calls) and the first call:
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -84,24 +80,11 @@ print(json.dumps(out))
 """
 
 
-def _run(code_dir: str, case: str) -> dict:
-    """One case in a fresh process importing the package from ``code_dir``."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([code_dir, str(HERE)]))
-    done = subprocess.run([sys.executable, "-c", CHILD, case], env=env, capture_output=True, text=True, cwd=str(HERE))
-    if done.returncode != 0:
-        raise SystemExit(f"{case} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def measure(code_dirs: dict, repeats: int) -> dict:
     """case -> version -> runs, the versions interleaved."""
-    runs = {case: {version: [] for version in code_dirs} for case in CASES}
-    for case in CASES:
-        for _ in range(repeats):
-            for version, code_dir in code_dirs.items():
-                runs[case][version].append(_run(code_dir, case))
-                print(case, version, json.dumps(runs[case][version][-1]), flush=True)
-    return runs
+    from bench_overhead import interleaved_children
+
+    return interleaved_children(CHILD, CASES, code_dirs, repeats)
 
 
 def ratios(runs: dict) -> dict:
