@@ -70,7 +70,6 @@ def test_field_arguments_flatten_and_come_back_with_their_types():
     import assurjax
     from assurjax._jit import flattened_floats
     from assurjax._model import as_model
-    from assurjax.dynamics._field import field_args
 
     tree = {"mass": jnp.asarray(2.5), "points": jnp.arange(6.0).reshape(3, 2), "modes": jnp.asarray([1, -1]),
             "name": "crank", "table": np.linspace(0.0, 1.0, 4)}
@@ -91,7 +90,7 @@ def test_field_arguments_flatten_and_come_back_with_their_types():
     traced = []  # and as a jit traces it
     jax.jit(lambda f, o: traced.append(layout.rebuild(f, o)) or 0.0)(flats, others)
     assert traced[0]["mass"].aval.weak_type and not traced[0]["points"].aval.weak_type
-    model = field_args(as_model(assurjax.load_scene("press_with_friction"))).model
+    model = as_model(assurjax.load_scene("press_with_friction"))
     flats, others, layout = flattened_floats(model)
     check(layout.rebuild(flats, others), model)
     flats, others, layout = flattened_floats(model, flat=False)  # every array apart
