@@ -112,11 +112,12 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
     # kernel is handed a pointer to every buffer it reads or writes at each call (the
     # analysis's results: the press's step 103.0k -> 90.8k instructions, callgrind; the price,
     # a second analysis to compile, the fallback's). The fallback is a region of its own:
-    # one kernel, which XLA compiled faster than the fallback's many (first calls with
-    # friction 1-1.5 s shorter, bench_friction_first_calls.py) and which runs faster where
-    # it is taken (the quick-return, 60 fallbacks in 25 steps: 4.7 -> 3.7 ms). Where the
-    # field is no region, the fallback takes the analysis from it: done again, it is compiled
-    # twice (the strandbeest with friction in 73 joints: its first call 19.9 -> 28.3 s)
+    # one kernel, which XLA compiles faster than the fallback's many (first calls with
+    # friction 3-17 % shorter, the press 7.1 -> 6.1 s: bench_friction_first_calls.py) and
+    # which runs faster where it is taken (the quick-return, 60 fallbacks in 25 steps: 3.8 ->
+    # 3.2 ms). Where the field is no region, the fallback takes the analysis from it: done
+    # again, it is compiled twice (the strandbeest with friction in 73 joints: its first call
+    # 19.9 -> 28.3 s)
     if _settled_rates.fits(t, z, *invariant, packing):
         rates, settled = _settled_rates(t, z, *invariant, packing)
         return jax.lax.cond(eqxi.unvmap_any(~settled), lambda: _solved_rates(t, z, *invariant, packing), lambda: rates)
