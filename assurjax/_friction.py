@@ -39,7 +39,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import cross, dot, perp, rotation
-from ._jit import stays_unthreaded
+from ._jit import region, stays_unthreaded
 from ._kinematics import by_name
 from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
@@ -612,14 +612,23 @@ def finish_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sign
     settled, else Newton's method (from u0 where the iteration failed, from its root where
     only the bound did)."""
     def fallback():
-        u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
-                               jnp.where(fixed.converged, fixed.value, fixed.u0))
-        return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
+        return _newton_fallback(mechanism, frictions, reactions, kin, rates, signs, omega, fixed, inertial)
 
     # on whether any member of a batch failed (unbatched: under vmap a cond on a per-member
     # test runs both branches for every member, and Newton's was most of a batched
     # right-hand side: slider-crank 1.55 -> 1.1 us, Watt six-bar 3.5 -> 1.6 us per state)
     return jax.lax.cond(eqxi.unvmap_any(~fixed.settled), fallback, lambda: (fixed.value, jnp.array(True)))
+
+
+# A region (one kernel): XLA compiles it faster than the many small kernels of Newton's
+# method and its continuation, at each site that finishes a friction solve (a stick segment's
+# field and break-away event, the outputs): the Watt six-bar with friction under a drive
+# ramped in time, 24-25 -> 20-21 s to its first simulate(), bench_friction_first_calls.py
+@region
+def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, fixed: FixedPoint, inertial):
+    u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
+                           jnp.where(fixed.converged, fixed.value, fixed.u0))
+    return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
 
 
 def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
