@@ -2,14 +2,16 @@
 each time the mechanism's structure changes (trace, compile, run; JAX's on-disk cache is
 not used), with the warm call and the final state beside it.
 
-Each case in a fresh process (friction in every pair where the scene has none of its own,
-as ``bench_regions.py``): the slider-crank, Watt six-bar, press, quick-return and triad,
-and the Watt six-bar under a drive ramped in time (0.2 t N m), whose program holds the
-stick segments too (a mechanism held at rest may break away).
+Each case in a fresh process, measured as ``bench_regions.py`` measures it (friction in
+every pair where the scene has none of its own): the slider-crank, Watt six-bar, press,
+quick-return and triad, and the Watt six-bar under a drive ramped in time (0.2 t N m),
+whose program holds the stick segments too (a mechanism held at rest may break away).
 
 ``--before REF`` also measures the package at git revision REF, run for run interleaved.
 
-    python benchmarks/bench_friction_first_calls.py [--before REF] [--repeats 2]   # writes results/friction_first_calls.json
+    python benchmarks/bench_friction_first_calls.py [--before REF] [--repeats 2] [--out FILE]
+
+writes results/friction_first_calls.json unless told otherwise (``--out``).
 """
 
 from __future__ import annotations
@@ -22,25 +24,13 @@ CASES = (("slider_crank", 2.0, 0.0), ("watt_sixbar", 2.0, 0.0), ("press_with_fri
          ("quick_return", 1.0, 0.0), ("triad_mechanism", 0.5, 0.0), ("watt_sixbar", 3.0, 0.2))
 
 CHILD = r"""
-import ast, json, sys, time
-import jax
+import ast, json, sys
 import assurjax
-from bench_friction import best_time, frictions
+from bench_regions import child
 
 name, t1, ramp = ast.literal_eval(sys.argv[1])
-scene = assurjax.load_scene(name)
-own = tuple(load for load in scene.loads if not load.needs_reactions)
-loads = scene.loads if any(load.needs_reactions for load in scene.loads) else own + frictions(scene.mechanism)
-if ramp:
-    loads += (assurjax.Drive(assurjax.Polynomial([0.0, ramp], variable="t")),)
-kwargs = dict(loads=loads, stop=None, t1=t1)
-start = time.perf_counter()
-sol = assurjax.simulate(scene, **kwargs)
-jax.block_until_ready(sol.q)
-first = time.perf_counter() - start
-warm = best_time(lambda: assurjax.simulate(scene, **kwargs).q, repeats=5)
-print(json.dumps(dict(first_s=first, warm_ms=1e3 * warm, steps=int(sol.num_steps), status=sol.status,
-                      q_end=float(sol.q[-1]), omega_end=float(sol.omega[-1]))))
+extra = (assurjax.Drive(assurjax.Polynomial([0.0, ramp], variable="t")),) if ramp else ()
+print(json.dumps(child(name, True, t1, extra)))
 """
 
 

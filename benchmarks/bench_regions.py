@@ -30,7 +30,7 @@ CASES = (("slider_crank", True, 2.0), ("watt_sixbar", True, 2.0), ("press_with_f
          ("triad_mechanism", False, 0.5), ("class4_seed003", False, 0.5), ("strandbeest", False, 0.5))
 
 
-def child(name: str, friction: bool, t1: float) -> dict:
+def child(name: str, friction: bool, t1: float, extra_loads=()) -> dict:
     import time
 
     import jax
@@ -47,7 +47,7 @@ def child(name: str, friction: bool, t1: float) -> dict:
         loads = scene.loads
     else:
         loads = own + frictions(scene.mechanism)
-    kwargs = dict(loads=loads, stop=None, t1=t1)
+    kwargs = dict(loads=loads + tuple(extra_loads), stop=None, t1=t1)
     start = time.perf_counter()
     sol = assurjax.simulate(scene, **kwargs)
     jax.block_until_ready(sol.q)
