@@ -11,7 +11,7 @@ whose program holds the stick segments too (a mechanism held at rest may break a
 
     python benchmarks/bench_friction_first_calls.py [--before REF] [--repeats 2] [--out FILE]
 
-writes results/friction_first_calls.json unless told otherwise (``--out``).
+Writes results/friction_first_calls.json unless told otherwise (``--out``).
 """
 
 from __future__ import annotations
