@@ -622,9 +622,10 @@ def finish_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sign
 
 # A region (one kernel): XLA compiles it faster than the many small kernels of Newton's
 # method and its continuation, at each site that finishes a friction solve outside the
-# field's region (a stick segment's field and break-away event, the outputs): the Watt
-# six-bar with friction under a drive ramped in time, 23.3-23.8 -> 18.7-19.3 s to its first
-# simulate(), its warm run 4-6 % slower (bench_friction_first_calls.py)
+# field's region (the field's fallback, a stick segment's field and break-away event, the
+# outputs): first calls with friction 3-17 % shorter (the press 7.1 -> 6.1 s); the Watt
+# six-bar under a drive ramped in time 23.3-23.8 -> 18.7-19.3 s, its warm run 4-6 % slower
+# (bench_friction_first_calls.py)
 @region
 def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, fixed: FixedPoint, inertial):
     u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,

@@ -111,16 +111,14 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
     # the field hands back only its rates, and the fallback redoes the analysis: a region's
     # kernel is handed a pointer to every buffer it reads or writes at each call (the
     # analysis's results: the press's step 103.0k -> 90.8k instructions, callgrind; the price,
-    # a second analysis to compile, the fallback's). The fallback is a region of its own:
-    # one kernel, which XLA compiles faster than the fallback's many (first calls with
-    # friction 3-17 % shorter, the press 7.1 -> 6.1 s: bench_friction_first_calls.py) and
-    # which runs faster where it is taken (the quick-return, 60 fallbacks in 25 steps: 3.8 ->
-    # 3.2 ms). Where the field is no region, the fallback takes the analysis from it: done
-    # again, it is compiled twice (the strandbeest with friction in 73 joints: its first call
-    # 19.9 -> 28.3 s)
+    # a second region to compile, the fallback's: first calls 0.4-2 s longer; its Newton
+    # part is one kernel, _friction._newton_fallback, as everywhere a solve ends). Where the
+    # field is no region, the fallback takes the analysis from it: done again, it is compiled
+    # twice (the strandbeest with friction in 73 joints: its first call 19.9 -> 28.3 s)
     if _settled_rates.fits(t, z, *invariant, packing):
         rates, settled = _settled_rates(t, z, *invariant, packing)
-        return jax.lax.cond(eqxi.unvmap_any(~settled), lambda: _solved_rates(t, z, *invariant, packing), lambda: rates)
+        return jax.lax.cond(eqxi.unvmap_any(~settled),
+                            lambda: packing.pack(_solved_field(t, packing.unpack(z), args)), lambda: rates)
     y = packing.unpack(z)
     rates, at, start = _settled_field(t, y, args)
     return packing.pack(jax.lax.cond(eqxi.unvmap_any(~start.fixed.settled),
@@ -138,11 +136,6 @@ def _field(t, z, flats, others, layout: FlatLayout, rest: FieldArgs, packing):
 def _settled_rates(t, z, flats, others, layout: FlatLayout, rest: FieldArgs, packing):
     rates, _, start = _settled(t, packing.unpack(z), _rebuilt(flats, others, layout, rest))
     return packing.pack(rates), start.fixed.settled
-
-
-@region
-def _solved_rates(t, z, flats, others, layout: FlatLayout, rest: FieldArgs, packing):
-    return packing.pack(_solved_field(t, packing.unpack(z), _rebuilt(flats, others, layout, rest)))
 
 
 def _rebuilt(flats, others, layout: FlatLayout, rest: FieldArgs) -> FieldArgs:
