@@ -33,6 +33,7 @@ BENCHMARKS = {
     "dyads": ("bench_dyads.py", ["--repeats", "3"]),
     "friction": ("bench_friction.py", []),
     "friction_first_calls": ("bench_friction_first_calls.py", ["--repeats", "1"]),
+    "friction_step_parts": ("bench_friction_step_parts.py", ["--repeats", "1"]),
     "step_calls": ("bench_step_calls.py", []),
     "step_instructions": ("bench_step_instructions.py", []),
     "friction_precision": ("bench_friction_precision.py", ["--quick"]),

@@ -1,0 +1,119 @@
+"""Where a step with friction goes beyond a frictionless one: the bundled press's step with
+parts of the friction solve replaced by cheaper stand-ins, each against the frictionless step.
+
+The issue's target is a step with friction at most 2x a frictionless one (not met: 2.2-2.5x).
+The stand-ins are cost probes, not methods: most give a wrong motion (their final q is saved
+beside them), and none is in the package. They bound what any formulation of the same exact
+law can save:
+
+- ``shipped``: the package as it is (the fixed-point iteration, optimistix; its consistency
+  bound; the fallback's cond in the field).
+- ``law once``: no iteration, u = law(0) (the statics, rates and bound stay): the step's
+  floor with the iteration free.
+- ``law once, no bound``: also without the consistency bound (the field's cond stays).
+- ``law 6x unrolled``: six evaluations of the law in straight-line code from law(0), no
+  convergence test: about what the iteration needs at the default tolerance, without a loop.
+- ``chord start``: the iteration from one chord step (the law's Jacobian at law(0), its
+  inverse by a Neumann series to second order): fewer iterations, each start dearer.
+- ``tolerance = rtol``: the iteration's tolerance the integration's own (diffrax's default for
+  its implicit solvers), instead of 1e-2 of it.
+
+Each variant in a fresh process, its step and the frictionless step measured in turns there
+(``bench_friction.interleaved_marginal_per_step``: the median of the rounds' ratios is the
+figure; the machine's load moves both alike).
+
+    python benchmarks/bench_friction_step_parts.py [--repeats 2] [--out FILE]
+
+Writes results/friction_step_parts.json unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+VARIANTS = ("shipped", "law once", "law once, no bound", "law 6x unrolled", "chord start", "tolerance = rtol")
+
+CHILD = r"""
+import json, sys
+import numpy as np
+import assurjax
+import bench_friction_step_parts as parts
+from bench_friction import interleaved_marginal_per_step
+
+variant = sys.argv[1]
+parts.apply(variant)
+press = assurjax.load_scene("press_with_friction")
+plain = tuple(load for load in press.loads if not load.needs_reactions)
+r = interleaved_marginal_per_step(press, dict(plain=plain, friction=press.loads))
+q_end = float(np.asarray(assurjax.simulate(press, stop=None, t1=2.0, samples=2).q_final))
+print(json.dumps(dict(plain_us=r["plain"]["us_per_step"], friction_us=r["friction"]["us_per_step"],
+                      ratio=r["friction_ratio"]["median"], quartiles=r["friction_ratio"]["quartiles"],
+                      steps=r["friction"]["steps"], q_end_2s=q_end)))
+"""
+
+
+def apply(variant: str) -> None:
+    """Replace the part of the friction solve that ``variant`` leaves out (see the module docstring)."""
+    import jax
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    from assurjax import _friction
+    from assurjax.dynamics import _field, _stick
+
+    if variant == "shipped":
+        return
+    if variant == "tolerance = rtol":
+        _stick.iteration_tolerance = lambda rtol, atol: max(_friction.FIXED_POINT_TOLERANCE, min(rtol, atol))
+        return
+
+    def iterate(mechanism, frictions, reactions, kin, rates, signs, omega, *, inertial=None,
+                tolerance=_friction.FIXED_POINT_TOLERANCE):
+        law = _friction._law(mechanism, frictions, reactions, kin, rates, signs, omega)
+        u0 = law(jnp.zeros(len(frictions)))
+        value, converged = u0, jnp.array(True)
+        if variant == "law 6x unrolled":
+            for _ in range(6):
+                value = law(value)
+        elif variant == "chord start":
+            jacobian, residual = jax.jacfwd(law)(u0), law(u0) - u0
+            once = jacobian @ residual
+            fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=tolerance, atol=tolerance),
+                                     u0 + residual + once + jacobian @ once, max_steps=_friction.FIXED_POINT_STEPS,
+                                     throw=False)
+            value, converged = fixed.value, fixed.result == optx.RESULTS.successful
+        settled = converged
+        if variant != "law once, no bound" and inertial is not None:  # as shipped: det(I - S) > 0 by a bound
+            slopes = _friction._static_slopes(mechanism, kin, frictions, reactions, inertial, value)
+            settled = converged & (_friction.spectral_bound(slopes) < 1.0)
+        return _friction.FixedPoint(u0, value, converged, settled)
+
+    if variant not in VARIANTS:
+        raise SystemExit(f"unknown variant {variant!r}: one of {VARIANTS}")
+    _friction.iterate_friction = _field.iterate_friction = iterate
+
+
+def main():
+    from bench_overhead import child_run
+
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--out", default=str(HERE / "results" / "friction_step_parts.json"))
+    args = parser.parse_args()
+    runs = {variant: [] for variant in VARIANTS}
+    for _ in range(args.repeats):  # the variants in turns
+        for variant in VARIANTS:
+            runs[variant].append(child_run(CHILD, str(HERE.parent), variant))
+            print(variant, json.dumps(runs[variant][-1]), flush=True)
+    result = dict(machine=platform.platform(), cpus=os.cpu_count(), scene="press_with_friction", variants=runs)
+    with open(args.out, "w") as f:
+        json.dump(result, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
