@@ -83,10 +83,13 @@ def apply(variant: str) -> None:
         elif variant == "chord start":
             jacobian, residual = jax.jacfwd(law)(u0), law(u0) - u0
             once = jacobian @ residual
-            fixed = optx.fixed_point(lambda u, _: law(u), optx.FixedPointIteration(rtol=tolerance, atol=tolerance),
-                                     u0 + residual + once + jacobian @ once, max_steps=_friction.FIXED_POINT_STEPS,
-                                     throw=False)
-            value, converged = fixed.value, fixed.result == optx.RESULTS.successful
+            # the iterate as K scalars, as shipped (_friction.iterate_friction)
+            split, join = (tuple, jnp.stack) if len(frictions) <= _friction.SUMMED_TERMS else (jnp.asarray,) * 2
+            fixed = optx.fixed_point(lambda u, _: split(law(join(u))),
+                                     optx.FixedPointIteration(rtol=tolerance, atol=tolerance),
+                                     split(u0 + residual + once + jacobian @ once),
+                                     max_steps=_friction.FIXED_POINT_STEPS, throw=False)
+            value, converged = join(fixed.value), fixed.result == optx.RESULTS.successful
         settled = converged
         if variant != "law once, no bound" and inertial is not None:  # as shipped: det(I - S) > 0 by a bound
             slopes = _friction._static_slopes(mechanism, kin, frictions, reactions, inertial, value)
