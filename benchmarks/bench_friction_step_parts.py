@@ -64,12 +64,12 @@ def apply(variant: str) -> None:
     import optimistix as optx
 
     from assurjax import _friction
-    from assurjax.dynamics import _field, _stick
+    from assurjax.dynamics import _field
 
     if variant == "shipped":
         return
-    if variant == "tolerance = rtol":
-        _stick.iteration_tolerance = lambda rtol, atol: max(_friction.FIXED_POINT_TOLERANCE, min(rtol, atol))
+    if variant == "tolerance = rtol":  # iteration_tolerance reads the fraction at each call
+        _friction.INTEGRATION_FRACTION = 1.0
         return
 
     def iterate(mechanism, frictions, reactions, kin, rates, signs, omega, *, inertial=None,
