@@ -334,13 +334,14 @@ def _force_peaks(peaks: dict) -> list:
     return [p for name, p in peaks.items() if name != "driving" and not name.startswith(FRICTION)]
 
 
-def _print_peaks(peaks: dict, units: dict, scene):
+def _print_peaks(peaks: dict, units: dict, scene, moves: bool = True):
+    """The peaks' lines; ``moves``: whether the mechanism moves at all (else it is held at rest)."""
     forces = _force_peaks(peaks)
     print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
     drive = peaks["driving"]
     if _driving_is_round_off(peaks, scene, units):
-        print(f"  driving effort: none needed (the loads alone drive this motion; largest value {drive.value:.1e} "
-              f"{units['driving']} is round-off)")
+        why = "the loads alone drive this motion" if moves else "it stays at rest"
+        print(f"  driving effort: none needed ({why}; largest value {drive.value:.1e} {units['driving']} is round-off)")
     else:
         print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
 
@@ -534,6 +535,34 @@ def _standstill_line(scene, sol) -> str:
     return f"  standstill: none before t1 = {float(sol.t[-1]):.6g} s"
 
 
+def _moves(sol) -> bool:
+    """Whether the mechanism moves at all over the run's samples."""
+    import numpy as np
+
+    return bool(np.any(np.asarray(sol.omega) != 0.0))
+
+
+def _rest_line(scene, sol) -> str | None:
+    """Where a run that reached t1 ends at rest: since when (between two samples), held by
+    the joint friction (w exactly 0 from its last stick on), or, without friction, at rest
+    throughout (nothing moves it from its start). None where it moves at its end, or where
+    the standstill line reports the stop."""
+    import numpy as np
+
+    from ._friction import frictions_of
+
+    omega, t = np.asarray(sol.omega), np.asarray(sol.t)
+    if scene.simulation.get("stop") == "standstill" or not sol.successful or int(sol.event) >= 0 or omega[-1] != 0.0:
+        return None
+    moving, held = np.flatnonzero(omega != 0.0), bool(frictions_of(scene.loads))
+    if not moving.size:
+        return "  at rest throughout" + (", held by the joint friction" if held else ": nothing moves it from its start")
+    if not held:
+        return None  # w passes through 0 at the last sample
+    return (f"  comes to rest between the samples at t = {t[moving[-1]]:.4f} and {t[moving[-1] + 1]:.4f} s and stays "
+            "there, held by the joint friction")
+
+
 def cmd_run(args) -> int:
     t0 = time.perf_counter()
     scene = _load(args.scene)
@@ -582,6 +611,9 @@ def cmd_run(args) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"{scene.name}: {sol.status}")
     print(_standstill_line(scene, sol))
+    rest = _rest_line(scene, sol)
+    if rest is not None:
+        print(rest)
     if drift is not None:
         print(f"  energy balance: max |T + V - W - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest energy; "
               "W: the work of the loads outside V)")
@@ -594,7 +626,7 @@ def cmd_run(args) -> int:
     grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps")
     if peaks:
-        _print_peaks(peaks, units, scene)
+        _print_peaks(peaks, units, scene, moves=_moves(sol))
     for line in _friction_lines(sol.t, along, peaks) if along else ():
         print(line)
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
@@ -650,7 +682,7 @@ def cmd_reactions(args) -> int:
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
-    _print_peaks(peaks, units, scene)
+    _print_peaks(peaks, units, scene, moves=_moves(sol))
     for line in _friction_lines(sol.t, along, peaks):
         print(line)
     _print_files(files)

@@ -317,6 +317,41 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert f"peak |friction| (located on the dense output): O {friction['value']:.5g} N m at t = {friction['t']:.4f} s" in printed
 
 
+def test_summary_says_where_a_run_ends_held_at_rest(write_scene, capsys):
+    """The run's summary says where a run that reached t1 ends at rest: with joint friction,
+    between which samples it came to rest (w exactly 0 from there on), or that the friction
+    holds it throughout; without friction, only a run that never moves (a frictionless w
+    passes through 0). Nothing where it moves at its end, stopped at an event or failed, or
+    where the standstill line reports the stop; and a driving effort of round-off is not
+    said to drive a mechanism that stays at rest."""
+    from types import SimpleNamespace
+
+    from assurjax._peaks import Peak
+    from assurjax.cli import _print_peaks, _rest_line
+
+    rough = assurjax.load_scene(str(write_scene(ROUGH_ARM_RUN.replace('stop = "standstill"', 'stop = "none"'))))
+    smooth, stops = rough.with_loads(()), assurjax.load_scene(str(write_scene(ROUGH_ARM_RUN, "stops.toml")))
+    t = np.linspace(0.0, 0.4, 5)
+
+    def run(omega, successful=True, event=-1):
+        return SimpleNamespace(t=t, omega=np.asarray(omega, dtype=float), successful=successful, event=np.asarray(event))
+
+    stopping, still = run([1.0, 0.5, -0.2, 0.0, 0.0]), run(np.zeros(5))
+    assert _rest_line(rough, stopping) == ("  comes to rest between the samples at t = 0.2000 and 0.3000 s and stays "
+                                           "there, held by the joint friction")
+    assert _rest_line(rough, still) == "  at rest throughout, held by the joint friction"
+    assert _rest_line(smooth, still) == "  at rest throughout: nothing moves it from its start"
+    for scene, sol in ((smooth, stopping), (rough, run([1.0, 0.5, -0.2, 0.0, 0.1])), (stops, stopping),
+                       (rough, run(np.zeros(5), event=0)), (rough, run(np.zeros(5), successful=False))):
+        assert _rest_line(scene, sol) is None
+    peaks = {"O": Peak("O", 19.62, 0.0), "driving": Peak("driving", 1e-15, 0.0)}
+    _print_peaks(peaks, dict(driving="N m"), rough, moves=False)
+    _print_peaks(peaks, dict(driving="N m"), rough)
+    printed = capsys.readouterr().out
+    assert "driving effort: none needed (it stays at rest; largest value 1.0e-15 N m is round-off)" in printed
+    assert "driving effort: none needed (the loads alone drive this motion; largest value" in printed
+
+
 def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsys):
     """The Roberts four-bar coasts (no loads) into the limit position of its crank: T stays at
     T(0) up to the lock-up's approach, where J_red grows without bound and w goes to 0; the
