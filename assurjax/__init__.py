@@ -32,6 +32,7 @@ from ._tracking import branch_angles as branch_angles, positions_tracked as posi
 from ._reduction import Reduction as Reduction, reduce as reduce
 from ._kinetostatics import (
     Reactions as Reactions,
+    breakaway_band as breakaway_band,
     inverse_dynamics as inverse_dynamics,
     SingularConfigurationError as SingularConfigurationError,
     joint_names as joint_names,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import sys
 import time
@@ -646,15 +647,19 @@ def cmd_reactions(args) -> int:
     from . import viz
 
     scene = _load(args.scene)
-    out = _out_dir(args.out, scene)
     units = _units(_driver_kind(scene.mechanism))
     joints = list(scene.outputs["reactions"]) or None
-    if args.static:
-        q0 = scene.state["q0"]
+    if args.static:  # printed only: no output directory
+        from ._friction import frictions_of
+
+        q0, rough = scene.state["q0"], bool(frictions_of(scene.loads))
         r = assurjax.static_reactions(scene, q0, joints=joints)
-        print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}")
+        print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}" + (" (reactions and drive without its joint friction)" if rough else ""))
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
+        if rough:
+            print(_band_line(*(float(edge) for edge in assurjax.breakaway_band(scene, q0)), units))
         return 0
+    out = _out_dir(args.out, scene)
     samples = _samples(args, scene)
     # once: this command reports no simulation timings
     sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
@@ -687,6 +692,18 @@ def cmd_reactions(args) -> int:
         print(line)
     _print_files(files)
     return 0
+
+
+def _band_line(lower: float, upper: float, units: dict) -> str:
+    """The break-away band (``assurjax.breakaway_band``) in words; an infinite edge: no drive
+    starts the mechanism that way."""
+    unit = units["driving"]
+    ways = [f"forward above {upper:+.6g} {unit}" if math.isfinite(upper) else None,
+            f"backward below {lower:+.6g} {unit}" if math.isfinite(lower) else None]
+    starts = " and ".join(way for way in ways if way) or "neither way"
+    locked = [way for way, edge in (("forward", upper), ("backward", lower)) if not math.isfinite(edge)]
+    return (f"  with its joint friction it starts {starts}; any drive between holds it (the break-away band)"
+            + (f"; no drive starts it {' or '.join(locked)}: the friction self-locks it" if locked else ""))
 
 
 def _print_reaction_table(forces: dict, driving: float, units: dict, friction: dict | None = None):

@@ -246,6 +246,26 @@ def test_reactions_static_matches_the_joint_reference(capsys):
     assert torque == pytest.approx(expected, rel=1e-5)
 
 
+def test_reactions_static_with_joint_friction_gives_the_breakaway_band(write_scene, capsys):
+    """`assurjax reactions --static` on the rough arm held level: the frictionless holding
+    torque m g l_G, and the band m g l_G -+ mu r m g (closed form) within which any drive
+    holds it; an infinite edge is said in words (no drive starts it that way)."""
+    from assurjax.cli import _band_line
+
+    assert main(["reactions", str(write_scene(ROUGH_ARM_RUN)), "--static"]) == 0
+    text = capsys.readouterr().out
+    holding, limit = 2.0 * 9.81 * 0.15, 0.3 * 0.04 * 2.0 * 9.81
+    assert float(re.search(r"driving effort = ([-+0-9.e]+)", text).group(1)) == pytest.approx(holding, rel=1e-6)
+    upper, lower = (float(v) for v in re.search(r"starts forward above ([-+0-9.e]+) N m and backward below ([-+0-9.e]+) N m",
+                                                  text).groups())
+    assert upper == pytest.approx(holding + limit, rel=1e-6) and lower == pytest.approx(holding - limit, rel=1e-6)
+    units = dict(driving="N m")
+    assert _band_line(-math.inf, 1.5, units) == ("  with its joint friction it starts forward above +1.5 N m; any drive between "
+                                                 "holds it (the break-away band); no drive starts it backward: the friction "
+                                                 "self-locks it")
+    assert "starts neither way" in _band_line(-math.inf, math.inf, units)
+
+
 def test_reactions_along_the_motion_balance_the_crank(watt_run, tmp_path, capsys):
     """Newton's law for the crank (m = 1 kg, centre of mass at 0.5 m): F_O2 - F_A + m g = m a_G,
     with a_G from the closed form of a point on a rotating crank. (F_O2: on the crank by the

@@ -627,6 +627,46 @@ def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band
     np.testing.assert_allclose(start.driving, inertia * alpha - gravity[2] + 0.3 * 0.04 * pin, rtol=1e-12)
 
 
+def test_breakaway_band_against_closed_forms_and_the_joint_based_reference(write_scene):
+    """``breakaway_band``: the drives at which a start from rest goes each way. The hanging
+    arm: m g l_G cos(theta) -+ mu r m g (closed form), and without its friction both edges
+    are static_torque (the scene's drive is not counted: the band is what the driver must
+    supply). The slider-crank with friction in every pair: the joint-based reference's
+    holding range (inverse dynamics at rest with each start's Coulomb signs, in absolute
+    coordinates with multipliers) round the turn. The steep slider (hand-solved): where the
+    rod is steeper than the friction angle (ex < mu |ey|) no push starts the slider either
+    way, both edges infinite, though at dw/dt = 0 the friction has a root (zero force);
+    elsewhere, with no load and no gravity, both are 0."""
+    import joint_reference_friction as jrf
+
+    arm = aj.load_scene(write_scene(HANGING))
+    theta = np.array([-math.pi / 2 + 0.05, -math.pi / 2 - 0.07, 0.3, math.pi - 0.3, -2.0])
+    lower, upper = aj.breakaway_band(arm, theta)
+    holding = 2.0 * 9.81 * 0.15 * np.cos(theta)  # the drive that balances gravity
+    np.testing.assert_allclose(lower, holding - ARM_LIMIT, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(upper, holding + ARM_LIMIT, rtol=0, atol=1e-12)
+    smooth = arm.with_loads(())
+    for edge in aj.breakaway_band(smooth, theta):
+        np.testing.assert_allclose(edge, aj.static_torque(smooth, theta), rtol=0, atol=1e-13)
+
+    scene, table = aj.load_scene("slider_crank"), jrf.SLIDER_CRANK_FRICTION
+    model = aj.Model(scene.mechanism, scene.gravity, tuple(scene.loads) + _package_frictions(scene.mechanism, table))
+    q = np.array([-2.9, -2.0, -1.1, -0.3, 0.4, 1.3, 2.2, 2.95])  # not on a dead point (the slider's rate 0)
+    expected = np.array([jrf.slider_crank(0.5, 0.0).holding_range(qi) for qi in q])
+    assert np.all(expected[:, 1] - expected[:, 0] > 0.01)  # the friction holds over a band
+    np.testing.assert_allclose(np.stack(aj.breakaway_band(model, q), axis=-1), expected, rtol=0, atol=1e-10)
+
+    steep = steep_slider_crank()
+    model = aj.Model(steep.mechanism, steep.gravity, (aj.SlideFriction("slider/ground", STEEP_MU, 0.05),))
+    q = np.array([0.3, 1.2, 1.4, 1.9, 2.5, -1.4])
+    ex, ey = np.sqrt(STEEP_L**2 - (STEEP_R * np.sin(q)) ** 2) / STEEP_L, STEEP_R * np.sin(q) / STEEP_L
+    wedged = ex < STEEP_MU * np.abs(ey)
+    assert 0 < np.count_nonzero(wedged) < q.size
+    lower, upper = aj.breakaway_band(model, q)
+    np.testing.assert_array_equal(lower, np.where(wedged, -np.inf, 0.0))
+    np.testing.assert_array_equal(upper, np.where(wedged, np.inf, 0.0))
+
+
 def test_a_mechanism_held_by_friction_needs_no_drive(slider, rough):
     """Where the rough slider-crank has come to rest and the friction holds it (the forward
     dynamics' stiction test), the inverse dynamics at those states needs no drive either."""

@@ -3,6 +3,7 @@ formation order (Durango et al. 2014 section 3.3; class-IV group with special As
 
 from ._api import (
     Reactions as Reactions,
+    breakaway_band as breakaway_band,
     inverse_dynamics as inverse_dynamics,
     SingularConfigurationError as SingularConfigurationError,
     reactions as reactions,

@@ -16,8 +16,9 @@ from .._values import check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import friction_wrenches, frictions_of, linearize_reactions, solve_friction, states_per_call
-from .._loads import applied_wrenches
+from .._friction import (SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction,
+                         states_per_call)
+from .._loads import AbstractLoad, Drive, applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
 from ._class4 import class4_topology, solve_class4_special
@@ -193,6 +194,29 @@ def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
     return found, driving, jnp.broadcast_to(ok, (len(mechanism.groups),))
 
 
+def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, method: str, groups):
+    """The joint friction of a motion forward and of one backward at the kinematics ``kin``
+    (their Coulomb signs those of the elements' relative rates times +1 and -1), stacked
+    in that order: (friction values u (2, K), the rates per unit driving velocity (K,),
+    whether each has a consistent solution (2,), and the reactions each gives: forces,
+    couples, driving effort and ok, each with 2 in front)."""
+    mechanism, frictions = model.mechanism, frictions_of(model.loads)
+    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
+
+    def react(u, at_pairs=None):  # the pairs' reactions, for the friction law
+        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u), at_pairs=at_pairs)[:2]
+
+    linear = linearize_reactions(react, frictions, len(frictions))
+
+    def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
+        u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)
+        return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
+                                              extra=friction_wrenches(mechanism, kin, frictions, u))
+
+    us, consistent, found = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
+    return us, rates, consistent, found
+
+
 def _static_kinematics(mechanism, q):
     """Positions only, zero velocities and no inertia (the mechanism at rest)."""
     kin = coefficients(mechanism, q, order=0).kinematics(jnp.zeros_like(q))
@@ -236,23 +260,9 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     elements' relative rates per unit driving velocity (K,) and whether the friction has a
     consistent solution (held: both limits)."""
     kin = coeffs.kinematics(omega, alpha)
-    frictions = frictions_of(model.loads)
-    if not frictions:
+    if not frictions_of(model.loads):
         return from_kinematics(model, kin, t, method=method, groups=groups)
-    mechanism = model.mechanism
-    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
-
-    def react(u, at_pairs=None):  # the pairs' reactions, for the friction law
-        return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u), at_pairs=at_pairs)[:2]
-
-    linear = linearize_reactions(react, frictions, len(frictions))
-
-    def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)
-        return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
-                                              extra=friction_wrenches(mechanism, kin, frictions, u))
-
-    us, consistent, (forces, couples, driving, ok) = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
+    us, rates, consistent, (forces, couples, driving, ok) = _both_ways(model, coeffs, kin, omega, t, method, groups)
     width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
     share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
@@ -308,15 +318,17 @@ def _batch(model, q, omega, alpha, t, method, groups, static):
     return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
 
 
-def _batched(model, state: tuple, method, groups, static):
-    """:func:`_batch` of the states (arrays of one shape), in chunks (``_jit.chunk_rows``) where
-    the friction asks for them (``_friction.states_per_call``) and the call is outside any trace
-    (inside one, each chunk's call would inline a copy)."""
+def _batched(model, state: tuple, *options, program=None):
+    """``program`` (default :func:`_batch`) of the states (arrays of one shape) and ``options``,
+    in chunks (``_jit.chunk_rows``) where the friction asks for them
+    (``_friction.states_per_call``) and the call is outside any trace (inside one, each
+    chunk's call would inline a copy)."""
+    program = _batch if program is None else program
     n, chunk = state[0].size, states_per_call(frictions_of(model.loads))
     if chunk is None or n <= chunk or not at_top_level():
-        return _batch(model, *state, method, groups, static)
+        return program(model, *state, *options)
     flat = [v.reshape(-1) for v in state]
-    pieces = [_batch(model, *(v[rows] for v in flat), method, groups, static) for rows in chunk_rows(n, chunk)]
+    pieces = [program(model, *(v[rows] for v in flat), *options) for rows in chunk_rows(n, chunk)]
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n].reshape(state[0].shape + xs[0].shape[1:]), *pieces)
 
 
@@ -451,9 +463,73 @@ def static_torque(scene, q, *, t=0.0, check: bool = True) -> Array:
     """The driving torque (N m; N for a slider) that holds the mechanism at rest at
     ``q`` (w = dw/dt = 0) against gravity and the scene's loads: the balancing
     torque of gravity-balancing studies. Any shape of ``q``. Joint friction is left out:
-    with it, any drive within the friction's break-away band holds the mechanism, and
-    ``reactions(scene, (q, 0.0, 0.0))`` gives the one nearest 0 (with the friction values)."""
+    with it, any drive within the friction's break-away band (:func:`breakaway_band`) holds
+    the mechanism, and ``reactions(scene, (q, 0.0, 0.0))`` gives the one nearest 0 (with the
+    friction values)."""
     return static_reactions(scene, q, t=t, check=check).driving
+
+
+def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array]:
+    """The break-away band of the mechanism held at rest at ``q``: (lower, upper), the
+    driving torques (N m; N for a slider) at which a motion from rest starts backward
+    (-q) and forward (+q) against gravity, the scene's loads and the joint friction
+    (its Coulomb signs those of each start). Any drive within the band holds the
+    mechanism (stiction); ``simulate`` sticks and breaks away by the same limits. Without
+    friction both are :func:`static_torque`. Where no drive starts the mechanism one way
+    (the friction self-locks that start: driven just past the edge, the forward dynamics
+    has no consistent friction, or does not move that way), that edge is infinite:
+    ``upper`` +inf, ``lower`` -inf.
+    Any shape of ``q`` (and ``t``, broadcast with it); ``check``: as in :func:`reactions`.
+
+    **Example** (the torque a motor needs to start a mechanism from rest, either way):
+    >>> lower, upper = assurjax.breakaway_band(scene, jnp.linspace(0.0, 3.14, 50))
+    """
+    model = as_model(scene)
+    shape = _checked_shape((q, 0.0, 0.0, t))
+    q, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, t))
+    lower, upper, ok = _batched(model, (q, t), program=_band)
+    if check:
+        raise_if_singular(model.mechanism, ok, q)
+    return lower, upper
+
+
+BEYOND_EDGE = 1e-9  # a start is tested with the drive past a band's edge by this much (times 1 + the edges' sizes)
+
+
+@jit
+def _band(model: Model, q, t):
+    """(lower, upper, ok per group) of :func:`breakaway_band` at states (arrays of one shape).
+    Each edge: the drive of a start that way at dw/dt = 0 (inverse dynamics with that start's
+    Coulomb signs); it stands where the forward dynamics, driven just past it, starts the
+    mechanism that way (the test ``simulate`` breaks away by): at dw/dt = 0 the friction can
+    have a root that a start has not (a slider pushed through a rod steeper than its friction
+    angle: zero force, zero friction, while any push wedges it)."""
+    from ..dynamics._field import State, frictional  # the dynamics build on the kinetostatics
+
+    undriven = tuple(load for load in model.loads if type(load).effort is AbstractLoad.effort)
+    # as the other analyses of many states: Newton's method alone up to SUMMED_TERMS elements
+    # (both of the solve's loops in one batched program stalled XLA's CPU runtime, see solve_friction)
+    iterate = len(frictions_of(model.loads)) > SUMMED_TERMS
+
+    def one(q, t):
+        coeffs = coefficients(model.mechanism, q, order=2)
+        kin, at_rest = coeffs.kinematics(jnp.zeros(()), jnp.zeros(())), jnp.zeros(())
+        if not frictions_of(model.loads):
+            _, _, driving, ok = from_kinematics(model, kin, t)
+            return driving, driving, ok
+        _, _, _, (_, _, driving, ok) = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
+        past = BEYOND_EDGE * (1.0 + jnp.abs(driving[0]) + jnp.abs(driving[1]))
+
+        def starts(edge, way):  # the forward dynamics at rest, driven just past the edge
+            driven = Model(model.mechanism, model.gravity, undriven + (Drive(edge + way * past),))
+            f = frictional(driven, t, State(q, at_rest), way, iterate=iterate)
+            return f.consistent & (way * f.alpha > 0)
+
+        return (jnp.where(starts(driving[1], -1.0), driving[1], -jnp.inf),
+                jnp.where(starts(driving[0], 1.0), driving[0], jnp.inf), ok[0])
+
+    flat = jax.vmap(one)(q.reshape(-1), t.reshape(-1))
+    return jax.tree.map(lambda x: x.reshape(q.shape + x.shape[1:]), flat)
 
 
 def static_reactions(scene, q, *, t=0.0, joints=None, check: bool = True) -> Reactions:
