@@ -54,8 +54,8 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     if shape is not None and (problem := shape_problem(x, shape)) is not None:
         return problem
     v = concrete(x)
-    if v is None:
-        return None
+    if v is None:  # a traced value is checked where it is concrete; anything else is no number
+        return None if _traced(x) else f"must be a number or an array of numbers, got {x!r:.60}"
     shown = x if np.ndim(x) == 0 else v.tolist() if v.size <= 8 else f"an array of shape {v.shape}"
     if not np.all(np.isfinite(v)):
         return f"must be finite, got {shown}"
@@ -68,6 +68,11 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
         return f"must be a non-zero vector, got {shown}"
     return None
+
+
+def _traced(x) -> bool:
+    """Whether ``x`` holds a JAX tracer (a value under jit, vmap or grad)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
 def _plain_number_ok(x: float, positive: bool, nonnegative: bool) -> bool:
