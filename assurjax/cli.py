@@ -654,7 +654,8 @@ def cmd_reactions(args) -> int:
 
         q0, rough = scene.state["q0"], bool(frictions_of(scene.loads))
         r = assurjax.static_reactions(scene, q0, joints=joints)
-        print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}" + (" (reactions and drive without its joint friction)" if rough else ""))
+        without = " (reactions and drive without its joint friction)" if rough else ""
+        print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}{without}")
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
         if rough:
             print(_band_line(*(float(edge) for edge in assurjax.breakaway_band(scene, q0)), units))
