@@ -630,7 +630,7 @@ def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band
 def test_breakaway_band_against_closed_forms_and_the_joint_based_reference(write_scene):
     """``breakaway_band``: the drives at which a start from rest goes each way. The hanging
     arm: m g l_G cos(theta) -+ mu r m g (closed form), and without its friction both edges
-    are static_torque (the scene's drive is not counted: the band is what the driver must
+    m g l_G cos(theta) (the scene's drive is not counted: the band is what the driver must
     supply). The slider-crank with friction in every pair: the joint-based reference's
     holding range (inverse dynamics at rest with each start's Coulomb signs, in absolute
     coordinates with multipliers) round the turn. The steep slider (hand-solved): where the
@@ -645,9 +645,8 @@ def test_breakaway_band_against_closed_forms_and_the_joint_based_reference(write
     holding = 2.0 * 9.81 * 0.15 * np.cos(theta)  # the drive that balances gravity
     np.testing.assert_allclose(lower, holding - ARM_LIMIT, rtol=0, atol=1e-12)
     np.testing.assert_allclose(upper, holding + ARM_LIMIT, rtol=0, atol=1e-12)
-    smooth = arm.with_loads(())
-    for edge in aj.breakaway_band(smooth, theta):
-        np.testing.assert_allclose(edge, aj.static_torque(smooth, theta), rtol=0, atol=1e-13)
+    for edge in aj.breakaway_band(arm.with_loads(()), theta):  # no friction: no band, gravity's balance
+        np.testing.assert_allclose(edge, holding, rtol=0, atol=1e-12)
 
     scene, table = aj.load_scene("slider_crank"), jrf.SLIDER_CRANK_FRICTION
     model = aj.Model(scene.mechanism, scene.gravity, tuple(scene.loads) + _package_frictions(scene.mechanism, table))

@@ -485,6 +485,9 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     >>> lower, upper = assurjax.breakaway_band(scene, jnp.linspace(0.0, 3.14, 50))
     """
     model = as_model(scene)
+    if not frictions_of(model.loads):
+        torque = static_torque(model, q, t=t, check=check)
+        return torque, torque
     shape = _checked_shape((q, 0.0, 0.0, t))
     q, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, t))
     lower, upper, ok = _batched(model, (q, t), program=_band)
@@ -498,7 +501,7 @@ BEYOND_EDGE = 1e-9  # a start is tested with the drive past a band's edge by thi
 
 @jit
 def _band(model: Model, q, t):
-    """(lower, upper, ok per group) of :func:`breakaway_band` at states (arrays of one shape).
+    """(lower, upper, ok per group) of :func:`breakaway_band` with joint friction, at states (arrays of one shape).
     Each edge: the drive of a start that way at dw/dt = 0 (inverse dynamics with that start's
     Coulomb signs); it stands where the forward dynamics, driven just past it, starts the
     mechanism that way (the test ``simulate`` breaks away by): at dw/dt = 0 the friction can
@@ -512,17 +515,14 @@ def _band(model: Model, q, t):
     iterate = len(frictions_of(model.loads)) > SUMMED_TERMS
 
     def one(q, t):
-        coeffs = coefficients(model.mechanism, q, order=2)
+        coeffs = coefficients(model.mechanism, q, order=2)  # the forward dynamics read its d2x too
         kin, at_rest = coeffs.kinematics(jnp.zeros(()), jnp.zeros(())), jnp.zeros(())
-        if not frictions_of(model.loads):
-            _, _, driving, ok = from_kinematics(model, kin, t)
-            return driving, driving, ok
         _, _, _, (_, _, driving, ok) = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
         past = BEYOND_EDGE * (1.0 + jnp.abs(driving[0]) + jnp.abs(driving[1]))
 
         def starts(edge, way):  # the forward dynamics at rest, driven just past the edge
             driven = Model(model.mechanism, model.gravity, undriven + (Drive(edge + way * past),))
-            f = frictional(driven, t, State(q, at_rest), way, iterate=iterate)
+            f = frictional(driven, t, State(q, at_rest), way, iterate=iterate, coeffs=coeffs)
             return f.consistent & (way * f.alpha > 0)
 
         return (jnp.where(starts(driving[1], -1.0), driving[1], -jnp.inf),
