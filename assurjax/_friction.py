@@ -49,21 +49,35 @@ from .groups._base import GROUND
 
 class AbstractFriction(AbstractLoad):
     """A friction element on one pair: its wrenches are linear in its value ``u``
-    (a couple or a force), and ``law`` gives u from the pair's reaction."""
+    (a couple or a force), and ``law`` gives u from the pair's reaction.
+
+    ``smoothing`` (a speed v_s > 0, or None): the regularized law, asked for, never put in
+    the exact one's place: the Coulomb sign of the relative rate becomes tanh(rate / v_s),
+    smooth in the state. A mechanism then creeps where the exact law holds it (no stiction,
+    no stick and break-away events), and its motion tends to the exact law's as v_s -> 0,
+    the steps shrinking with v_s (the equation stiffens). What it buys: where every element
+    is smoothed, ``simulate`` integrates one smooth field in one diffrax solve, without the
+    segments of stick and slip, which derivatives (and their compiles) pass faster."""
 
     pair: eqx.AbstractVar[str]
     coefficient: eqx.AbstractVar[Array]
     viscous: eqx.AbstractVar[Array]
+    smoothing: eqx.AbstractVar[Array | None]
     needs_reactions: ClassVar[bool] = True
     dissipative: ClassVar[bool] = True
     kind: ClassVar[str]
 
-    def _set_law(self, pair: str, coefficient, viscous) -> None:
-        """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0)."""
+    def _set_law(self, pair: str, coefficient, viscous, smoothing) -> None:
+        """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0),
+        and the optional smoothing speed (checked > 0; None: the exact law)."""
         for key, value in (("coefficient", coefficient), ("viscous", viscous)):
             check_value(MechanismError, f"{type(self).__name__}: {key}", value, shape=(), nonnegative=True)
+        if smoothing is not None:
+            check_value(MechanismError, f"{type(self).__name__}: smoothing", smoothing, shape=(), positive=True)
+            smoothing = jnp.asarray(smoothing, dtype=float)
         self.pair = pair
         self.coefficient, self.viscous = jnp.asarray(coefficient, dtype=float), jnp.asarray(viscous, dtype=float)
+        self.smoothing = smoothing
         self.velocity_dependent = True
 
     def check(self, mechanism: Mechanism) -> None:
@@ -107,6 +121,9 @@ class JointFriction(AbstractFriction):
     or ``"P[link]"`` where more than two links share a point); ``coefficient``: mu;
     ``radius``: the friction-circle radius r (m, the pin radius); ``viscous``: c
     (N m s/rad). Couple on the later link: -mu r |F| sign(w_rel) - c w_rel.
+    ``smoothing``: a speed v_s (rad/s) for the regularized law, sign(w_rel) replaced by
+    tanh(w_rel / v_s) (no stiction: at rest it carries no Coulomb friction); None, the
+    default: the exact law, with stiction. See :class:`AbstractFriction`.
 
     >>> assurjax.JointFriction("A", 0.1, radius=0.01)
     """
@@ -115,11 +132,12 @@ class JointFriction(AbstractFriction):
     coefficient: Array
     radius: Array
     viscous: Array
+    smoothing: Array | None
     velocity_dependent: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "R"
 
-    def __init__(self, joint: str, coefficient, radius, *, viscous=0.0):
-        self._set_law(joint, coefficient, viscous)
+    def __init__(self, joint: str, coefficient, radius, *, viscous=0.0, smoothing=None):
+        self._set_law(joint, coefficient, viscous, smoothing)
         check_value(MechanismError, "JointFriction: radius", radius, shape=(), nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
@@ -142,7 +160,9 @@ class SlideFriction(AbstractFriction):
     ``pair``: its name ``"<slider>/<guide link>"`` (as in :attr:`assurjax.Reactions.forces`);
     ``coefficient``: mu; ``length``: the block length L (m) centred at the sliding
     point; ``viscous``: c (N s/m). Force on the slider along the guide:
-    -mu (|N/2 - M/L| + |N/2 + M/L|) sign(v_rel) - c v_rel.
+    -mu (|N/2 - M/L| + |N/2 + M/L|) sign(v_rel) - c v_rel. ``smoothing``: a speed v_s
+    (m/s) for the regularized law, tanh(v_rel / v_s) for sign(v_rel), as in
+    :class:`JointFriction`.
 
     >>> assurjax.SlideFriction("block/ground", 0.15, length=0.05)
     """
@@ -151,11 +171,12 @@ class SlideFriction(AbstractFriction):
     coefficient: Array
     length: Array
     viscous: Array
+    smoothing: Array | None
     velocity_dependent: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "P"
 
-    def __init__(self, pair: str, coefficient, length, *, viscous=0.0):
-        self._set_law(pair, coefficient, viscous)
+    def __init__(self, pair: str, coefficient, length, *, viscous=0.0, smoothing=None):
+        self._set_law(pair, coefficient, viscous, smoothing)
         check_value(MechanismError, "SlideFriction: length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
 
@@ -266,6 +287,23 @@ def stacked_rate_terms(mechanism: Mechanism, frictions, names):
 def frictions_of(loads) -> tuple[AbstractFriction, ...]:
     """The loads that need the joint reactions (the friction elements)."""
     return tuple(load for load in loads if load.needs_reactions)
+
+
+def smoothed_only(frictions) -> bool:
+    """Whether every element has the regularized law (see :class:`AbstractFriction`): then
+    nothing sticks and no Coulomb sign switches, and a simulation needs no segments."""
+    return bool(frictions) and all(f.smoothing is not None for f in frictions)
+
+
+def coulomb_signs(frictions, rates, omega, exact):
+    """The elements' Coulomb signs (K,): ``exact`` (those of the exact law, from the rates'
+    signs and the direction of motion), and tanh(rate w / v_s) for the smoothed elements
+    (``rates``: per unit driving velocity, ``omega``: the driving velocity)."""
+    smooth = np.array([f.smoothing is not None for f in frictions])
+    if not smooth.any():
+        return exact
+    speeds = jnp.stack([f.smoothing if f.smoothing is not None else jnp.ones(()) for f in frictions])
+    return jnp.where(smooth, jnp.tanh(rates * omega / speeds), exact)
 
 
 def friction_wrenches(mechanism: Mechanism, kin, frictions, u) -> dict:

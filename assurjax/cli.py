@@ -543,6 +543,20 @@ def _moves(sol) -> bool:
     return bool(np.any(np.asarray(sol.omega) != 0.0))
 
 
+def _smoothed(scene) -> bool:
+    """Whether every friction element of the scene has the regularized law (none sticks)."""
+    from ._friction import frictions_of, smoothed_only
+
+    return smoothed_only(frictions_of(scene.loads))
+
+
+def _smoothed_pairs(scene) -> list[str]:
+    """The pairs whose friction elements have the regularized law."""
+    from ._friction import frictions_of
+
+    return [f.pair for f in frictions_of(scene.loads) if f.smoothing is not None]
+
+
 def _rest_line(scene, sol) -> str | None:
     """Where a run that reached t1 ends at rest: since when (between two samples), held by
     the joint friction (w exactly 0 from its last stick on), or, without friction, at rest
@@ -555,7 +569,7 @@ def _rest_line(scene, sol) -> str | None:
     omega, t = np.asarray(sol.omega), np.asarray(sol.t)
     if scene.simulation.get("stop") == "standstill" or not sol.successful or int(sol.event) >= 0 or omega[-1] != 0.0:
         return None
-    moving, held = np.flatnonzero(omega != 0.0), bool(frictions_of(scene.loads))
+    moving, held = np.flatnonzero(omega != 0.0), bool(frictions_of(scene.loads)) and not _smoothed(scene)
     if not moving.size:
         return "  at rest throughout" + (", held by the joint friction" if held else ": nothing moves it from its start")
     if not held:
@@ -630,6 +644,9 @@ def cmd_run(args) -> int:
         _print_peaks(peaks, units, scene, moves=_moves(sol))
     for line in _friction_lines(sol.t, along, peaks) if along else ():
         print(line)
+    if along and along.friction and (smooth := _smoothed_pairs(scene)):
+        print(f"  friction law: regularized as asked in {', '.join(smooth)} (sign(rate) -> tanh(rate / v_s), v_s each "
+              "element's smoothing speed): no stiction there, where the exact law would hold it the mechanism creeps")
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)

@@ -16,8 +16,8 @@ from .._values import check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import (SUMMED_TERMS, friction_wrenches, frictions_of, linearize_reactions, solve_friction,
-                         states_per_call)
+from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
+                         solve_friction, states_per_call)
 from .._loads import AbstractLoad, Drive, applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -209,7 +209,8 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
     linear = linearize_reactions(react, frictions, len(frictions))
 
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, jnp.sign(rates) * d, omega, iterate=False)
+        signs = coulomb_signs(frictions, rates, omega, jnp.sign(rates) * d)
+        u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, signs, omega, iterate=False)
         return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
                                               extra=friction_wrenches(mechanism, kin, frictions, u))
 

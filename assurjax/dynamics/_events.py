@@ -13,6 +13,7 @@ from __future__ import annotations
 import diffrax
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from .._friction import frictions_of
@@ -52,8 +53,9 @@ def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
 def rate_margins(args: FieldArgs, friction_rates):
     """Per friction element: d phi_k/dq times its sign frozen for the segment, positive
     until it changes sign; inf for the elements that cannot switch (no Coulomb
-    coefficient, or a rate 0 with slope 0 at the segment's start)."""
-    coulomb = jnp.stack([f.coefficient for f in frictions_of(args.model.loads)]) > 0
+    coefficient, a smoothed law, or a rate 0 with slope 0 at the segment's start)."""
+    frictions = frictions_of(args.model.loads)
+    coulomb = (jnp.stack([f.coefficient for f in frictions]) > 0) & np.array([f.smoothing is None for f in frictions])
     return jnp.where(coulomb & (args.rate_signs != 0), args.rate_signs * friction_rates, jnp.inf)
 
 

@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, finish_friction, friction_wrenches,
-                         frictions_of, iterate_friction, linearize_reactions, solve_friction, stacked_rate_terms,
-                         without_roundoff)
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction,
+                         friction_wrenches, frictions_of, iterate_friction, linearize_reactions, smoothed_only,
+                         solve_friction, stacked_rate_terms, without_roundoff)
 from .._jit import FlatLayout, flattened_floats, jit, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -202,11 +202,14 @@ def _rates(t, y: State, args: FieldArgs, f: Frictional | None):
         # held too (0: friction only resists, see rest_side; a segment from rest ends there at
         # once, see _settings.LockupController); moving, no consistent friction (a jam): NaN,
         # so that the solver stops there instead of running away
-        moving = args.direction != 0
-        starts = consistent & (alpha * args.direction > 0)
-        alpha = jnp.where(moving, jnp.where(y.omega != 0, jnp.where(consistent, alpha, jnp.nan),
-                                            jnp.where(starts, alpha, 0.0)), 0.0)
-        friction_power = jnp.where(moving, friction_power, 0.0)
+        if smoothed_only(frictions_of(model.loads)):  # no rest to hold: one smooth field, NaN where it jams
+            alpha = jnp.where(consistent, alpha, jnp.nan)
+        else:
+            moving = args.direction != 0
+            starts = consistent & (alpha * args.direction > 0)
+            alpha = jnp.where(moving, jnp.where(y.omega != 0, jnp.where(consistent, alpha, jnp.nan),
+                                                jnp.where(starts, alpha, 0.0)), 0.0)
+            friction_power = jnp.where(moving, friction_power, 0.0)
     else:
         red, kin = _reduce(model, t, y, args.bridge)
         alpha, friction_power = red.acceleration(y.omega), jnp.zeros(())
@@ -309,7 +312,7 @@ def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bo
     direction = jnp.where(direction != 0, direction, rest_side(red.force))
     alpha0 = _acceleration(red, rates, jnp.zeros(len(frictions)), y.omega)
     linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha0, rates / red.inertia)
-    signs = signs * direction
+    signs = coulomb_signs(frictions, rates, y.omega, signs * direction)
     if not iterate:
         solved = solve_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial, iterate=False)
         return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, None, solved)

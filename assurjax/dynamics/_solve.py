@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of, states_per_call
+from .._friction import frictions_of, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
 from .._mechanism import Mechanism, positions
@@ -152,7 +152,8 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         return _steps_solve(model, q0, omega0, t0, t1, settings, table), None, None
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
-    if frictions_of(model.loads) and table is None:  # in segments of frozen Coulomb signs
+    # in segments of frozen Coulomb signs; a smoothed law alone has none (one smooth field)
+    if frictions_of(model.loads) and table is None and not smoothed_only(frictions_of(model.loads)):
         return *stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected

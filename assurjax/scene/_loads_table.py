@@ -153,12 +153,19 @@ def _motor(f, mechanism):
 
 def _joint_friction(f, mechanism):
     return _friction.JointFriction(f.string("joint"), f.number("coefficient", nonnegative=True),
-                                   f.number("radius", nonnegative=True), viscous=f.number("viscous", 0.0, nonnegative=True))
+                                   f.number("radius", nonnegative=True), viscous=f.number("viscous", 0.0, nonnegative=True),
+                                   smoothing=_smoothing(f))
 
 
 def _slide_friction(f, mechanism):
     return _friction.SlideFriction(f.string("pair"), f.number("coefficient", nonnegative=True),
-                                   f.number("length", positive=True), viscous=f.number("viscous", 0.0, nonnegative=True))
+                                   f.number("length", positive=True), viscous=f.number("viscous", 0.0, nonnegative=True),
+                                   smoothing=_smoothing(f))
+
+
+def _smoothing(f):
+    """The regularized law's speed, where the entry asks for it (None: the exact law)."""
+    return f.number("smoothing", positive=True) if f.has("smoothing") else None
 
 
 PARSERS = {

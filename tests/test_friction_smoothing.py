@@ -1,0 +1,170 @@
+"""The regularized friction law (``smoothing``: sign(rate) -> tanh(rate / v_s)), asked for per element.
+
+Independent checks: the joint-based reference (tests/joint_reference_friction.py) integrated
+with the same regularized signs by scipy, the energy balance, the exact law's motion as
+v_s -> 0, and central differences for the derivatives.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import assurjax as aj
+
+SPEEDS = dict(O=0.05, A=0.05, B=0.05, P=0.005)  # rad/s for the pins, m/s for the slider
+T1 = 0.6
+TIMES = np.linspace(0.0, T1, 25)
+
+
+def _frictions(mechanism, table, speeds, scale=1.0):
+    """The reference's friction table as package loads, each with its smoothing speed (None: exact)."""
+    out = []
+    for name in aj.joint_names(mechanism):
+        key = "P" if "/" in name else name
+        ref, speed = table[key], None if speeds is None else speeds[key] * scale
+        if "/" in name:
+            out.append(aj.SlideFriction(name, ref.mu, ref.length, viscous=ref.damping, smoothing=speed))
+        else:
+            out.append(aj.JointFriction(name, ref.mu, ref.radius, viscous=ref.damping, smoothing=speed))
+    return tuple(out)
+
+
+def _reference_motion(model, q0, w0, speeds):
+    """The reference's forward dynamics with the Coulomb signs tanh(rate / v_s), by scipy's DOP853."""
+    system = model.system
+    v_s = np.array([speeds[name] for name in system.friction_joints])
+
+    def rhs(t, y):
+        z, zq = model.assembled(y[0])
+        rates = system.directions(z)[0] @ zq * y[1]
+        return [y[1], system.forward(z, y[1], 0.0, zq, signs=np.tanh(rates / v_s))["wdot"]]
+
+    return solve_ivp(rhs, (0.0, T1), [q0, w0], method="DOP853", t_eval=TIMES, rtol=1e-11, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def case():
+    import joint_reference_friction as jrf
+
+    scene, table = aj.load_scene("slider_crank"), jrf.SLIDER_CRANK_FRICTION
+    return scene, table, jrf.slider_crank(0.5, 0.0)
+
+
+def _run(scene, loads, **kw):
+    return aj.simulate(scene, loads=loads, q0=0.5, stop=None, t1=T1, saveat=TIMES, energies=True, rtol=1e-10,
+                       atol=1e-10, **kw)
+
+
+def test_smoothed_law_agrees_with_the_joint_based_reference(case):
+    """The slider-crank from rest, every pair rough (viscous terms too) with the regularized law:
+    one smooth field, no segments; q within 1e-8 rad of the reference integrated with the same
+    law, dw/dt of the output samples within 1e-7, the energy balance closed, and inverse
+    dynamics along the motion asking for no drive (none is applied). At rest at t0 the law
+    has no friction: the mechanism starts at once (no stiction)."""
+    scene, table, reference = case
+    loads = tuple(scene.loads) + _frictions(scene.mechanism, table, SPEEDS)
+    sol = _run(scene, loads)
+    expected = _reference_motion(reference, 0.5, 0.0, SPEEDS)
+    assert sol.status.startswith("reached t1"), sol.status
+    assert expected.success
+    np.testing.assert_allclose(sol.q, expected.y[0], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(sol.omega, expected.y[1], rtol=0, atol=1e-7)
+    wdot = np.array([_reference_motion_rate(reference, q, w) for q, w in zip(expected.y[0], expected.y[1])])
+    np.testing.assert_allclose(sol.domega, wdot, rtol=1e-7, atol=1e-6)
+    assert np.max(np.abs(sol.balance)) < 1e-8 * np.max(np.abs(sol.total))  # as the exact law's, at this rtol
+    assert sol.dissipated[-1] > 0.0
+    r = aj.reactions(aj.Model(scene.mechanism, scene.gravity, loads), (sol.q, sol.omega, sol.domega))
+    np.testing.assert_allclose(r.driving, 0.0, atol=1e-8)
+    assert r.friction["A"][0] == 0.0  # at rest: tanh(0)
+
+
+def _reference_motion_rate(model, q, w):
+    system = model.system
+    z, zq = model.assembled(q)
+    v_s = np.array([SPEEDS[name] for name in system.friction_joints])
+    return system.forward(z, w, 0.0, zq, signs=np.tanh(system.directions(z)[0] @ zq * w / v_s))["wdot"]
+
+
+def test_smoothed_law_tends_to_the_exact_law(case):
+    """Up to the first standstill (~0.49 s), the regularized motion approaches the exact
+    law's as v_s -> 0, about in proportion to v_s (the smoothing speeds are traced: one
+    program for both)."""
+    scene, table, _ = case
+    exact = _run(scene, tuple(scene.loads) + _frictions(scene.mechanism, table, None))
+    moving = TIMES < 0.45  # before the first standstill
+    errors = []
+    for scale in (1.0, 0.1):
+        smooth = _run(scene, tuple(scene.loads) + _frictions(scene.mechanism, table, SPEEDS, scale))
+        errors.append(np.max(np.abs(smooth.q[moving] - exact.q[moving])))
+    assert errors[0] < 1e-2 and 5.0 < errors[0] / errors[1] < 20.0, errors
+
+
+@pytest.mark.slow  # ~17 s of compiles (the field's forward-mode derivative and the field)
+def test_acceleration_derivatives_in_mu_and_the_smoothing_speed(case):
+    """d(dw/dt)/d mu and d(dw/dt)/d v_s of the field at moving states (the friction solve's
+    implicit derivative, tanh's own) against central differences."""
+    from assurjax.dynamics._field import State, field_args, vector_field
+
+    scene, table, _ = case
+    q, w = jnp.array([0.5, 2.0, 4.0]), jnp.array([0.02, -0.01, 1.5])  # inside and past the smoothing band
+
+    def acceleration(mu, speed):
+        loads = tuple(scene.loads) + tuple(aj.JointFriction(j, mu, 0.02, viscous=1e-3, smoothing=speed)
+                                           for j in ("O", "A", "B"))
+        model = aj.Model(scene.mechanism, scene.gravity, loads + (aj.SlideFriction("slider/ground", mu, 0.04, smoothing=speed),))
+        return jax.vmap(lambda q, w: vector_field(0.0, State(q, w), field_args(model, direction=jnp.sign(w))).omega)(q, w)
+
+    f = jax.jit(acceleration)
+    mu, speed, h = 0.2, 0.05, 1e-6
+    d_mu, d_speed = jax.jit(jax.jacfwd(acceleration, argnums=(0, 1)))(mu, speed)
+    np.testing.assert_allclose(d_mu, (f(mu + h, speed) - f(mu - h, speed)) / (2 * h), rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(d_speed, (f(mu, speed + h) - f(mu, speed - h)) / (2 * h), rtol=1e-6, atol=1e-8)
+    assert np.all(np.abs(d_speed[:2]) > 1e-3)  # inside the band the speed matters
+
+
+@pytest.mark.slow  # reverse mode through a whole smoothed simulation: ~35 s of compiles
+def test_gradient_through_a_smoothed_simulation(case):
+    """d q(0.8 s) / d mu through the one smooth solve (reverse mode), against central differences."""
+    scene, table, _ = case
+
+    def q_at(mu):
+        rough = scene.with_loads(tuple(scene.loads) + tuple(
+            aj.JointFriction(j, mu, 0.02, smoothing=0.05) for j in ("O", "A", "B")) + (
+            aj.SlideFriction("slider/ground", mu, 0.04, smoothing=0.005),))
+        return aj.synthesis.final_state(rough, 0.8, q0=0.5, rtol=1e-11, atol=1e-11)[0]
+
+    h = 1e-5
+    fd = (q_at(jnp.asarray(0.2 + h)) - q_at(jnp.asarray(0.2 - h))) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(q_at)(jnp.asarray(0.2))), float(fd), rtol=1e-6)
+
+
+def test_smoothing_speed_is_checked():
+    """A smoothing speed must be a positive number: the error names the element and field."""
+    with pytest.raises(aj.MechanismError, match="JointFriction: smoothing must be positive, got 0"):
+        aj.JointFriction("A", 0.2, 0.01, smoothing=0.0)
+    with pytest.raises(aj.MechanismError, match="SlideFriction: smoothing must be finite"):
+        aj.SlideFriction("slider/ground", 0.2, 0.04, smoothing=float("nan"))
+
+
+def test_smoothing_in_a_scene_file(write_scene, capsys):
+    """A friction entry's ``smoothing`` key gives the element its regularized law; a speed that
+    is not positive is an error naming the entry and the field. The command's line on a run at
+    rest does not say the friction holds it (a regularized law holds nothing)."""
+    from types import SimpleNamespace
+
+    from scene_texts import ROUGH_ARM
+
+    from assurjax.cli import _rest_line, _smoothed_pairs
+
+    header = '[scene]\nname = "arm"\ngravity = [0.0, -9.81]\n[state]\nq0 = 0.0\n'
+    scene = aj.load_scene(write_scene(header + ROUGH_ARM + "smoothing = 0.02\n"))
+    (element,) = [load for load in scene.loads if isinstance(load, aj.JointFriction)]
+    assert float(element.smoothing) == 0.02 and _smoothed_pairs(scene) == ["O"]
+    still = SimpleNamespace(t=np.linspace(0.0, 1.0, 3), omega=np.zeros(3), successful=True, event=np.asarray(-1))
+    assert _rest_line(scene, still) == "  at rest throughout: nothing moves it from its start"
+    exact = aj.load_scene(write_scene(header + ROUGH_ARM, "exact.toml"))
+    assert exact.loads[0].smoothing is None and _smoothed_pairs(exact) == []
+    with pytest.raises(aj.SceneError, match=r"\[\[loads\]\] #1 \(joint_friction\), field 'smoothing': must be positive, got -0.1"):
+        aj.load_scene(write_scene(header + ROUGH_ARM + "smoothing = -0.1\n", "bad.toml"))
