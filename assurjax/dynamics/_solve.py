@@ -624,8 +624,10 @@ _batch_finished_jit = jit_arrays(_batch_finished, static_argnums=(1, 5))
 
 def saves_solver_steps(loads) -> bool:
     """Whether a single run with these loads can save the solver's own steps (``save_steps``):
-    not with joint friction, whose motion is integrated in segments."""
-    return not frictions_of(loads)
+    not with joint friction of the exact law, whose motion is integrated in segments (a
+    smoothed law alone is one solve)."""
+    frictions = frictions_of(loads)
+    return not frictions or smoothed_only(frictions)
 
 
 def _check_save_steps(settings: Settings, model: Model, batch) -> None:
@@ -634,8 +636,9 @@ def _check_save_steps(settings: Settings, model: Model, batch) -> None:
     if batch is not None:
         raise AssurjaxError("save_steps saves up to max_steps states per run: it is for single runs, not batches")
     if not saves_solver_steps(model.loads):
-        raise AssurjaxError("save_steps is not available with joint friction (the motion is integrated in segments "
-                            "between rests and changes of a joint's Coulomb sign): use saveat or samples")
+        raise AssurjaxError("save_steps is not available with joint friction of the exact law (the motion is integrated "
+                            "in segments between rests and changes of a joint's Coulomb sign): use saveat or samples, "
+                            "or give every friction element a smoothing speed")
 
 
 def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:
