@@ -10,9 +10,15 @@ segments of stick and slip; where every element is smoothed, one smooth solve. T
 the largest |q - q_exact| over the samples before the first standstill (~0.49 s), where the
 exact law's Coulomb signs are fixed, and over all of them.
 
-    python benchmarks/bench_friction_smoothing.py [--out FILE]
+Then one step of the bundled press (motor, process force, friction in every pair) with its
+friction exact, smoothed (0.05 rad/s on the pins, 0.005 m/s on the ram) and without friction,
+measured in turns in one fresh process (``bench_friction.interleaved_marginal_per_step``: the
+median of the rounds' ratios, and the ratio of the best times).
 
-Writes results/friction_smoothing.json unless told otherwise.
+    python benchmarks/bench_friction_smoothing.py [--only laws|step] [--out FILE]
+
+Writes results/friction_smoothing.json unless told otherwise (``--only``: that part, the
+other kept from the file).
 """
 
 from __future__ import annotations
@@ -66,24 +72,37 @@ print(json.dumps(dict(status=sol.status, steps=int(sol.num_steps), q=np.asarray(
 """
 
 
-def child(speed) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+STEP_CHILD = r"""
+import json
+import equinox as eqx, jax.numpy as jnp
+import assurjax
+from bench_friction import interleaved_marginal_per_step
+
+press = assurjax.load_scene("press_with_friction")
+plain = tuple(load for load in press.loads if not load.needs_reactions)
+speed = lambda f: jnp.asarray(0.05 if f.kind == "R" else 0.005)
+smoothed = plain + tuple(eqx.tree_at(lambda e: e.smoothing, f, speed(f), is_leaf=lambda x: x is None)
+                         for f in press.loads if f.needs_reactions)
+r = interleaved_marginal_per_step(press, dict(frictionless=plain, exact=press.loads, smoothed=smoothed))
+print(json.dumps(r))
+"""
+
+
+def child(code: str, argument) -> dict:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(HERE)]))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(speed)], capture_output=True, text=True, env=env,
+    out = subprocess.run([sys.executable, "-c", code, json.dumps(argument)], capture_output=True, text=True, env=env,
                          check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "friction_smoothing.json")
-    args = parser.parse_args()
-    runs = {str(speed): child(speed) for speed in SPEEDS}
+def laws() -> dict:
+    """The slider-crank per law (see the module docstring), printed as measured."""
+    runs = {str(speed): child(CHILD, speed) for speed in SPEEDS}
     exact = runs["None"]
-    q_exact, t = (json.loads(json.dumps(exact[k])) for k in ("q", "t"))
-    before = [k for k, tk in enumerate(t) if tk < 0.45]
+    before = [k for k, tk in enumerate(exact["t"]) if tk < 0.45]
     for speed, r in runs.items():
-        errors = [abs(a - b) for a, b in zip(r["q"], q_exact)]
+        errors = [abs(a - b) for a, b in zip(r["q"], exact["q"])]
         r["error_before_standstill_rad"] = max(errors[k] for k in before)
         r["error_rad"] = max(errors)
         r["grad_difference"] = r["grad"] - exact["grad"]
@@ -91,7 +110,31 @@ def main():
               f"{r['warm_ms']:.2f} ms, |q - q_exact| {r['error_before_standstill_rad']:.2e} rad before the standstill, "
               f"{r['error_rad']:.2e} over 0.8 s; d q/d mu {r['grad']:.6g}, first {r['grad_first_s']:.1f} s, warm "
               f"{r['grad_warm_ms']:.1f} ms")
-    args.out.write_text(json.dumps(dict(runs=runs, speeds_note="pins rad/s; slider a tenth, m/s"), indent=1))
+    return runs
+
+
+def step() -> dict:
+    """The press's step per law against the frictionless one, printed as measured."""
+    r = child(STEP_CHILD, None)
+    for law in ("exact", "smoothed"):
+        print(f"press step, {law}: {r[law]['us_per_step']:.2f} us against {r['frictionless']['us_per_step']:.2f} us "
+              f"frictionless: {r[law + '_ratio']['median']:.2f}x (median of the rounds' ratios), "
+              f"{r[law + '_ratio']['of_best_times']:.2f}x (best times)")
+    return r
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=("laws", "step"))
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "friction_smoothing.json")
+    args = parser.parse_args()
+    saved = json.loads(args.out.read_text()) if args.only and args.out.exists() else {}
+    if args.only != "step":
+        saved["runs"] = laws()
+        saved["speeds_note"] = "pins rad/s; slider a tenth, m/s"
+    if args.only != "laws":
+        saved["press_step"] = step()
+    args.out.write_text(json.dumps(saved, indent=1))
     print(f"wrote {args.out}")
 
 

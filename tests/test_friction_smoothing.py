@@ -144,8 +144,12 @@ def test_gradient_through_a_smoothed_simulation(case):
     np.testing.assert_allclose(float(jax.grad(q_at)(jnp.asarray(0.2))), float(fd), rtol=1e-6)
 
 
-def test_smoothing_speed_is_checked():
-    """A smoothing speed must be a positive number: the error names the element and field."""
+def test_smoothing_speed_is_checked(case):
+    """A smoothing speed must be a positive number: the error names the element and field.
+    Fixed steps stay refused with a smoothed law, for what they cannot do (tell a jam)."""
+    scene, table, _ = case
+    with pytest.raises(aj.AssurjaxError, match="not available with joint friction, even smoothed"):
+        aj.simulate(scene, loads=_frictions(scene.mechanism, table, SPEEDS), steps=100, stop=None, t1=0.1)
     with pytest.raises(aj.MechanismError, match="JointFriction: smoothing must be positive, got 0"):
         aj.JointFriction("A", 0.2, 0.01, smoothing=0.0)
     with pytest.raises(aj.MechanismError, match="SlideFriction: smoothing must be finite"):

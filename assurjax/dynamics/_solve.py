@@ -245,6 +245,9 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
 
 
 def check_steps(settings: Settings, model: Model | None = None) -> None:
+    if model is not None and smoothed_only(frictions_of(model.loads)):
+        raise AssurjaxError("steps= (fixed steps) is not available with joint friction, even smoothed: only the adaptive "
+                            "solver tells a jam of the friction (no consistent motion) from a lock-up; use steps=None")
     if model is not None and frictions_of(model.loads):
         raise AssurjaxError("steps= (fixed steps) cannot locate where a mechanism with joint friction comes to rest "
                             "or breaks away: use the adaptive solver (steps=None)")
