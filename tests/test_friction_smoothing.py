@@ -176,3 +176,23 @@ def test_smoothing_in_a_scene_file(write_scene, capsys):
     assert exact.loads[0].smoothing is None and _smoothed_pairs(exact) == []
     with pytest.raises(aj.SceneError, match=r"\[\[loads\]\] #1 \(joint_friction\), field 'smoothing': must be positive, got -0.1"):
         aj.load_scene(write_scene(header + ROUGH_ARM + "smoothing = -0.1\n", "bad.toml"))
+
+
+@pytest.mark.slow  # one more program (~6 s)
+def test_mixed_laws_keep_the_exact_elements_stiction(case):
+    """Pins smoothed, the slider exact: the run keeps its segments for the slider's law, whose
+    stiction then holds the mechanism for good (w exactly 0, q constant: the smoothed pins carry
+    no friction at rest), and the energy balance closes."""
+    scene, table, _ = case
+    speeds = {**SPEEDS, "P": None}
+    loads = tuple(f if speeds["P" if "/" in f.pair else f.pair] is not None else
+                  aj.SlideFriction(f.pair, f.coefficient, f.length, viscous=f.viscous)
+                  for f in _frictions(scene.mechanism, table, {k: v or 1.0 for k, v in speeds.items()}))
+    assert [f.smoothing is None for f in loads] == [False, False, False, True]
+    sol = aj.simulate(scene, loads=tuple(scene.loads) + loads, q0=0.5, stop=None, t1=3.0, samples=61, energies=True,
+                      rtol=1e-10, atol=1e-10)
+    assert sol.status.startswith("reached t1"), sol.status
+    held = np.flatnonzero(sol.omega == 0.0)
+    assert held.size > 5 and held[-1] == sol.t.size - 1 and np.all(np.diff(held[held > 0]) == 1)
+    assert np.all(sol.q[held[1:]] == sol.q[-1])
+    assert np.max(np.abs(sol.balance)) < 1e-8 * np.max(np.abs(sol.total))
