@@ -125,8 +125,12 @@ def test_acceleration_derivatives_in_mu_and_the_smoothing_speed(case):
 
 
 @pytest.mark.slow  # reverse mode through a whole smoothed simulation: ~35 s of compiles
-def test_gradient_through_a_smoothed_simulation(case):
-    """d q(0.8 s) / d mu through the one smooth solve (reverse mode), against central differences."""
+def test_gradient_through_a_smoothed_simulation(case, monkeypatch):
+    """d q(0.8 s) / d mu through the one smooth solve (reverse mode), against central
+    differences; a second call of the unjitted ``jax.grad`` at another mu reuses the compiled
+    program (``synthesis.final_state`` traces the simulation once)."""
+    from assurjax.synthesis import _dynamic
+
     scene, table, _ = case
 
     def q_at(mu):
@@ -138,6 +142,9 @@ def test_gradient_through_a_smoothed_simulation(case):
     h = 1e-5
     fd = (q_at(jnp.asarray(0.2 + h)) - q_at(jnp.asarray(0.2 - h))) / (2 * h)
     np.testing.assert_allclose(float(jax.grad(q_at)(jnp.asarray(0.2))), float(fd), rtol=1e-6)
+    traced = []
+    monkeypatch.setattr(_dynamic, "simulate_core", lambda *a, **k: traced.append(1))  # only a new trace would call it
+    assert np.isfinite(float(jax.grad(q_at)(jnp.asarray(0.25)))) and not traced
 
 
 def test_smoothing_speed_is_checked(case):

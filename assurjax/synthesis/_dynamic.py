@@ -36,6 +36,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .._jit import jit
 from ..dynamics._field import arrival_acceleration
 from ..dynamics._settings import check_single_start, fixed_step_from, settings_from
 from ..dynamics._solve import simulate_core
@@ -76,9 +77,23 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
-    sol = simulate_core(scene.model, None, (), q0, omega0, state.get("t0", 0.0), t1, None, fixed_step_from(scene, settings.get("dt")),
-                        settings=opts)
+    sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
     return sol.q_final, sol.omega_final
+
+
+def _run(model, q0, omega0, t0, t1, dt, settings):
+    """``simulate_core`` as one cached program (:func:`_core_program`), its numbers as arrays."""
+    numbers = tuple(None if v is None else jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1, dt))
+    return _core_program(model, *numbers, settings)
+
+
+@jit
+def _core_program(model, q0, omega0, t0, t1, dt, settings):
+    """``simulate_core`` compiled once per structure and settings, the model's arrays and the
+    numbers traced. Called in pieces, under a ``jax.grad`` that the user has not jitted, the
+    segment loop of the exact friction law was traced and compiled anew at every call (the
+    slider-crank's derivative in mu: 51 s a call, 0.1 s once compiled)."""
+    return simulate_core(model, None, (), q0, omega0, t0, t1, None, dt, settings=settings)
 
 
 def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "recursive", **settings):
@@ -104,8 +119,7 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t1 = state.get("t1", 1.0) if t1 is None else t1
-    sol = simulate_core(scene.model, None, (), q0, omega0, state.get("t0", 0.0), t1, None, fixed_step_from(scene, settings.get("dt")),
-                        settings=opts)
+    sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
     alpha = jax.lax.stop_gradient(arrival_acceleration(scene.model, sol.t_final, sol.q_final, sol.omega_final,
                                                        jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float),
                                                        jnp.asarray(state.get("t0", 0.0), dtype=float)))
