@@ -716,6 +716,9 @@ def _band_line(lower: float, upper: float, units: dict) -> str:
     """The break-away band (``assurjax.breakaway_band``) in words; an infinite edge: no drive
     starts the mechanism that way."""
     unit = units["driving"]
+    if lower == upper:  # no friction at rest (a regularized law, or no Coulomb coefficient)
+        return (f"  with its joint friction only {upper:+.6g} {unit} holds it (the friction holds nothing at rest): any "
+                "other drive starts it, forward above, backward below")
     ways = [f"forward above {upper:+.6g} {unit}" if math.isfinite(upper) else None,
             f"backward below {lower:+.6g} {unit}" if math.isfinite(lower) else None]
     starts = " and ".join(way for way in ways if way) or "neither way"

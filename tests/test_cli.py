@@ -264,6 +264,8 @@ def test_reactions_static_with_joint_friction_gives_the_breakaway_band(write_sce
                                                  "holds it (the break-away band); no drive starts it backward: the friction "
                                                  "self-locks it")
     assert "starts neither way" in _band_line(-math.inf, math.inf, units)
+    assert _band_line(0.5, 0.5, units) == ("  with its joint friction only +0.5 N m holds it (the friction holds nothing "
+                                           "at rest): any other drive starts it, forward above, backward below")
 
 
 def test_reactions_along_the_motion_balance_the_crank(watt_run, tmp_path, capsys):
