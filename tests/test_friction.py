@@ -125,6 +125,9 @@ def steep_closed_form(q, w, tau):
     return out
 
 
+# slow (~23 s): the default suite ran 9:47-10:58 in CI; the jam itself is checked there by
+# test_a_friction_jam_is_named and test_a_toggle_locks_where_the_effective_inertia_turns_negative
+@pytest.mark.slow
 def test_a_slider_driven_past_its_friction_angle_jams():
     """Self-locking: the crank drives (tau = +1 N m) the slider through a rod steeper than
     the friction allows. Against the hand-solved slider (independent): where the branch that
@@ -992,6 +995,8 @@ def _package_frictions(mechanism, table: dict, parts: int = 1):
     return tuple(out)
 
 
+# slow (~14 s): the same path runs in the slow test_agrees_with_the_joint_based_reference[watt_sixbar]
+@pytest.mark.slow
 def test_pairs_read_one_by_one_give_the_reference_acceleration():
     """The Watt six-bar with friction in its seven pins: its reactions' tangents (8 x 14 doubles)
     pass ``_jit.THREADED_BYTES``, so the law reads them pair by pair, not packed (the
