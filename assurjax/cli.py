@@ -543,13 +543,6 @@ def _moves(sol) -> bool:
     return bool(np.any(np.asarray(sol.omega) != 0.0))
 
 
-def _smoothed(scene) -> bool:
-    """Whether every friction element of the scene has the regularized law (none sticks)."""
-    from ._friction import frictions_of, smoothed_only
-
-    return smoothed_only(frictions_of(scene.loads))
-
-
 def _smoothed_pairs(scene) -> list[str]:
     """The pairs whose friction elements have the regularized law."""
     from ._friction import frictions_of
@@ -564,12 +557,13 @@ def _rest_line(scene, sol) -> str | None:
     the standstill line reports the stop."""
     import numpy as np
 
-    from ._friction import frictions_of
+    from ._friction import frictions_of, smoothed_only
 
     omega, t = np.asarray(sol.omega), np.asarray(sol.t)
     if scene.simulation.get("stop") == "standstill" or not sol.successful or int(sol.event) >= 0 or omega[-1] != 0.0:
         return None
-    moving, held = np.flatnonzero(omega != 0.0), bool(frictions_of(scene.loads)) and not _smoothed(scene)
+    frictions = frictions_of(scene.loads)
+    moving, held = np.flatnonzero(omega != 0.0), bool(frictions) and not smoothed_only(frictions)  # a smooth law holds nothing
     if not moving.size:
         return "  at rest throughout" + (", held by the joint friction" if held else ": nothing moves it from its start")
     if not held:
