@@ -15,7 +15,14 @@ friction exact, smoothed (0.05 rad/s on the pins, 0.005 m/s on the ram) and with
 measured in turns in one fresh process (``bench_friction.interleaved_marginal_per_step``: the
 median of the rounds' ratios, and the ratio of the best times).
 
-    python benchmarks/bench_friction_smoothing.py [--only laws|step] [--out FILE]
+And the routes of a derivative (``--only routes``): d q(0.6 s) / d(every array of the scene)
+of the slider-crank from rest, with the regularized law in every pair (0.05 rad/s, 0.005 m/s)
+and without friction, by ``synthesis.final_state`` with ``adjoint="recursive"`` (reverse mode
+through the solve) and ``"sensitivity"`` (forward sensitivities integrated with the state),
+each in a fresh process: an unjitted ``jax.grad``'s first call, its second at other values
+(a compiled program reused, or traced anew), and the best of 3 warm calls.
+
+    python benchmarks/bench_friction_smoothing.py [--only laws|step|routes] [--out FILE]
 
 Writes results/friction_smoothing.json unless told otherwise (``--only``: that part, the
 other kept from the file).
@@ -88,6 +95,34 @@ print(json.dumps(r))
 """
 
 
+ROUTES_CHILD = r"""
+import json, sys, time
+import equinox as eqx, jax, jax.numpy as jnp
+import assurjax as aj
+
+adjoint, smoothed = json.loads(sys.argv[1])
+scene = aj.load_scene("slider_crank")
+if smoothed:
+    scene = scene.with_loads(tuple(scene.loads) + tuple(aj.JointFriction(j, 0.2, 0.02, smoothing=0.05) for j in ("O", "A", "B"))
+                             + (aj.SlideFriction("slider/ground", 0.2, 0.04, smoothing=0.005),))
+params, static = eqx.partition(scene, eqx.is_inexact_array)
+
+def q_at(p):
+    return aj.synthesis.final_state(eqx.combine(p, static), 0.6, q0=0.5, rtol=1e-10, atol=1e-10, adjoint=adjoint)[0]
+
+def timed(p):
+    t = time.perf_counter(); g = jax.block_until_ready(jax.grad(q_at)(p)); return time.perf_counter() - t, g
+
+first, g = timed(params)
+other = jax.tree.map(lambda v: v * 1.001, params)
+second = timed(other)[0]
+warm = min(timed(other)[0] for _ in range(3))
+flat = jnp.concatenate([jnp.ravel(v) for v in jax.tree.leaves(g)])
+print(json.dumps(dict(first_s=first, second_s=second, warm_ms=1e3 * warm, parameters=int(flat.size),
+                      gradient=[float(v) for v in flat])))
+"""
+
+
 def child(code: str, argument) -> dict:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(HERE)]))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
@@ -123,17 +158,34 @@ def step() -> dict:
     return r
 
 
+def routes() -> dict:
+    """The derivative's routes with and without the regularized law, printed as measured."""
+    out = {}
+    for smoothed in (True, False):
+        case = "smoothed" if smoothed else "frictionless"
+        runs = {adjoint: child(ROUTES_CHILD, [adjoint, smoothed]) for adjoint in ("recursive", "sensitivity")}
+        gap = max(abs(a - b) for a, b in zip(runs["recursive"]["gradient"], runs["sensitivity"]["gradient"]))
+        for adjoint, r in runs.items():
+            print(f"{case}, adjoint={adjoint!r}: jax.grad over {r['parameters']} arrays' entries, first "
+                  f"{r['first_s']:.1f} s, second {r['second_s']:.3f} s, warm {r['warm_ms']:.1f} ms")
+        print(f"{case}: the routes' gradients differ by {gap:.2e} at most")
+        out[case] = dict(runs, largest_difference=gap)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=("laws", "step"))
+    parser.add_argument("--only", choices=("laws", "step", "routes"))
     parser.add_argument("--out", type=Path, default=HERE / "results" / "friction_smoothing.json")
     args = parser.parse_args()
     saved = json.loads(args.out.read_text()) if args.only and args.out.exists() else {}
-    if args.only != "step":
+    if args.only in (None, "laws"):
         saved["runs"] = laws()
         saved["speeds_note"] = "pins rad/s; slider a tenth, m/s"
-    if args.only != "laws":
+    if args.only in (None, "step"):
         saved["press_step"] = step()
+    if args.only in (None, "routes"):
+        saved["routes"] = routes()
     args.out.write_text(json.dumps(saved, indent=1))
     print(f"wrote {args.out}")
 

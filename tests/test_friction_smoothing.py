@@ -124,6 +124,13 @@ def test_acceleration_derivatives_in_mu_and_the_smoothing_speed(case):
     assert np.all(np.abs(d_speed[:2]) > 1e-3)  # inside the band the speed matters
 
 
+def _rough(scene, mu):
+    """The slider-crank with the regularized law in every pair, mu in each."""
+    return scene.with_loads(tuple(scene.loads) + tuple(
+        aj.JointFriction(j, mu, 0.02, smoothing=0.05) for j in ("O", "A", "B")) + (
+        aj.SlideFriction("slider/ground", mu, 0.04, smoothing=0.005),))
+
+
 @pytest.mark.slow  # reverse mode through a whole smoothed simulation: ~35 s of compiles
 def test_gradient_through_a_smoothed_simulation(case, monkeypatch):
     """d q(0.8 s) / d mu through the one smooth solve (reverse mode), against central
@@ -134,10 +141,7 @@ def test_gradient_through_a_smoothed_simulation(case, monkeypatch):
     scene, table, _ = case
 
     def q_at(mu):
-        rough = scene.with_loads(tuple(scene.loads) + tuple(
-            aj.JointFriction(j, mu, 0.02, smoothing=0.05) for j in ("O", "A", "B")) + (
-            aj.SlideFriction("slider/ground", mu, 0.04, smoothing=0.005),))
-        return aj.synthesis.final_state(rough, 0.8, q0=0.5, rtol=1e-11, atol=1e-11)[0]
+        return aj.synthesis.final_state(_rough(scene, mu), 0.8, q0=0.5, rtol=1e-11, atol=1e-11)[0]
 
     h = 1e-5
     fd = (q_at(jnp.asarray(0.2 + h)) - q_at(jnp.asarray(0.2 - h))) / (2 * h)
@@ -145,6 +149,63 @@ def test_gradient_through_a_smoothed_simulation(case, monkeypatch):
     traced = []
     monkeypatch.setattr(_dynamic, "simulate_core", lambda *a, **k: traced.append(1))  # only a new trace would call it
     assert np.isfinite(float(jax.grad(q_at)(jnp.asarray(0.25)))) and not traced
+
+
+def _q_at(scene, mu, adjoint="sensitivity"):
+    return aj.synthesis.final_state(_rough(scene, mu), 0.6, q0=0.5, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+
+
+def test_the_sensitivity_route_differentiates_the_regularized_law(case, write_scene):
+    """adjoint='sensitivity' (forward sensitivities integrated with the state, one field of
+    (q, w)) carries the regularized law: a rough arm falling from the horizontal, d q(1 s) / d mu
+    against central differences of the route's plain runs (the slow suite: the slider-crank
+    rough in every pair, against simulations). The exact law, and the quadrature route (its
+    fixed panels miss the law's steep turns near a rest), are refused in words."""
+    from scene_texts import ROUGH_ARM
+
+    arm = aj.load_scene(write_scene('[scene]\nname = "arm"\ngravity = [0.0, -9.81]\n[state]\nq0 = 0.0\n' + ROUGH_ARM))
+
+    def q_at(mu, adjoint="sensitivity"):
+        rough = arm.with_loads((aj.JointFriction("O", mu, 0.04, smoothing=0.02),))
+        return aj.synthesis.final_state(rough, 1.0, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+
+    h = 1e-5
+    fd = (q_at(jnp.asarray(0.3 + h)) - q_at(jnp.asarray(0.3 - h))) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(q_at)(jnp.asarray(0.3))), float(fd), rtol=1e-7)
+    with pytest.raises(aj.AssurjaxError, match="does not resolve its steep turns"):
+        q_at(0.3, "quadrature")
+    scene, table, _ = case
+    exact = scene.with_loads(tuple(scene.loads) + _frictions(scene.mechanism, table, None))
+    with pytest.raises(aj.AssurjaxError, match="4 element\\(s\\) have \\(the first: 'O', no smoothing\\)"):
+        aj.synthesis.standstill_time(exact, adjoint="sensitivity")
+
+
+@pytest.mark.slow  # ~60 s of compiles
+def test_the_sensitivity_route_on_the_slider_crank(case, monkeypatch):
+    """The same route on the slider-crank rough in every pair, from rest: d q(0.6 s) / d mu in
+    reverse and forward mode, and the first standstill's time d t*/d mu
+    (the implicit function theorem at the event), against central differences of
+    simulations (``simulate_core``, the package's own segment-free solve); a second
+    reverse-mode call at another mu reuses the compiled program."""
+    from assurjax.synthesis import _sensitivity
+
+    scene, _, _ = case
+    h = 1e-5
+    fd = (_q_at(scene, jnp.asarray(0.2 + h), "recursive") - _q_at(scene, jnp.asarray(0.2 - h), "recursive")) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(lambda mu: _q_at(scene, mu))(jnp.asarray(0.2))), float(fd), rtol=1e-6)
+    np.testing.assert_allclose(float(jax.jacfwd(lambda mu: _q_at(scene, mu))(jnp.asarray(0.2))), float(fd), rtol=1e-6)
+
+    def t_stop(mu, adjoint="sensitivity"):
+        t, ok = aj.synthesis.standstill_time(_rough(scene, mu), t1=2.0, q0=0.5, rtol=1e-11, atol=1e-11, adjoint=adjoint)
+        assert bool(ok)
+        return t
+
+    fd = (t_stop(jnp.asarray(0.2 + h), "recursive") - t_stop(jnp.asarray(0.2 - h), "recursive")) / (2 * h)
+    assert 0.3 < float(t_stop(jnp.asarray(0.2))) < 1.0
+    np.testing.assert_allclose(float(jax.grad(t_stop)(jnp.asarray(0.2))), float(fd), rtol=1e-5)
+    traced = []
+    monkeypatch.setattr(_sensitivity, "_final_state_fn", lambda *a: traced.append(1))  # only a new trace would call it
+    assert np.isfinite(float(jax.grad(lambda mu: _q_at(scene, mu))(jnp.asarray(0.25)))) and not traced
 
 
 def test_smoothing_speed_is_checked(case):

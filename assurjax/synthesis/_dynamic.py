@@ -26,7 +26,8 @@ the adjoint named by ``adjoint``:
 
 Both sensitivity routes support ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` (one
 ``jax.custom_jvp``), the exact reduction on the scene's fixed assembly branch, and no
-assembly check.
+assembly check. Joint friction only by ``"sensitivity"``, and only with the regularized law
+in every element (``smoothing``); the exact law goes by ``"recursive"`` or ``"forward"``.
 
 See benchmarks/bench_gradients.py for measured costs.
 """
