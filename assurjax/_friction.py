@@ -37,7 +37,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from ._errors import MechanismError
-from ._values import check_value
+from ._values import check_value, concrete
 from ._geometry import cross, dot, perp, rotation
 from ._jit import region, stays_unthreaded
 from ._kinematics import by_name
@@ -63,21 +63,35 @@ class AbstractFriction(AbstractLoad):
     coefficient: eqx.AbstractVar[Array]
     viscous: eqx.AbstractVar[Array]
     smoothing: eqx.AbstractVar[Array | None]
+    static_coefficient: eqx.AbstractVar[Array | None]
     needs_reactions: ClassVar[bool] = True
     dissipative: ClassVar[bool] = True
     kind: ClassVar[str]
 
-    def _set_law(self, pair: str, coefficient, viscous, smoothing) -> None:
+    def _set_law(self, pair: str, coefficient, viscous, smoothing, static_coefficient) -> None:
         """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0),
-        and the optional smoothing speed (checked > 0; None: the exact law)."""
+        the optional smoothing speed (checked > 0; None: the exact law) and the optional static
+        coefficient (checked >= mu, with the exact law only; None: mu at rest too)."""
+        name = type(self).__name__
         for key, value in (("coefficient", coefficient), ("viscous", viscous)):
-            check_value(MechanismError, f"{type(self).__name__}: {key}", value, shape=(), nonnegative=True)
+            check_value(MechanismError, f"{name}: {key}", value, shape=(), nonnegative=True)
         if smoothing is not None:
-            check_value(MechanismError, f"{type(self).__name__}: smoothing", smoothing, shape=(), positive=True)
+            check_value(MechanismError, f"{name}: smoothing", smoothing, shape=(), positive=True)
             smoothing = jnp.asarray(smoothing, dtype=float)
+        if static_coefficient is not None:
+            check_value(MechanismError, f"{name}: static_coefficient", static_coefficient, shape=(), nonnegative=True)
+            if smoothing is not None:
+                raise MechanismError(f"{name} '{pair}': static_coefficient needs the exact law (a smoothed element "
+                                     "carries no friction at rest, so nothing for a static coefficient to hold)")
+            static, kinetic = concrete(static_coefficient), concrete(coefficient)
+            if static is not None and kinetic is not None and static < kinetic:
+                raise MechanismError(f"{name} '{pair}': static_coefficient must be at least the (kinetic) coefficient "
+                                     f"{float(kinetic):g}, got {float(static):g}")
+            static_coefficient = jnp.asarray(static_coefficient, dtype=float)
         self.pair = pair
         self.coefficient, self.viscous = jnp.asarray(coefficient, dtype=float), jnp.asarray(viscous, dtype=float)
         self.smoothing = smoothing
+        self.static_coefficient = static_coefficient
         self.velocity_dependent = True
 
     def check(self, mechanism: Mechanism) -> None:
@@ -123,9 +137,11 @@ class JointFriction(AbstractFriction):
     (N m s/rad). Couple on the later link: -mu r |F| sign(w_rel) - c w_rel.
     ``smoothing``: a speed v_s (rad/s) for the regularized law, sign(w_rel) replaced by
     tanh(w_rel / v_s) (no stiction: at rest it carries no Coulomb friction); None, the
-    default: the exact law, with stiction. See :class:`AbstractFriction`.
+    default: the exact law, with stiction. ``static_coefficient``: mu_s >= mu, the
+    coefficient that holds the joint at rest (where a mechanism sticks, and what it takes
+    to break away); None, the default: mu. See :class:`AbstractFriction`.
 
-    >>> assurjax.JointFriction("A", 0.1, radius=0.01)
+    >>> assurjax.JointFriction("A", 0.1, radius=0.01, static_coefficient=0.15)
     """
 
     pair: str = eqx.field(static=True)
@@ -133,11 +149,12 @@ class JointFriction(AbstractFriction):
     radius: Array
     viscous: Array
     smoothing: Array | None
+    static_coefficient: Array | None
     velocity_dependent: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "R"
 
-    def __init__(self, joint: str, coefficient, radius, *, viscous=0.0, smoothing=None):
-        self._set_law(joint, coefficient, viscous, smoothing)
+    def __init__(self, joint: str, coefficient, radius, *, viscous=0.0, smoothing=None, static_coefficient=None):
+        self._set_law(joint, coefficient, viscous, smoothing, static_coefficient)
         check_value(MechanismError, "JointFriction: radius", radius, shape=(), nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
@@ -161,8 +178,8 @@ class SlideFriction(AbstractFriction):
     ``coefficient``: mu; ``length``: the block length L (m) centred at the sliding
     point; ``viscous``: c (N s/m). Force on the slider along the guide:
     -mu (|N/2 - M/L| + |N/2 + M/L|) sign(v_rel) - c v_rel. ``smoothing``: a speed v_s
-    (m/s) for the regularized law, tanh(v_rel / v_s) for sign(v_rel), as in
-    :class:`JointFriction`.
+    (m/s) for the regularized law, tanh(v_rel / v_s) for sign(v_rel), and
+    ``static_coefficient`` (mu_s >= mu, at rest), as in :class:`JointFriction`.
 
     >>> assurjax.SlideFriction("block/ground", 0.15, length=0.05)
     """
@@ -172,11 +189,12 @@ class SlideFriction(AbstractFriction):
     length: Array
     viscous: Array
     smoothing: Array | None
+    static_coefficient: Array | None
     velocity_dependent: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "P"
 
-    def __init__(self, pair: str, coefficient, length, *, viscous=0.0, smoothing=None):
-        self._set_law(pair, coefficient, viscous, smoothing)
+    def __init__(self, pair: str, coefficient, length, *, viscous=0.0, smoothing=None, static_coefficient=None):
+        self._set_law(pair, coefficient, viscous, smoothing, static_coefficient)
         check_value(MechanismError, "SlideFriction: length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
 
@@ -293,6 +311,30 @@ def smoothed_only(frictions) -> bool:
     """Whether every element has the regularized law (see :class:`AbstractFriction`): then
     nothing sticks and no Coulomb sign switches, and a simulation needs no segments."""
     return bool(frictions) and all(f.smoothing is not None for f in frictions)
+
+
+def static_loads(loads) -> tuple:
+    """The loads with each friction element's coefficient its static one, where it has one
+    (``static_coefficient``): the law of a mechanism at rest, which decides whether it sticks
+    and when it breaks away (the kinetic coefficient, of the motion, is then not read). The
+    same tuple where no element has one."""
+    if not has_static(loads):
+        return loads
+    return tuple(eqx.tree_at(lambda f: f.coefficient, load, load.static_coefficient)
+                 if getattr(load, "static_coefficient", None) is not None else load for load in loads)
+
+
+def has_static(loads) -> bool:
+    """Whether some friction element has a static coefficient of its own."""
+    return any(getattr(load, "static_coefficient", None) is not None for load in loads)
+
+
+def static_model(model):
+    """The model (a :class:`assurjax.Model`) with the law of a mechanism at rest (see
+    :func:`static_loads`); the same model where no element has a static coefficient."""
+    if not has_static(model.loads):
+        return model
+    return eqx.tree_at(lambda m: m.loads, model, static_loads(model.loads))
 
 
 def coulomb_signs(frictions, rates, omega, exact):

@@ -543,6 +543,14 @@ def _moves(sol) -> bool:
     return bool(np.any(np.asarray(sol.omega) != 0.0))
 
 
+def _static_pairs(scene) -> list[str]:
+    """'pair mu_s / mu' of the friction elements with a static coefficient of their own."""
+    from ._friction import frictions_of
+
+    return [f"{f.pair} {float(f.static_coefficient):g} / {float(f.coefficient):g}" for f in frictions_of(scene.loads)
+            if f.static_coefficient is not None]
+
+
 def _smoothed_pairs(scene) -> list[str]:
     """The pairs whose friction elements have the regularized law."""
     from ._friction import frictions_of
@@ -641,6 +649,9 @@ def cmd_run(args) -> int:
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
         print(f"  friction law: regularized as asked in {', '.join(smooth)} (sign(rate) -> tanh(rate / v_s), v_s each "
               "element's smoothing speed): no stiction there, where the exact law would hold it the mechanism creeps")
+    if static := _static_pairs(scene):
+        print(f"  friction at rest: static coefficients in {', '.join(static)} (mu_s against mu): they decide where it "
+              "sticks and when it breaks away, the kinetic mu the motion")
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)

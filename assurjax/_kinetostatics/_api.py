@@ -16,8 +16,8 @@ from .._values import check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
-                         solve_friction, states_per_call)
+from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, has_static, linearize_reactions,
+                         solve_friction, static_model, states_per_call)
 from .._loads import AbstractLoad, Drive, applied_wrenches
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -256,28 +256,34 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     right limit the dynamics integrates). Held at rest (omega = alpha = 0), any drive
     between the two break-away limits keeps the mechanism there: the one nearest 0 is
     reported, with the friction values between those of the two limits in proportion
-    (how static friction shares out between the pairs is not determined by statics).
+    (how static friction shares out between the pairs is not determined by statics); the
+    limits of the static coefficients, where elements have them.
     ``friction=True`` (a model with friction): also the friction values u, the
     elements' relative rates per unit driving velocity (K,) and whether the friction has a
     consistent solution (held: both limits)."""
     kin = coeffs.kinematics(omega, alpha)
     if not frictions_of(model.loads):
         return from_kinematics(model, kin, t, method=method, groups=groups)
-    us, rates, consistent, (forces, couples, driving, ok) = _both_ways(model, coeffs, kin, omega, t, method, groups)
+    moving = _both_ways(model, coeffs, kin, omega, t, method, groups)
+    # held: the limits of the static coefficients, where elements have them
+    limits = _both_ways(static_model(model), coeffs, kin, omega, t, method, groups) if has_static(model.loads) else moving
+    driving = limits[3][2]
     width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
     share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
 
-    def pick(x):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
-        held = share * x[0] + (1.0 - share) * x[1]
+    def pick(x, at_limits):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
+        held = share * at_limits[0] + (1.0 - share) * at_limits[1]
         return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], held))
 
-    def pick_flag(x):  # moving: that direction's; held: both limits'
-        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], x[0] & x[1]))
+    def pick_flag(x, at_limits):  # moving: that direction's; held: both limits'
+        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], at_limits[0] & at_limits[1]))
 
-    u = pick(us)
-    found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving), pick_flag(ok))
-    return found + (u, rates, pick_flag(consistent)) if friction else found
+    (us, rates, consistent, (forces, couples, driving, ok)), held = moving, limits
+    u = pick(us, held[0])
+    found = (jax.tree.map(pick, forces, held[3][0]), jax.tree.map(pick, couples, held[3][1]), pick(driving, held[3][2]),
+             pick_flag(ok, held[3][3]))
+    return found + (u, rates, pick_flag(consistent, held[2])) if friction else found
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,
@@ -474,7 +480,8 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     """The break-away band of the mechanism held at rest at ``q``: (lower, upper), the
     driving torques (N m; N for a slider) at which a motion from rest starts backward
     (-q) and forward (+q) against gravity, the scene's loads and the joint friction
-    (its Coulomb signs those of each start). Any drive within the band holds the
+    (its Coulomb signs those of each start, its coefficients the static ones where elements
+    have them). Any drive within the band holds the
     mechanism (stiction); ``simulate`` sticks and breaks away by the same limits. Without
     friction both are :func:`static_torque`. Where no drive starts the mechanism one way
     (the friction self-locks that start: driven just past the edge, the forward dynamics
@@ -491,7 +498,7 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
         return torque, torque
     shape = _checked_shape((q, 0.0, 0.0, t))
     q, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, t))
-    lower, upper, ok = _batched(model, (q, t), program=_band)
+    lower, upper, ok = _batched(static_model(model), (q, t), program=_band)  # at rest: the static coefficients
     if check:
         raise_if_singular(model.mechanism, ok, q)
     return lower, upper

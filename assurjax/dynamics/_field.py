@@ -26,8 +26,8 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction,
-                         friction_wrenches, frictions_of, iterate_friction, linearize_reactions, smoothed_only,
-                         solve_friction, stacked_rate_terms, without_roundoff)
+                         friction_wrenches, frictions_of, has_static, iterate_friction, linearize_reactions,
+                         smoothed_only, solve_friction, stacked_rate_terms, static_model, without_roundoff)
 from .._jit import FlatLayout, flattened_floats, jit, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -417,10 +417,12 @@ def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     segment of stick and slip starts from. It breaks away where s dw/dt > 0, with the
     friction of a motion in direction s; dw/dt is 0 where that friction has no consistent
     solution (jammed). One friction solve: the other direction cannot start. ``coeffs``: see
-    :func:`frictional`."""
+    :func:`frictional`. With the static coefficients (``static_coefficient``), where elements
+    have them: they hold a mechanism at rest."""
     # the signs as an array of zeros (read at the state), as the output samples and the stick
     # segments pass them, so that these calls share one trace of _friction_start (~0.3 s of a
     # first call; the right-hand side traces its own region, _settled_field)
+    model = static_model(model)
     unset = jnp.zeros(len(frictions_of(model.loads)))
     f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset, coeffs=coeffs)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
@@ -472,8 +474,11 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0, i
     f = frictional(model, t, y, jnp.sign(y.omega), bridge, jnp.zeros(len(frictions)),
                    iterate=len(frictions) > SUMMED_TERMS if iterate is None else iterate)
     red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
-    at_rest = jnp.where(rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0, a, 0.0)
-    return jnp.where(y.omega != 0, a, at_rest), red, kin
+    if has_static(model.loads):  # at rest the static coefficients decide whether it starts
+        starts = rest_direction(*rest_analysis(model, t, y, bridge)[:2]) != 0
+    else:
+        starts = rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0
+    return jnp.where(y.omega != 0, a, jnp.where(starts, a, 0.0)), red, kin
 
 
 def near(model: Model, y: State) -> dict | None:

@@ -51,11 +51,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of, iteration_tolerance
+from .._friction import frictions_of, has_static, iteration_tolerance
 from .._jit import any_mapped, jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import FieldArgs, State, frictional, near, packed_vector_field, rest_analysis, start_kinematics
+from ._field import (FieldArgs, State, frictional, near, packed_vector_field, rest_analysis, rest_direction,
+                     start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
@@ -123,6 +124,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # unless user events are to be watched while it rests
     holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
     flat_model = not any_mapped(model)  # read here, outside the segments' loop (see _jit.any_mapped)
+    static = has_static(model.loads)
 
     def stuck_margins(t, y, args):
         """The break-away margin (> 0 while stuck), then the user events' margins."""
@@ -158,12 +160,18 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
-        start, y, previous, held, saved, filled, steps, result, event, failed, step, _ = carry
+        start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the only direction it can start in; unless the last segment found it held
         side, rates, slopes, coeffs = start_kinematics(model, start, y, settings.bridge)
         at_rest = y.omega == 0
-        go = jnp.where(at_rest, jnp.where(held, 0.0, side), jnp.sign(y.omega))
+        if static:  # static coefficients: they decide whether a rest holds, the kinetic ones the motion
+            # (not just after a located break-away, whose margin is 0 to the root finder's tolerance)
+            alpha_rest, side_rest = rest_analysis(model, start, y, settings.bridge, coeffs)[:2]
+            static_held = at_rest & ~broke & (rest_direction(alpha_rest, side_rest) == 0)
+        else:
+            static_held = jnp.asarray(False)
+        go = jnp.where(at_rest, jnp.where(held | static_held, 0.0, side), jnp.sign(y.omega))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
@@ -172,7 +180,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
-        run, args = segment(start, y._replace(friction_rates=start_rates), direction, signs, stuck, step, coeffs)
+        # held by the static coefficients with no stick segment to follow: a slip segment that
+        # does not move (direction 0), refused at its first step
+        run, args = segment(start, y._replace(friction_rates=start_rates), jnp.where(static_held, 0.0, direction), signs,
+                            stuck, step, coeffs)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -196,7 +207,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             segment_event, segment_result = lockup_found(segment_event, segment_result, ok_end)
         # a start from rest that did not start (its first step ended at rest, see LockupController):
         # the friction holds it, from here on
-        refused = at_rest & ~stuck & (segment_result == RESULTS.dt_min_reached) & (accepted == 0)
+        # (without stick segments a start is stuck only where the static coefficients hold it)
+        refused = at_rest & (~stuck if holds else True) & (segment_result == RESULTS.dt_min_reached) & (accepted == 0)
         segment_result = RESULTS.where(refused, RESULTS.successful, segment_result)
         end = jnp.where(refused, start, end)
         y_end = jax.tree.map(lambda z_end, z: jnp.where(refused, z, z_end), y_end, y._replace(friction_rates=start_rates))
@@ -223,7 +235,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         result = RESULTS.where(finished(result), segment_result, result)
         # the chunk's mean step (not a stick segment's: its steps follow the loads, not the motion)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
-        return end, y_next, direction, held, saved, filled, steps, result, event, failed, step, done
+        return end, y_next, direction, held, stuck & fired, saved, filled, steps, result, event, failed, step, done
 
     def cond(carry):
         return ~carry[-1]
@@ -231,12 +243,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
     packing = packing_of(y0, settings.adjoint, solver)
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
-    carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
+    carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
                                                                                   dtype=float), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
-    end, y_end, _, held, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
+    end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1

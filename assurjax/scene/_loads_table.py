@@ -154,13 +154,26 @@ def _motor(f, mechanism):
 def _joint_friction(f, mechanism):
     return _friction.JointFriction(f.string("joint"), f.number("coefficient", nonnegative=True),
                                    f.number("radius", nonnegative=True), viscous=f.number("viscous", 0.0, nonnegative=True),
-                                   smoothing=_smoothing(f))
+                                   smoothing=_smoothing(f), static_coefficient=_static(f))
 
 
 def _slide_friction(f, mechanism):
     return _friction.SlideFriction(f.string("pair"), f.number("coefficient", nonnegative=True),
                                    f.number("length", positive=True), viscous=f.number("viscous", 0.0, nonnegative=True),
-                                   smoothing=_smoothing(f))
+                                   smoothing=_smoothing(f), static_coefficient=_static(f))
+
+
+def _static(f):
+    """The static coefficient, where the entry gives one (None: the coefficient at rest too),
+    checked against the entry's other fields here, so that the error names the entry."""
+    if not f.has("static_coefficient"):
+        return None
+    static, kinetic = f.number("static_coefficient", nonnegative=True), f.number("coefficient", nonnegative=True)
+    if f.has("smoothing"):
+        f.fail("static_coefficient", "needs the exact law (no 'smoothing': a smoothed element holds nothing at rest)")
+    if static < kinetic:
+        f.fail("static_coefficient", f"must be at least the coefficient {kinetic:g}, got {static:g}")
+    return static
 
 
 def _smoothing(f):

@@ -1,0 +1,91 @@
+"""A static coefficient of friction (``static_coefficient``, mu_s >= mu): it holds a mechanism
+at rest and sets where it breaks away; the kinetic mu acts while it moves.
+
+Independent checks: closed forms of a rough arm (held at rest its pivot carries m g, so the
+static limit is mu_s r m g; at the break-away the kinetic law gives the acceleration's jump),
+the energy balance, and the same run without the static coefficient.
+"""
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+from scene_texts import ROUGH_ARM
+from test_friction import HANGING
+
+import assurjax as aj
+
+MASS, INERTIA, ARM, RADIUS, MU, G = 2.0, 0.015, 0.15, 0.04, 0.3, 9.81  # ROUGH_ARM's arm and pivot
+RAMP = 0.5  # N m/s: HANGING's drive k t
+PIVOT_INERTIA = INERTIA + MASS * ARM**2  # about O (its COM 0.15 m out)
+SWING = '[scene]\nname = "swing"\ngravity = [0.0, -9.81]\n[state]\nq0 = -1.5707963267948966\nomega0 = 3.0\nt1 = 1.5\n' + ROUGH_ARM
+
+
+def test_breakaway_at_the_static_limit_then_the_kinetic_law(write_scene):
+    """The hanging arm under a torque k t with mu_s = 0.45 > mu = 0.3: held (exactly) until
+    k t = mu_s r m g, then moving with the kinetic law, its acceleration jumping from 0 to the
+    root of J alpha = k t* - mu r m sqrt(g^2 + (alpha l)^2) (the pivot's reaction carries the
+    COM's tangential acceleration). The break-away band at rest is +-mu_s r m g."""
+    scene = aj.load_scene(write_scene(HANGING + "static_coefficient = 0.45\n"))
+    limit = 0.45 * RADIUS * MASS * G
+    t_star, eps = limit / RAMP, 1e-6
+    ts = np.array([0.0, 0.5 * t_star, t_star - eps, t_star + eps, 0.9])
+    sol = aj.simulate(scene, saveat=ts, stop=None, energies=True, rtol=1e-11, atol=1e-11)
+    assert sol.status.startswith("reached t1"), sol.status
+    assert np.all(sol.q[:3] == scene.state["q0"]) and np.all(sol.omega[:3] == 0.0)
+    jump = brentq(lambda a: PIVOT_INERTIA * a - (limit - MU * RADIUS * MASS * np.hypot(G, a * ARM)), 0.0, 100.0)
+    assert jump > 1.0  # (mu_s - mu) r m g / J: a jump the kinetic law alone would not make
+    np.testing.assert_allclose(sol.domega[3], jump, rtol=1e-4)
+    assert sol.q[4] > scene.state["q0"] + 1e-3
+    assert np.max(np.abs(sol.balance)) < 1e-9 * np.max(np.abs(sol.total))
+    lower, upper = aj.breakaway_band(scene, scene.state["q0"])
+    np.testing.assert_allclose([float(lower), float(upper)], [-limit, limit], rtol=1e-12)
+
+
+def test_a_swing_sticks_where_the_static_coefficient_holds_it(write_scene):
+    """The arm thrown up from hanging (3 rad/s) comes to rest at q*, where gravity's torque
+    m g l |cos q*| lies between the kinetic limit mu r m g and the static mu_s r m g
+    (mu_s = 2): it stays there for good (w exactly 0), where the kinetic law alone swings it
+    back. Up to the rest both runs are one motion (the kinetic law); the energy balance
+    closes; the reactions at rest put gravity's torque on the friction, with no drive."""
+    kinetic = aj.load_scene(write_scene(SWING, "kinetic.toml"))
+    static = aj.load_scene(write_scene(SWING + "static_coefficient = 2.0\n", "static.toml"))
+    ts = np.linspace(0.0, 1.5, 301)
+    runs = [aj.simulate(s, saveat=ts, stop=None, energies=True, rtol=1e-11, atol=1e-11) for s in (kinetic, static)]
+    for sol in runs:
+        assert sol.status.startswith("reached t1"), sol.status
+        assert np.max(np.abs(sol.balance)) < 1e-9 * np.max(np.abs(sol.total))
+    swinging, held = runs
+    rest = np.flatnonzero(held.omega == 0.0)
+    assert rest.size > 200 and np.all(np.diff(rest) == 1) and rest[-1] == ts.size - 1  # from its rest to t1
+    q_star = held.q[rest[0]]
+    assert np.all(held.q[rest] == q_star)
+    torque = MASS * G * ARM * abs(np.cos(q_star))
+    assert MU * RADIUS * MASS * G < torque <= 2.0 * RADIUS * MASS * G
+    before = ts < ts[rest[0]] - 1e-3
+    np.testing.assert_allclose(swinging.q[before], held.q[before], rtol=0, atol=1e-9)
+    assert np.any(swinging.omega[rest] < -0.1)  # the kinetic law alone: it swings back
+    r = aj.reactions(static, held)
+    np.testing.assert_allclose(np.asarray(r.driving)[rest], 0.0, atol=1e-10)
+    np.testing.assert_allclose(np.abs(np.asarray(r.friction["O"])[rest]), torque, rtol=1e-9)
+
+
+def test_static_coefficient_is_checked(write_scene):
+    """At least the kinetic coefficient, with the exact law only (a smoothed element holds
+    nothing at rest): errors that name the element, or the scene entry and field. The
+    command names the elements that have one (mu_s / mu)."""
+    with pytest.raises(aj.MechanismError, match="JointFriction 'A': static_coefficient must be at least the "
+                                                r"\(kinetic\) coefficient 0.2, got 0.1"):
+        aj.JointFriction("A", 0.2, 0.01, static_coefficient=0.1)
+    with pytest.raises(aj.MechanismError, match="SlideFriction 'block/ground': static_coefficient needs the exact law"):
+        aj.SlideFriction("block/ground", 0.2, 0.04, smoothing=0.01, static_coefficient=0.3)
+    with pytest.raises(aj.MechanismError, match="JointFriction: static_coefficient must be finite"):
+        aj.JointFriction("A", 0.2, 0.01, static_coefficient=float("inf"))
+    from assurjax.cli import _static_pairs
+
+    assert _static_pairs(aj.load_scene(write_scene(HANGING + "static_coefficient = 0.45\n", "ok.toml"))) == ["O 0.45 / 0.3"]
+    entry = r"\[\[loads\]\] #2 \(joint_friction\), field 'static_coefficient': "
+    for extra, problem in (("static_coefficient = 0.2\n", "must be at least the coefficient 0.3, got 0.2"),
+                           ("static_coefficient = 0.5\nsmoothing = 0.1\n", "needs the exact law"),
+                           ("static_coefficient = -1\n", "must be non-negative, got -1")):
+        with pytest.raises(aj.SceneError, match=entry + problem):
+            aj.load_scene(write_scene(HANGING + extra, "bad.toml"))
