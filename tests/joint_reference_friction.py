@@ -61,14 +61,16 @@ at an event:
   little further along the motion).  If exactly one s gives ``s * a_s > 0`` the motion (re)starts
   that way; if none does the mechanism *sticks* (w = dw/dt = 0 exactly); if both do the
   problem is ambiguous and a RuntimeError is raised.  The same test decides a start from rest.
+  It reads every Coulomb load with the joint's static coefficient (``Friction.static``, mu when
+  none); the motion that starts has the kinetic mu.
 * While stuck, the break-away function ``b(t) = max_s s * a_s(t)`` (which changes only through
   a time-dependent driver effort) is scanned on a grid of step ``scan`` and its first root is
   located by ``scipy.optimize.brentq`` (to ~1e-14 s); the motion restarts from rest there in the
   direction that breaks away.
 
 While stuck the individual joint friction loads are statically indeterminate; this reference
-reports the kinetic pattern of the impending direction (the one the frictionless acceleration
-points to) scaled by one common factor alpha in [0, 1] chosen so that dw/dt = 0 (alpha = 0 when
+reports the pattern of the impending direction (the one the frictionless acceleration points
+to; static coefficients) scaled by one common factor alpha in [0, 1] chosen so that dw/dt = 0 (alpha = 0 when
 the frictionless acceleration is zero).
 
 Work quadratures (integrated with the motion; constant while stuck):
@@ -117,11 +119,13 @@ def _slip_signs(G, zd):
 class Friction:
     """Friction of one joint (SI).  mu: Coulomb coefficient; radius: friction-circle radius of
     a revolute [m]; length: block length of a prismatic pair [m] (needed when mu > 0);
-    damping: viscous coefficient [N m s/rad] (revolute) or [N s/m] (prismatic)."""
+    damping: viscous coefficient [N m s/rad] (revolute) or [N s/m] (prismatic); static: the
+    coefficient at rest (whether it starts, when it breaks away, what holds it), None: mu."""
     mu: float = 0.0
     radius: float = 0.0
     length: float = 0.0
     damping: float = 0.0
+    static: float | None = None
 
 
 def _zero_effort(t, q, w):
@@ -145,7 +149,7 @@ class FrictionSystem(jr.System):
             raise ValueError(f"friction given for unknown joints {sorted(unknown)}; joints are {names}")
         self.friction = friction
         # one entry per joint carrying friction: (joint index, multiplier row, is prismatic, axis)
-        self._fr, mu, rad, length, damping = [], [], [], [], []
+        self._fr, mu, rad, length, damping, rest = [], [], [], [], [], []
         for k, jt in enumerate(self.joints):
             fr = friction.get(jt.name)
             if fr is None or (fr.mu == 0.0 and fr.damping == 0.0):
@@ -160,11 +164,13 @@ class FrictionSystem(jr.System):
                 axis = np.asarray(jt.axis_i, float) / np.linalg.norm(jt.axis_i)
             self._fr.append((k, 2 * k, prism, axis))
             mu.append(fr.mu)
+            rest.append(1.0 if fr.static is None or fr.mu == 0.0 else fr.static / fr.mu)
             rad.append(fr.radius)
             length.append(fr.length)
             damping.append(fr.damping)
         self.friction_joints = [self.joints[k].name for k, *_ in self._fr]
         self._mu, self._radius = np.array(mu, float), np.array(rad, float)
+        self._rest_scale = np.array(rest, float)  # the Coulomb loads at rest: static / kinetic coefficient
         self._length, self._damping = np.array(length, float), np.array(damping, float)
 
     # -- friction geometry ----------------------------------------------------------------
@@ -295,12 +301,13 @@ class FrictionSystem(jr.System):
         out.update(wdot=Jf[-1] @ zdd - gam[-1], zd=zd, zdd=zdd)
         return out
 
-    def inverse(self, z, w, wdot, zq=None, direction=None, signs=None):
+    def inverse(self, z, w, wdot, zq=None, direction=None, signs=None, scale=1.0):
         """Inverse dynamics with friction at an assembled z: the driver effort tau and the
         multipliers producing (w, wdot).  Coulomb signs: ``signs`` if given, else sign(u_f) when
         w != 0; at w == 0 those of motion starting in ``direction`` (default sign(wdot)); at
         w == wdot == 0 without direction, no Coulomb friction (the static effort is then any
-        value in holding_range).  Returns the forward dict plus tau."""
+        value in holding_range).  scale multiplies the Coulomb loads.  Returns the forward dict
+        plus tau."""
         zq = self.influence(z) if zq is None else zq
         zd = zq * w
         _, Jf, gam = self._full(z, zd)
@@ -317,21 +324,23 @@ class FrictionSystem(jr.System):
         signs = np.asarray(signs, float)
         # M zdd + Phi_z^T lam = Q0 + tau D_z^T + friction  <=>  Jf^T [lam; -tau] = rhs
         rhs = Q0 - G.T @ (self._damping * u) - self.Mdiag * zdd
-        y = self._solve_with_friction(Jf.T, rhs, slice(0, self.m), G, self._mu * signs)
+        y = self._solve_with_friction(Jf.T, rhs, slice(0, self.m), G, scale * self._mu * signs)
         lam, tau = y[:-1], -y[-1]
-        out = self._loads(z, zd, lam, G, signs, 1.0, tau * w, p_dampers)
+        out = self._loads(z, zd, lam, G, signs, scale, tau * w, p_dampers)
         out.update(tau=tau, wdot=wdot, zd=zd, zdd=zdd)
         return out
 
     def holding_range(self, z, zq=None):
         """(tau_minus, tau_plus): driver efforts at which the mechanism at rest at z is on the
         verge of moving in the -/+ direction (inverse dynamics at w = dw/dt = 0 with the Coulomb
-        signs of that direction).  It is held at rest for tau_minus <= tau <= tau_plus."""
-        return tuple(self.inverse(z, 0.0, 0.0, zq, direction=s)["tau"] for s in (-1, 1))
+        signs of that direction, the coefficients at rest).  It is held at rest for
+        tau_minus <= tau <= tau_plus."""
+        return tuple(self.inverse(z, 0.0, 0.0, zq, direction=s, scale=self._rest_scale)["tau"] for s in (-1, 1))
 
     def _start_accelerations(self, z, zq, tau):
-        """{s: acceleration with w = 0 and the Coulomb signs of motion in direction s}."""
-        return {s: self.forward(z, 0.0, tau, zq, signs=s * self.rate_signs(z, zq, s))["wdot"]
+        """{s: acceleration with w = 0 and the Coulomb signs of motion in direction s, with the
+        coefficients at rest (whether it starts is decided by them)}."""
+        return {s: self.forward(z, 0.0, tau, zq, signs=s * self.rate_signs(z, zq, s), scale=self._rest_scale)["wdot"]
                 for s in (1, -1)}
 
     def start_direction(self, z, zq, tau):
@@ -354,12 +363,12 @@ class FrictionSystem(jr.System):
             return free
         signs = s * self.rate_signs(z, zq, s)
         def wdot(a):
-            return self.forward(z, 0.0, tau, zq, signs, a)["wdot"]
+            return self.forward(z, 0.0, tau, zq, signs, a * self._rest_scale)["wdot"]
 
-        # at a break-away instant the full kinetic pattern is (to rounding) just enough
+        # at a break-away instant the full pattern at rest is (to rounding) just enough
         alpha = 1.0 if s * wdot(1.0) >= 0.0 else brentq(wdot, 0.0, 1.0, xtol=1e-15,
                                                         rtol=4 * np.finfo(float).eps)
-        out = self.forward(z, 0.0, tau, zq, signs, alpha)
+        out = self.forward(z, 0.0, tau, zq, signs, alpha * self._rest_scale)
         out.update(alpha=alpha)
         return out
 
