@@ -139,3 +139,31 @@ def test_agrees_with_the_joint_based_reference(case):
     np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])
     assert expected.stuck[1:].any()
     assert np.max(np.abs(sol.balance)) < 1e-7 * np.max(np.abs(sol.total))
+
+
+@pytest.mark.slow  # reverse and forward mode through stick segments and a batch: ~1.5 min of compiles
+def test_derivative_in_the_static_coefficient_and_a_batch(write_scene):
+    """d q(0.9 s) / d mu_s of the hanging arm under k t (mu_s sets the located break-away,
+    t* = mu_s r m g / k) in reverse and forward mode against central differences; and a batch
+    of swings thrown at three speeds, each held where it first rests, as its single run."""
+    import jax
+    import jax.numpy as jnp
+
+    scene = aj.load_scene(write_scene(HANGING))
+    ramp = tuple(load for load in scene.loads if isinstance(load, aj.Drive))
+
+    def q_at(mu_s, adjoint="recursive"):
+        rough = scene.with_loads(ramp + (aj.JointFriction("O", MU, RADIUS, static_coefficient=mu_s),))
+        return aj.synthesis.final_state(rough, 0.9, rtol=1e-11, atol=1e-11, adjoint=adjoint)[0]
+
+    h = 1e-6
+    fd = (q_at(jnp.asarray(0.45 + h)) - q_at(jnp.asarray(0.45 - h))) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(q_at)(jnp.asarray(0.45))), float(fd), rtol=1e-6)
+    np.testing.assert_allclose(float(jax.jacfwd(lambda m: q_at(m, "forward"))(jnp.asarray(0.45))), float(fd), rtol=1e-6)
+    swing = aj.load_scene(write_scene(SWING + "static_coefficient = 2.0\n", "swing.toml"))
+    speeds = [2.0, 3.0, 4.0]
+    batch = aj.simulate(swing, omega0=jnp.array(speeds), stop=None, rtol=1e-10, atol=1e-10)
+    for k, w0 in enumerate(speeds):
+        one = aj.simulate(swing, omega0=w0, stop=None, rtol=1e-10, atol=1e-10)
+        assert one.omega[-1] == 0.0 and batch.omega[k][-1] == 0.0
+        np.testing.assert_allclose(batch.q[k], one.q, rtol=0, atol=1e-9)
