@@ -265,11 +265,11 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     if not frictions_of(model.loads):
         return from_kinematics(model, kin, t, method=method, groups=groups)
     moving = _both_ways(model, coeffs, kin, omega, t, method, groups)
-    # held: the limits of the static coefficients, where elements have them
+    # held at rest: between the limits of the static coefficients, where elements have them
     limits = _both_ways(static_model(model), coeffs, kin, omega, t, method, groups) if has_static(model.loads) else moving
-    driving = limits[3][2]
-    width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
-    share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
+    band = limits[3][2]
+    width = band[1] - band[0]  # <= 0: the band [tau_minus, tau_plus] holds it
+    share = jnp.clip(band[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
 
     def pick(x, at_limits):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
@@ -279,11 +279,10 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     def pick_flag(x, at_limits):  # moving: that direction's; held: both limits'
         return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], at_limits[0] & at_limits[1]))
 
-    (us, rates, consistent, (forces, couples, driving, ok)), held = moving, limits
-    u = pick(us, held[0])
-    found = (jax.tree.map(pick, forces, held[3][0]), jax.tree.map(pick, couples, held[3][1]), pick(driving, held[3][2]),
-             pick_flag(ok, held[3][3]))
-    return found + (u, rates, pick_flag(consistent, held[2])) if friction else found
+    us, rates, consistent, (forces, couples, driving, ok) = moving
+    found = (jax.tree.map(pick, forces, limits[3][0]), jax.tree.map(pick, couples, limits[3][1]), pick(driving, band),
+             pick_flag(ok, limits[3][3]))
+    return found + (pick(us, limits[0]), rates, pick_flag(consistent, limits[2])) if friction else found
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,
