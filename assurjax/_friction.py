@@ -313,28 +313,27 @@ def smoothed_only(frictions) -> bool:
     return bool(frictions) and all(f.smoothing is not None for f in frictions)
 
 
-def static_loads(loads) -> tuple:
-    """The loads with each friction element's coefficient its static one, where it has one
-    (``static_coefficient``): the law of a mechanism at rest, which decides whether it sticks
-    and when it breaks away (the kinetic coefficient, of the motion, is then not read). The
-    same tuple where no element has one."""
-    if not has_static(loads):
-        return loads
-    return tuple(eqx.tree_at(lambda f: f.coefficient, load, load.static_coefficient)
-                 if getattr(load, "static_coefficient", None) is not None else load for load in loads)
-
-
 def has_static(loads) -> bool:
     """Whether some friction element has a static coefficient of its own."""
     return any(getattr(load, "static_coefficient", None) is not None for load in loads)
 
 
-def static_model(model):
-    """The model (a :class:`assurjax.Model`) with the law of a mechanism at rest (see
-    :func:`static_loads`); the same model where no element has a static coefficient."""
+def static_model(model, held=True):
+    """The model (a :class:`assurjax.Model`) with the law of a mechanism at rest: each
+    friction element's coefficient its static one (``static_coefficient``), where it has one.
+    That law decides whether a mechanism sticks and when it breaks away. ``held``: a flag
+    (traced or not) telling where the state is at rest: the static coefficients there, the
+    kinetic ones elsewhere. The same model where no element has a static coefficient."""
     if not has_static(model.loads):
         return model
-    return eqx.tree_at(lambda m: m.loads, model, static_loads(model.loads))
+
+    def at_rest(load):
+        if getattr(load, "static_coefficient", None) is None:
+            return load
+        coefficient = load.static_coefficient if held is True else jnp.where(held, load.static_coefficient, load.coefficient)
+        return eqx.tree_at(lambda f: f.coefficient, load, coefficient)
+
+    return eqx.tree_at(lambda m: m.loads, model, tuple(at_rest(load) for load in model.loads))
 
 
 def coulomb_signs(frictions, rates, omega, exact):

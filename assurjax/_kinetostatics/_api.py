@@ -16,7 +16,7 @@ from .._values import check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
-from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, has_static, linearize_reactions,
+from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
                          solve_friction, static_model, states_per_call)
 from .._loads import AbstractLoad, Drive, applied_wrenches
 from .._mechanism import Mechanism
@@ -264,25 +264,23 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     kin = coeffs.kinematics(omega, alpha)
     if not frictions_of(model.loads):
         return from_kinematics(model, kin, t, method=method, groups=groups)
-    moving = _both_ways(model, coeffs, kin, omega, t, method, groups)
-    # held at rest: between the limits of the static coefficients, where elements have them
-    limits = _both_ways(static_model(model), coeffs, kin, omega, t, method, groups) if has_static(model.loads) else moving
-    band = limits[3][2]
-    width = band[1] - band[0]  # <= 0: the band [tau_minus, tau_plus] holds it
-    share = jnp.clip(band[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
+    # held at rest (direction 0): the limits of the static coefficients, where elements have them
+    us, rates, consistent, (forces, couples, driving, ok) = _both_ways(static_model(model, direction == 0), coeffs, kin,
+                                                                       omega, t, method, groups)
+    width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
+    share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
 
-    def pick(x, at_limits):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
-        held = share * at_limits[0] + (1.0 - share) * at_limits[1]
+    def pick(x):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
+        held = share * x[0] + (1.0 - share) * x[1]
         return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], held))
 
-    def pick_flag(x, at_limits):  # moving: that direction's; held: both limits'
-        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], at_limits[0] & at_limits[1]))
+    def pick_flag(x):  # moving: that direction's; held: both limits'
+        return jnp.where(direction > 0, x[0], jnp.where(direction < 0, x[1], x[0] & x[1]))
 
-    us, rates, consistent, (forces, couples, driving, ok) = moving
-    found = (jax.tree.map(pick, forces, limits[3][0]), jax.tree.map(pick, couples, limits[3][1]), pick(driving, band),
-             pick_flag(ok, limits[3][3]))
-    return found + (pick(us, limits[0]), rates, pick_flag(consistent, limits[2])) if friction else found
+    u = pick(us)
+    found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving), pick_flag(ok))
+    return found + (u, rates, pick_flag(consistent)) if friction else found
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,

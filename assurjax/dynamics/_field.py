@@ -474,8 +474,9 @@ def acceleration_and_reduction(model: Model, t, y: State, bridge: float = 0.0, i
     f = frictional(model, t, y, jnp.sign(y.omega), bridge, jnp.zeros(len(frictions)),
                    iterate=len(frictions) > SUMMED_TERMS if iterate is None else iterate)
     red, kin, a, consistent = f.red, f.kin, f.alpha, f.consistent
-    if has_static(model.loads):  # at rest the static coefficients decide whether it starts
-        starts = rest_direction(*rest_analysis(model, t, y, bridge)[:2]) != 0
+    if has_static(model.loads):  # at rest the static coefficients decide whether it starts (solved only there)
+        starts = jax.lax.cond(eqxi.unvmap_any(y.omega == 0), lambda: rest_direction(*rest_analysis(model, t, y, bridge)[:2]) != 0,
+                              lambda: jnp.asarray(True))
     else:
         starts = rest_direction(jnp.where(consistent, a, 0.0), rest_side(red.force)) != 0
     return jnp.where(y.omega != 0, a, jnp.where(starts, a, 0.0)), red, kin

@@ -165,12 +165,16 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # break-away) the only direction it can start in; unless the last segment found it held
         side, rates, slopes, coeffs = start_kinematics(model, start, y, settings.bridge)
         at_rest = y.omega == 0
+        static_held = jnp.asarray(False)
         if static:  # static coefficients: they decide whether a rest holds, the kinetic ones the motion
-            # (not just after a located break-away, whose margin is 0 to the root finder's tolerance)
-            alpha_rest, side_rest = rest_analysis(model, start, y, settings.bridge, coeffs)[:2]
-            static_held = at_rest & ~broke & (rest_direction(alpha_rest, side_rest) == 0)
-        else:
-            static_held = jnp.asarray(False)
+            # (not just after a located break-away, whose margin is 0 to the root finder's tolerance);
+            # solved only where some member rests (a segment from a switch of a Coulomb sign moves)
+            tested = at_rest & ~broke
+
+            def holds_at_rest():
+                return rest_direction(*rest_analysis(model, start, y, settings.bridge, coeffs)[:2]) == 0
+
+            static_held = tested & jax.lax.cond(eqxi.unvmap_any(tested), holds_at_rest, lambda: jnp.asarray(False))
         go = jnp.where(at_rest, jnp.where(held | static_held, 0.0, side), jnp.sign(y.omega))
         direction, stuck = jnp.where(go != 0, go, previous), go == 0
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
