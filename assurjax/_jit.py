@@ -209,6 +209,23 @@ def combine(arrays, rest: Static):
     return eqx.combine(arrays, rest.tree)
 
 
+def moved_leaves(primals, tangents) -> tuple:
+    """For a custom jvp rule (``equinox.filter_custom_jvp``, whose tangents are None where
+    nothing moves): (the leaves of ``primals`` that move, their tangents, ``rebuild``:
+    those leaves' values -> ``primals`` with them in place), for ``jax.jvp`` over them alone."""
+    leaves, treedef = jax.tree.flatten(primals)
+    leaf_tangents = treedef.flatten_up_to(tangents)
+    moved = [k for k, tangent in enumerate(leaf_tangents) if tangent is not None]
+
+    def rebuild(values):
+        at = list(leaves)
+        for k, value in zip(moved, values):
+            at[k] = value
+        return jax.tree.unflatten(treedef, at)
+
+    return tuple(leaves[k] for k in moved), tuple(leaf_tangents[k] for k in moved), rebuild
+
+
 class FlatLayout:
     """Where :func:`flattened_floats` put a pytree's parts: per array leaf (the flat array
     it went into, its shape), or None where it stays apart; and the rest (a :class:`Static`).

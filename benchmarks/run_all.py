@@ -37,6 +37,7 @@ BENCHMARKS = {
     "step_calls": ("bench_step_calls.py", []),
     "step_instructions": ("bench_step_instructions.py", []),
     "friction_precision": ("bench_friction_precision.py", ["--quick"]),
+    "friction_gradients": ("bench_friction_gradients.py", ["--quick"]),
     "fast_loops": ("bench_fast_loops.py", []),
     "synthesis": ("bench_synthesis.py", ["--quick"]),
     "iterative": ("bench_iterative.py", ["--n", "10000", "--repeats", "2"]),

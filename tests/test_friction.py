@@ -7,6 +7,7 @@ self-locking, and central differences for the gradient in mu; and the joint-base
 with Coulomb friction (tests/joint_reference_friction.py) on four mechanisms.
 """
 
+import functools
 import math
 
 import equinox as eqx
@@ -910,6 +911,46 @@ def test_acceleration_gradient_in_mu_against_differences(slider, iterate):
 # mu = 5 on pin A and on a 5 mm slider block, none elsewhere: the structure of frictions() (run()'s program)
 STRONG = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS), aj.JointFriction("B", 0.0, RADIUS),
           aj.SlideFriction("slider/ground", 5.0, 0.005))
+
+
+def test_vector_field_derivative_in_mu_against_differences(slider):
+    """The vector field's d(dw/dt)/d(scale of every mu), reverse and forward mode, against
+    central differences: with moderate friction (the iteration settles) and with STRONG's at
+    the state where Newton's method from the law's start lands on a root that is not
+    consistent, so the field takes its fallback and the continuation in mu. Differentiated,
+    the field is one path whose friction values take their derivative from the implicit
+    function theorem (whichever solver found them): its values are the field's own."""
+    from assurjax.dynamics._field import State, _settled_field, field_args, vector_field
+
+    def scaled(loads, s):
+        return tuple(eqx.tree_at(lambda f: f.coefficient, f, s * f.coefficient) for f in loads)
+
+    def alpha(s, q, w, strong):
+        loads = scaled(STRONG, s) if strong else frictions(slider.mechanism, s * 0.5)
+        model = aj.Model(slider.mechanism, slider.gravity, tuple(slider.loads) + loads)
+        return vector_field(0.0, State(q, w), field_args(model, direction=jnp.sign(w))).omega
+
+    h = 1e-6
+
+    @functools.partial(jax.jit, static_argnums=3)
+    def derivatives(s, q, w, strong):
+        value = alpha(s, q, w, strong)
+        fd = (alpha(s + h, q, w, strong) - alpha(s - h, q, w, strong)) / (2 * h)
+        reverse_value, reverse = jax.value_and_grad(alpha)(s, q, w, strong)
+        return value, reverse_value, fd, reverse, jax.jacfwd(alpha)(s, q, w, strong)
+
+    def settled(q, w, strong):  # whether the field's iteration settles there (else its fallback runs)
+        loads = STRONG if strong else frictions(slider.mechanism, 0.5)
+        args = field_args(aj.Model(slider.mechanism, slider.gravity, tuple(slider.loads) + loads), direction=jnp.sign(w))
+        return bool(_settled_field(0.0, State(jnp.asarray(q), jnp.asarray(w)), args)[2].fixed.settled)
+
+    for (q, w), strong in (((1.2, -1.5), False), ((2.5, 3.0), False), ((0.5067189849544655, 4.6), True)):
+        assert settled(q, w, strong) != strong
+        value, reverse_value, fd, reverse, forward = (float(v) for v in derivatives(1.0, q, w, strong))
+        assert math.isfinite(value) and abs(fd) > 1.0, (value, fd)  # consistent, and the friction acts
+        assert abs(reverse_value - value) <= 1e-12 * abs(value)
+        np.testing.assert_allclose(reverse, fd, rtol=1e-7)  # differences: ~1e-12 / h
+        np.testing.assert_allclose(forward, fd, rtol=1e-7)
 
 
 def _strong_reference(omega0, continuation):

@@ -25,10 +25,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction,
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction_implicit,
                          friction_wrenches, frictions_of, has_static, iterate_friction, linearize_reactions,
                          smoothed_only, solve_friction, stacked_rate_terms, static_model, without_roundoff)
-from .._jit import FlatLayout, flattened_floats, jit, region
+from .._jit import FlatLayout, flattened_floats, jit, moved_leaves, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
 from .._loads import dissipated_power
@@ -100,12 +100,23 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
     if args.table is not None:
         y = packing.unpack(z)
         return packing.pack(State(y.omega, args.table.acceleration(y.q, y.omega)))
-    # the model as flat arrays, not the rest of args: a batch over starts has per-member
-    # values there (q0, direction), which would make the flat arrays, the model in them,
-    # per member (10 000 vmapped Watt six-bars 2.7 -> 4.3 s with all of args flattened)
-    invariant = (*flattened_floats(args.model, args.flat_model), dataclasses.replace(args, model=None))
     if not frictions_of(args.model.loads):
-        return _field(t, z, *invariant, packing)
+        return _field(t, z, *_invariant(args), packing)
+    return _friction_field(t, z, args, packing=packing)
+
+
+def _invariant(args: FieldArgs) -> tuple:
+    """What the field's regions take besides (t, z): the model as flat arrays, then the rest
+    of args. Not args whole: a batch over starts has per-member values there (q0, direction),
+    which would make the flat arrays, the model in them, per member (10 000 vmapped Watt
+    six-bars 2.7 -> 4.3 s with all of args flattened)."""
+    return (*flattened_floats(args.model, args.flat_model), dataclasses.replace(args, model=None))
+
+
+@eqx.filter_custom_jvp
+def _friction_field(t, z, args: FieldArgs, *, packing):
+    """:func:`packed_vector_field` with joint friction; differentiated as :func:`_implicit_field`."""
+    invariant = _invariant(args)
     # with friction: the field with the iteration's root, where it is settled; else, rarely,
     # again with the solve's fallback (outside the region, see _friction_start). As a region
     # the field hands back only its rates, and the fallback redoes the analysis: a region's
@@ -123,6 +134,33 @@ def packed_vector_field(t, z, args: FieldArgs, packing):
     rates, at, start = _settled_field(t, y, args)
     return packing.pack(jax.lax.cond(eqxi.unvmap_any(~start.fixed.settled),
                                      lambda: _field_from(t, y, args, at, start), lambda: rates))
+
+
+@_friction_field.def_jvp
+def _friction_field_jvp(primals, tangents, *, packing):
+    """The field's derivative: that of :func:`_implicit_field`, one path whose friction values
+    take their derivatives from the implicit function theorem. Through the field as it runs
+    (the iteration's region, then a cond whose other branch redoes the whole analysis with
+    Newton's method) reverse mode kept both branches at every stage (see
+    ``_friction._implicit_root``)."""
+    values, value_tangents, rebuild = moved_leaves(primals, tangents)
+
+    def field(*values):
+        t, z, args = rebuild(values)
+        return packing.pack(_implicit_field(t, packing.unpack(z), args))
+
+    return jax.jvp(field, values, value_tangents)
+
+
+def _implicit_field(t, y: State, args: FieldArgs) -> State:
+    """The friction field as one path: the analysis, then the friction values from
+    ``_friction.solve_friction`` (the values of the field's own solve, their derivatives by
+    the implicit function theorem)."""
+    at = _evaluated_at(y, args)
+    model = args.model
+    start = _start(model, t, at, args.direction, kinematic_coefficients(model, at, args.bridge), args.rate_signs, True,
+                   args.friction_tolerance, implicit=True)
+    return _checked(y, args, *_rates(t, at, args, _finish(model, at, start)))
 
 
 @region
@@ -299,7 +337,7 @@ class _Start(NamedTuple):
 
 
 def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bool,
-           tolerance: float = FIXED_POINT_TOLERANCE) -> _Start:
+           tolerance: float = FIXED_POINT_TOLERANCE, implicit: bool = False) -> _Start:
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     # the coefficients as whole arrays: their many readers (the reduction, the rates, the
     # statics) would otherwise make XLA compute each point apart (Watt six-bar RHS 4.2 -> 3.8 us)
@@ -313,8 +351,9 @@ def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bo
     alpha0 = _acceleration(red, rates, jnp.zeros(len(frictions)), y.omega)
     linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha0, rates / red.inertia)
     signs = coulomb_signs(frictions, rates, y.omega, signs * direction)
-    if not iterate:
-        solved = solve_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial, iterate=False)
+    if implicit or not iterate:  # solved whole: Newton's method alone, or the iteration and its fallback
+        solved = solve_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial,
+                                iterate=iterate, tolerance=tolerance)
         return _Start(red, kin, rates, slopes, raw_slopes, linear, inertial, signs, None, solved)
     fixed = iterate_friction(mechanism, frictions, linear, kin, rates, signs, y.omega, inertial=inertial,
                              tolerance=tolerance)
@@ -325,8 +364,8 @@ def _finish(model: Model, y: State, start: _Start) -> Frictional:
     if start.fixed is None:
         u, ok = start.solved
     else:
-        u, ok = finish_friction(model.mechanism, frictions_of(model.loads), start.linear, start.kin, start.rates,
-                                start.signs, y.omega, start.fixed, inertial=start.inertial)
+        u, ok = finish_friction_implicit(model.mechanism, frictions_of(model.loads), start.linear, start.kin,
+                                         start.rates, start.signs, y.omega, start.fixed, inertial=start.inertial)
     return _assembled(start, u, ok, y)
 
 
