@@ -310,8 +310,10 @@ def _routed(model: Model, options: SensitivityOptions) -> Model:
         raise AssurjaxError(f"joint friction: the forward-sensitivity routes (adjoint='quadrature' or 'sensitivity') do "
                             f"not carry the exact law's Coulomb signs (stick and slip), which {len(exact)} element(s) "
                             f"have (the first: '{exact[0]}', no smoothing); use "
-                            "adjoint='recursive' (derivatives through the simulation itself), or the regularized law "
-                            "(smoothing=...) in every element with adjoint='sensitivity'")
+                            "adjoint='recursive' (reverse mode through the simulation itself), adjoint='forward' "
+                            "(forward mode through it: jax.jvp / jax.jacfwd, the quicker to compile for a few "
+                            "parameters), or the regularized law (smoothing=...) in every element with "
+                            "adjoint='sensitivity'")
     if options.method != "loop":
         raise AssurjaxError("joint friction with the regularized law: adjoint='quadrature' (method 'quadrature') does "
                             "not resolve its steep turns near a rest in time (its derivatives were wrong by up to 50 %); "
