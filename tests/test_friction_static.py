@@ -83,10 +83,12 @@ def test_static_coefficient_is_checked(write_scene):
     from assurjax.cli import _static_pairs
 
     assert _static_pairs(aj.load_scene(write_scene(HANGING + "static_coefficient = 0.45\n", "ok.toml"))) == ["O 0.45 / 0.3"]
-    entry = r"\[\[loads\]\] #2 \(joint_friction\), field 'static_coefficient': "
-    for extra, problem in (("static_coefficient = 0.2\n", "must be at least the coefficient 0.3, got 0.2"),
-                           ("static_coefficient = 0.5\nsmoothing = 0.1\n", "needs the exact law"),
-                           ("static_coefficient = -1\n", "must be non-negative, got -1")):
+    entry = r"\[\[loads\]\] #2 \(joint_friction\)"
+    for extra, problem in (("static_coefficient = 0.2\n", r": JointFriction 'O': static_coefficient must be at least the "
+                                                          r"\(kinetic\) coefficient 0.3, got 0.2"),
+                           ("static_coefficient = 0.5\nsmoothing = 0.1\n", ": JointFriction 'O': static_coefficient needs "
+                                                                         "the exact law"),
+                           ("static_coefficient = -1\n", ", field 'static_coefficient': must be non-negative, got -1")):
         with pytest.raises(aj.SceneError, match=entry + problem):
             aj.load_scene(write_scene(HANGING + extra, "bad.toml"))
 

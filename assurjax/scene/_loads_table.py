@@ -164,16 +164,9 @@ def _slide_friction(f, mechanism):
 
 
 def _static(f):
-    """The static coefficient, where the entry gives one (None: the coefficient at rest too),
-    checked against the entry's other fields here, so that the error names the entry."""
-    if not f.has("static_coefficient"):
-        return None
-    static, kinetic = f.number("static_coefficient", nonnegative=True), f.number("coefficient", nonnegative=True)
-    if f.has("smoothing"):
-        f.fail("static_coefficient", "needs the exact law (no 'smoothing': a smoothed element holds nothing at rest)")
-    if static < kinetic:
-        f.fail("static_coefficient", f"must be at least the coefficient {kinetic:g}, got {static:g}")
-    return static
+    """The static coefficient, where the entry gives one (None: the coefficient at rest too);
+    the element checks it against mu and the law (its error named by the entry, parse_loads)."""
+    return f.number("static_coefficient", nonnegative=True) if f.has("static_coefficient") else None
 
 
 def _smoothing(f):
@@ -206,9 +199,9 @@ def parse_loads(raw, mechanism: Mechanism, source: str) -> tuple:
             raise SceneError(f"{source}: {where}, field 'type': unknown load type {kind!r} (known: {', '.join(PARSERS)})")
         f = Fields(table, f"{where} ({kind})", source)
         f.raw("type")
-        load = PARSERS[kind](f, mechanism)
-        f.reject_unknown()
-        try:
+        try:  # the load's own checks (its constructor's, and against the mechanism), named by the entry
+            load = PARSERS[kind](f, mechanism)
+            f.reject_unknown()
             load.check(mechanism)
         except MechanismError as e:
             raise SceneError(f"{source}: {where} ({kind}): {e}") from None
