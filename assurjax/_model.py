@@ -11,7 +11,7 @@ from jaxtyping import Array
 from ._errors import AssurjaxError
 from ._loads import check_loads
 from ._mechanism import Mechanism
-from ._values import check_value
+from ._values import check_value, concrete
 
 
 class Model(eqx.Module):
@@ -67,6 +67,26 @@ def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=
         base.gravity if gravity is None else gravity,
         base.loads if loads is None else loads,
     )
+
+
+def check_has_inertia(mechanism: Mechanism) -> None:
+    """Raise :class:`AssurjaxError` where no link has mass or moment of inertia (in any
+    member of a batch of mechanisms): the reduced inertia is then zero, and the equation of
+    motion has no solution. Forward dynamics needs this; kinematics and statics do not.
+    Traced values are not checked."""
+    total = 0.0
+    for link in mechanism.links.values():
+        mass, inertia = concrete(link.mass), concrete(link.inertia)
+        if mass is None or inertia is None:
+            return
+        total = total + np.abs(mass) + np.abs(inertia)
+    empty = np.flatnonzero(np.ravel(total) == 0.0)
+    if empty.size:
+        member = f" (batch member {int(empty[0])})" if np.ndim(total) else ""
+        raise AssurjaxError(f"mechanism '{mechanism.name}'{member}: no link has a mass or a moment of inertia, so its "
+                            "reduced inertia is zero and its motion is undetermined; give the links masses (in a "
+                            "sketch's link table: mass, inertia or density; in a scene file: [links.NAME] mass = ...). "
+                            "Kinematics and statics need none.")
 
 
 def _scene_class():

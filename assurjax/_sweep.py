@@ -39,6 +39,7 @@ from ._errors import AssurjaxError
 from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
+from ._model import check_has_inertia
 from ._values import check_values
 
 BATCH_AXIS = "batch"
@@ -343,6 +344,7 @@ def batch_simulate(
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
     check_single_start(q0, omega0, t0, t1)
+    check_has_inertia(mechanisms)
     options = settings_from(scene, **settings)
     options = options._replace(reduction="exact") if options.reduction == "auto" else options
     options = batch_settings(options, scene.loads)

@@ -127,6 +127,10 @@ def cmd_validate(args) -> int:
     print(f"  formation: {' -> '.join(f'{g.name} ({g.kind})' for g in mech.groups)}")
     print(f"  loads: {len(scene.loads)}, gravity: {np.asarray(scene.gravity).tolist()} m/s^2")
     print(f"  assembles at q0 = {scene.state['q0']:.6g} ({len(pose.points)} points)")
+    for note in scene.notes:
+        print(f"  note: {note}")
+    if not any(float(np.max(np.abs(link.mass))) or float(np.max(np.abs(link.inertia))) for link in mech.links.values()):
+        print("  note: no link has a mass or a moment of inertia: kinematics and statics only (`run` needs masses)")
     from assurjax.structure import assembly_report
 
     lo, hi = _sweep_range(scene, None, None)
@@ -591,6 +595,8 @@ def cmd_run(args) -> int:
     steps = 4 + (not args.no_animation)
     with _progress(steps, f"run {scene.name}", args.quiet) as bar:
         sol, first, second = _simulate(scene, samples)
+        if not len(sol.t):  # nothing to write or plot
+            raise UserError(f"{scene.name}: {sol.status} (it stopped before its first sample)")
         bar.update(1)
         joints = scene.outputs["reactions"]
         forces, driving, rx_time, peaks, along = {}, None, None, None, None

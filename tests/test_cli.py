@@ -155,6 +155,33 @@ def test_validate_bad_scene_exits_2_with_one_line(case, write_scene, capsys):
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
+DRAWN_FOUR_BAR = """
+[sketch]
+driver = "crank"
+ground = ["A", "D"]
+joints = { A = [0.0, 0.0], B = [0.1, 0.2], C = [CX, CY], D = [0.4, 0.0] }
+[sketch.links]
+crank = { joints = ["A", "B"] MASS }
+coupler = { joints = ["B", "C"] }
+rocker = { joints = ["D", "C"] }
+"""
+
+
+def test_validate_prints_what_the_drawing_left_open_and_run_refuses_no_mass(write_scene, capsys):
+    # C on the line B-D (the drawn configuration is singular: the mode is a choice), no masses
+    massless = write_scene(DRAWN_FOUR_BAR.replace("CX", "0.7").replace("CY", "-0.2").replace(" MASS", ""))
+    assert main(["validate", str(massless)]) == 0
+    out = capsys.readouterr().out
+    assert "note: group 'RRR1' (RRR: links coupler, rocker): drawn at a singular configuration" in out
+    assert "note: no link has a mass or a moment of inertia: kinematics and statics only" in out
+    assert main(["run", "--quiet", "--no-animation", str(massless)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("assurjax: error: mechanism 'scene': no link has a mass") and "Traceback" not in err
+    weighed = write_scene(DRAWN_FOUR_BAR.replace("CX", "0.5").replace("CY", "0.3").replace(" MASS", ", mass = 0.2"))
+    assert main(["validate", str(weighed)]) == 0
+    assert "note:" not in capsys.readouterr().out
+
+
 def test_validate_scene_that_cannot_assemble_names_the_group(write_scene, capsys):
     path = write_scene(
         """

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import tomllib
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -300,6 +301,13 @@ BAD = {
     "driver not grounded": (four(driver="coupler"), "driver 'coupler' is neither pinned to the ground nor sliding on it"),
     "unknown joint": (four(links={"rocker": ["D", "Q"]}), "link 'rocker' uses joint\\(s\\) \\['Q'\\]"),
     "unused joint": (four(joints={"Q": (1, 1)}), "joint\\(s\\) \\['Q'\\] belong to no link"),
+    "coordinates as strings": (four(joints={"C": ("0.5", "0.3")}), "joint 'C': expected a finite point \\[x, y\\] of numbers"),
+    "a coordinate as a flag": (four(joints={"C": (True, 0.3)}), "joint 'C': expected a finite point \\[x, y\\] of numbers"),
+    "ground as one string": (four(ground="AD"), "ground: expected a list of joint names, got 'AD'"),
+    "no ground list": (four(ground=None), "ground: expected a list of joint names, got None"),
+    "a joint beyond 1e12 m": (four(joints={"C": (1e200, 0.3)}), "joint 'C': coordinates must be at most 1e\\+12 m"),
+    "a drawing too small to square": ({**FOUR, "joints": {k: (1e-200 * x, 1e-200 * y) for k, (x, y) in FOUR["joints"].items()}},
+                                      "the drawing spans 5e-201 m; at least 1e-100 m"),
 }
 
 
@@ -308,6 +316,61 @@ def test_bad_drawings_are_rejected_by_name(case):
     kwargs, message = BAD[case]
     with pytest.raises(MechanismError, match=message):
         Sketch(**kwargs).mechanism()
+
+
+def test_a_drawing_moved_far_from_the_origin_keeps_its_modes():
+    # a 10 cm four-bar drawn in its lower mode (C below the line B-D), moved up to 10 km away: the
+    # tolerances follow the drawing's extent, not its distance from the origin
+    base = {"A": (0.0, 0.0), "B": (0.02, 0.04), "C": (0.04674, -0.03275), "D": (0.08, 0.0)}
+    links = {"crank": ["A", "B"], "coupler": ["B", "C"], "rocker": ["D", "C"]}
+    for offset in (0.0, 1e3, 1e4):
+        joints = {k: (x + offset, y - offset) for k, (x, y) in base.items()}
+        built = build(Sketch(joints, links, ground=["A", "D"], driver="crank"), check=True)  # reproduces the drawing
+        assert built.mechanism.groups[1].mode == -1 and not built.notes, offset
+
+
+SCENE_SETTINGS = {
+    "t1 before t0": (dict(t1=-1.0), "setting 't1': must be later than t0"),
+    "omega0 a word": (dict(omega0="fast"), "setting 'omega0': must be a number"),
+    "omega0 nan": (dict(omega0=float("nan")), "setting 'omega0': must be finite"),
+    "q0 absurd": (dict(q0=1e300), "setting 'q0': must be at most 1e\\+12"),
+    "gravity in 3-D": (dict(gravity=(0, -9.81, 0)), "setting 'gravity': must be a 2-vector"),
+    "a typo in simulation": (dict(simulation={"rtoll": 1e-6}), "simulation: unknown field 'rtoll'"),
+    "a typo in outputs": (dict(outputs={"point": ["C"]}), "outputs: unknown field 'point'"),
+    "a word for a flag": (dict(outputs={"energies": "no"}), "outputs, field 'energies': expected true or false"),
+}
+
+
+@pytest.mark.parametrize("case", list(SCENE_SETTINGS))
+def test_sketch_scene_settings_are_checked_by_name(case):
+    settings, message = SCENE_SETTINGS[case]
+    with pytest.raises(assurjax.AssurjaxError, match=message):
+        Sketch(**FOUR).scene(**settings)
+
+
+def test_a_massless_drawing_has_kinematics_and_no_dynamics():
+    # the sketch's default: no masses. Positions work; the forward dynamics (a zero reduced
+    # inertia) says so before anything is traced, where it ran into a NaN at t0
+    scene = Sketch(**FOUR).scene(gravity=(0.0, -9.81))
+    assert np.asarray(assurjax.positions(scene.mechanism, 1.0).ok).all()
+    message = "mechanism 'sketch': no link has a mass or a moment of inertia"
+    for run in (lambda: assurjax.simulate(scene), lambda: assurjax.synthesis.final_state(scene, 0.5),
+                lambda: assurjax.synthesis.final_state(scene, 0.5, adjoint="sensitivity")):
+        with pytest.raises(assurjax.AssurjaxError, match=message):
+            run()
+    batch = jax.tree.map(lambda x: np.stack([x, x]), four_bar_sketch().mechanism())
+    batch = eqx.tree_at(lambda m: m.links["crank"].mass, batch, np.array([0.1, 0.0]))
+    for link in ("coupler", "rocker"):
+        batch = eqx.tree_at(lambda m: (m.links[link].mass, m.links[link].inertia), batch, (np.zeros(2), np.zeros(2)))
+    batch = eqx.tree_at(lambda m: m.links["crank"].inertia, batch, np.zeros(2))
+    with pytest.raises(assurjax.AssurjaxError, match="mechanism 'fourbar' \\(batch member 1\\): no link has a mass"):
+        assurjax.batch_simulate(scene.replace_mechanism(four_bar_sketch().mechanism()), batch, t1=0.1)
+
+
+def test_a_typo_in_a_scenes_outputs_is_named_by_simulate():
+    scene = assurjax.load_scene("slider_crank").with_settings(outputs={"point": ["B"]})
+    with pytest.raises(assurjax.AssurjaxError, match="\\[outputs\\]: unknown field 'point'"):
+        assurjax.simulate(scene)
 
 
 def test_parallel_guides_do_not_close():

@@ -241,7 +241,7 @@ def settings_from(scene=None, **overrides) -> Settings:
     settings here, so a scene's tolerances apply to ``simulate``, ``batch_simulate``
     and the differentiable results alike."""
     sim = {} if scene is None else check_simulation_table(scene.simulation)
-    outs = {} if scene is None else dict(scene.outputs)
+    outs = {} if scene is None else check_simulation_table(scene.outputs, "[outputs]", OUTPUT_KEYS)
     unknown = sorted(set(overrides) - set(Settings._fields) - {"stop"})
     if unknown:
         raise AssurjaxError(f"unknown setting(s) {unknown}; known: {sorted(set(Settings._fields) | {'stop'})}")

@@ -24,7 +24,7 @@ from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, co
                     jit_arrays, split_arrays)
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
-from .._model import Model, as_model
+from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
@@ -547,6 +547,7 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
 
 def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
     model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    check_has_inertia(model.mechanism)
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
     settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"]),
                                                "check_assembly": bool(options["check_assembly"])})

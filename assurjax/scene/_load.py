@@ -262,9 +262,9 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     if top.has("sketch"):  # the sketch form (scene/_sketch.py): q0 defaults to the drawing's
         from ._sketch import mechanism_from_sketch
 
-        mechanism, drawn_q0 = mechanism_from_sketch(top, name, source)
+        mechanism, drawn_q0, notes = mechanism_from_sketch(top, name, source)
     else:
-        mechanism, drawn_q0 = _explicit_mechanism(top, name, source), 0.0
+        mechanism, drawn_q0, notes = _explicit_mechanism(top, name, source), 0.0, ()
 
     state = Fields(top.raw("state", {}), "[state]", source)
     state_values = dict(
@@ -301,6 +301,7 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         name=name,
         description=description,
         source=source,
+        notes=notes,
     )
 
 

@@ -43,7 +43,8 @@ class Scene(eqx.Module):
     m and m/s for a slider), ``t0`` and ``t1`` (s). ``simulation`` holds solver
     settings (``solver``, ``rtol``, ``atol``, ``stop``, ``max_steps``...).
     ``outputs`` says what to compute: ``points`` (trajectories), ``angles``
-    (links), ``reactions`` (joint names), ``energies`` (bool).
+    (links), ``reactions`` (joint names), ``energies`` (bool). ``notes``: what building a
+    sketch had to choose (e.g. a mode at a singular drawn configuration).
 
     **Example:**
     >>> scene = assurjax.load_scene("watt_sixbar")
@@ -60,6 +61,7 @@ class Scene(eqx.Module):
     name: str = eqx.field(static=True)
     description: str = eqx.field(static=True, default="")
     source: str = eqx.field(static=True, default="")
+    notes: tuple[str, ...] = eqx.field(static=True, default=())
 
     @property
     def model(self):

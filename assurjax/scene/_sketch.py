@@ -26,7 +26,7 @@ EXPLICIT_TABLES = ("ground", "links", "formation")
 
 
 def mechanism_from_sketch(top, name: str, source: str):
-    """(mechanism, drawn q0) from the ``[sketch]`` table of a scene (``top``: the
+    """(mechanism, drawn q0, the build's notes) from the ``[sketch]`` table of a scene (``top``: the
     top-level :class:`~assurjax.scene._load.Fields`)."""
     from ._load import Fields  # the loader imports this module
 
@@ -51,4 +51,4 @@ def mechanism_from_sketch(top, name: str, source: str):
         built = build(sketch)
     except MechanismError as e:
         raise SceneError(f"{source}: [sketch]: {e}") from None
-    return built.mechanism, built.q0
+    return built.mechanism, built.q0, built.notes

@@ -199,12 +199,13 @@ def build(sk: Sketch, *, check: bool = False) -> Built:
         return float(np.dot(J[point] - base, np.array([-u[1], u[0]]) / np.hypot(*u)))
 
     notes, groups = [], []
-    scale = sk.scale()
+    scale, roundoff = sk.scale(), sk.roundoff()
     for g in dec.groups:
         where = f"group '{g.name}' ({g.kind}: links {', '.join(g.links)})"
 
         def mode(value: float, what: str, size: float) -> int:
-            if abs(value) <= SINGULAR * max(size, scale) ** 2:
+            size = max(size, scale)
+            if abs(value) <= SINGULAR * size ** 2 + roundoff * size:
                 notes.append(f"{where}: drawn at a singular configuration ({what}); mode +1 taken")
                 return 1
             return 1 if value > 0 else -1
@@ -220,7 +221,7 @@ def build(sk: Sketch, *, check: bool = False) -> Built:
         elif g.kind == "RRR":
             e1, e2, j = (J[p] for p in g.joints)
             d = e2 - e1
-            if np.hypot(*d) <= SINGULAR * scale:
+            if np.hypot(*d) <= SINGULAR * scale + roundoff:
                 raise MechanismError(f"{where}: its external joints '{g.joints[0]}' and '{g.joints[1]}' coincide in the drawing, so the loop through it cannot close")
             groups.append(cls(g.name, g.links, g.joints, mode(_cross(d, j - e1), "internal joint on the line of the external ones", np.hypot(*d))))
         elif g.kind == "RRP":
@@ -231,7 +232,7 @@ def build(sk: Sketch, *, check: bool = False) -> Built:
         elif g.kind == "RPR":
             (block, guide, u), (e1, e2) = g.guides[0], g.joints
             d = J[e1] - J[e2]
-            if np.hypot(*d) <= SINGULAR * scale:
+            if np.hypot(*d) <= SINGULAR * scale + roundoff:
                 raise MechanismError(f"{where}: joints '{e1}' and '{e2}' coincide in the drawing, so the loop through it cannot close")
             groups.append(cls(g.name, g.links, g.joints, mode(float(np.dot(d, _unit(u))) * scale, "block at the foot of the guide", scale),
                               jnp.asarray(direction_in(guide, u)), jnp.asarray(offset_of(e1, e2, u))))
@@ -262,7 +263,7 @@ def check_drawing(mechanism: Mechanism, sk: Sketch, q0: float, *, tol: float = 1
     for i, g in enumerate(mechanism.groups):
         points = {p for link in g.links for p in mechanism.links[link].points}
         miss = max(float(np.hypot(*(np.asarray(pose.points[p]) - sk.joints[p]))) for p in points)
-        if not ok[i] or miss > tol * sk.scale():
+        if not ok[i] or miss > tol * sk.scale() + sk.roundoff():
             state = "does not assemble" if not ok[i] else "does not close on the drawing"
             raise AssemblyError(f"group '{g.name}' ({g.kind}, loop through links {', '.join(g.links)}) {state} at q0 = {q0:.6g}: "
                                 f"its joints miss the drawing by {miss:.3g} m", group=g.name)
@@ -274,12 +275,21 @@ def to_scene(sk: Sketch, *, gravity=(0.0, 0.0), q0: float | None = None, omega0:
 
     ``q0`` (rad or m, default: the drawing's driving coordinate) and ``omega0`` are the
     initial state; ``gravity`` in m/s^2; ``outputs`` as in a scene file (``points``,
-    ``angles``, ``reactions``, ``energies``); ``simulation`` solver settings."""
+    ``angles``, ``reactions``, ``energies``); ``simulation`` solver settings. Every value
+    is checked as a scene file's would be."""
+    from .._errors import AssurjaxError
+    from .._values import check_value
+    from ..dynamics._settings import OUTPUT_KEYS, check_simulation_table, check_single_start
     from ..scene._scene import Scene, Settings
 
     built = build(sk, check=check)
-    state = dict(q0=built.q0 if q0 is None else float(q0), omega0=float(omega0), t0=float(t0), t1=float(t1))
-    out = dict(points=(), angles=(), reactions=(), energies=True) | dict(outputs or {})
+    q0 = built.q0 if q0 is None else q0
+    check_single_start(q0, omega0, t0, t1)
+    check_value(AssurjaxError, "setting 'gravity':", gravity, shape=(2,))
+    simulation = check_simulation_table(simulation or {}, "simulation")
+    state = dict(q0=float(q0), omega0=float(omega0), t0=float(t0), t1=float(t1))
+    out = dict(points=(), angles=(), reactions=(), energies=True) | check_simulation_table(outputs or {}, "outputs", OUTPUT_KEYS)
     out = {k: tuple(v) if isinstance(v, list) else v for k, v in out.items()}
     return Scene(mechanism=built.mechanism, gravity=jnp.asarray(gravity, dtype=float), loads=tuple(loads), state=Settings(state),
-                 simulation=Settings(simulation or {}), outputs=Settings(out), name=sk.name, description=description)
+                 simulation=Settings(simulation), outputs=Settings(out), name=sk.name, description=description,
+                 notes=built.notes)

@@ -10,9 +10,11 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import MechanismError
+from .._values import MAGNITUDE_LIMIT
 from ..groups import GROUND
 
 LINK_FIELDS = ("joints", "mass", "inertia", "com", "density")
+MIN_EXTENT = 1e-100  # m: below it the squares of the drawing's lengths underflow
 
 
 class Slide(NamedTuple):
@@ -71,7 +73,7 @@ class Sketch:
         self.name = str(name)
         self.joints = {str(k): _point(v, f"joint '{k}'") for k, v in dict(joints).items()}
         self.links = {str(k): _link_spec(k, v) for k, v in dict(links).items()}
-        self.ground = tuple(ground)
+        self.ground = _names(ground, "ground")
         self.slides = tuple(_slide(s) for s in slides)
         self.driver = driver
         self.q0 = None if q0 is None else _number(q0, "q0")
@@ -90,9 +92,16 @@ class Sketch:
         return {j: tuple(c) for j, c in out.items()}
 
     def scale(self) -> float:
-        """The drawing's size (m), for relative tolerances."""
+        """The drawing's size (m): the extent of its joints, for relative tolerances (not their
+        distance from the origin: a drawing moved away keeps its tolerances and its modes)."""
         pts = np.array(list(self.joints.values()))
-        return float(max(np.ptp(pts, axis=0).max(), np.abs(pts).max(), 1e-300))
+        return float(max(np.ptp(pts, axis=0).max(), 1e-300))
+
+    def roundoff(self) -> float:
+        """What a difference of two drawn coordinates can be off by (m): their round-off, which
+        grows with their distance from the origin."""
+        pts = np.array(list(self.joints.values()))
+        return float(64 * np.finfo(float).eps * np.abs(pts).max())
 
     def mechanism(self, *, check: bool = False):
         """The explicit :class:`~assurjax.Mechanism` (see :func:`assurjax.structure.build`)."""
@@ -124,12 +133,23 @@ def _number(v, what: str) -> float:
 
 def _point(v, what: str) -> np.ndarray:
     try:
-        arr = np.asarray(v, dtype=float)
+        arr = np.asarray(v)
     except (TypeError, ValueError):
         arr = None
-    if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)):
-        raise MechanismError(f"{what}: expected a finite point [x, y], got {v!r}")
-    return arr
+    # numbers only: NumPy would read "0.5" or True as 0.5 and 1.0
+    flags = isinstance(v, (list, tuple)) and any(isinstance(x, (bool, np.bool_)) for x in v)
+    if arr is None or flags or arr.shape != (2,) or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
+        raise MechanismError(f"{what}: expected a finite point [x, y] of numbers, got {v!r}")
+    if np.any(np.abs(arr) > MAGNITUDE_LIMIT):
+        raise MechanismError(f"{what}: coordinates must be at most {MAGNITUDE_LIMIT:g} m in magnitude, got {v!r}")
+    return arr.astype(float)
+
+
+def _names(v, what: str) -> tuple[str, ...]:
+    """A list of joint names (a single string is refused: "AD" is not ["A", "D"])."""
+    if isinstance(v, str) or not isinstance(v, Iterable) or not all(isinstance(n, str) for n in v):
+        raise MechanismError(f"{what}: expected a list of joint names, got {v!r}")
+    return tuple(v)
 
 
 def _link_spec(name, value) -> LinkSpec:
@@ -179,6 +199,9 @@ def _slide(s) -> Slide:
 def _validate(sk: Sketch) -> None:
     if not sk.links:
         raise MechanismError("the sketch has no links")
+    if sk.scale() < MIN_EXTENT:
+        raise MechanismError(f"the drawing spans {sk.scale():.3g} m; at least {MIN_EXTENT:g} m (the squares of its "
+                             "lengths must stay representable)")
     if GROUND in sk.links:
         raise MechanismError(f"link name '{GROUND}' is reserved for the frame: list fixed joints in 'ground'")
     if GROUND in sk.joints:
@@ -188,7 +211,7 @@ def _validate(sk: Sketch) -> None:
             raise MechanismError(f"ground joint '{j}' is not among the joints {sorted(sk.joints)}")
     if len(set(sk.ground)) != len(sk.ground):
         raise MechanismError(f"a ground joint is listed twice: {list(sk.ground)}")
-    tol = 1e-9 * sk.scale()
+    tol = 1e-9 * sk.scale() + sk.roundoff()
     for name, spec in sk.links.items():
         unknown = [j for j in spec.joints if j not in sk.joints]
         if unknown:
@@ -198,7 +221,9 @@ def _validate(sk: Sketch) -> None:
         for i, a in enumerate(spec.joints):
             for b in spec.joints[i + 1:]:
                 if np.hypot(*(sk.joints[a] - sk.joints[b])) <= tol:
-                    raise MechanismError(f"link '{name}': joints '{a}' and '{b}' coincide in the drawing (a link cannot carry two joints at one place)")
+                    raise MechanismError(f"link '{name}': joints '{a}' and '{b}' coincide in the drawing (a link cannot carry "
+                                         f"two joints at one place; within {tol:.3g} m, 1e-9 of the drawing's extent "
+                                         f"{sk.scale():.3g} m)")
     used = {j for spec in sk.links.values() for j in spec.joints} | set(sk.ground)
     unused = [j for j in sk.joints if j not in used]
     if unused:

@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 
 from .._jit import jit
+from .._model import check_has_inertia
 from ..dynamics._field import arrival_acceleration
 from ..dynamics._settings import check_single_start, fixed_step_from, settings_from
 from ..dynamics._solve import simulate_core
@@ -59,6 +60,7 @@ def _settings(scene, settings: dict, **fixed):
 
 def _check_start(scene, q0, omega0, t1) -> None:
     """:func:`check_single_start` of the caller's start and horizon, else the scene's [state]."""
+    check_has_inertia(scene.mechanism)
     state = scene.state
     check_single_start(state.get("q0", 0.0) if q0 is None else q0, state.get("omega0", 0.0) if omega0 is None else omega0,
                        state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1)

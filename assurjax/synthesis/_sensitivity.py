@@ -51,7 +51,7 @@ from jax.flatten_util import ravel_pytree
 from .._errors import AssurjaxError
 from .._friction import frictions_of, smoothed_only
 from .._jit import jit
-from .._model import Model, as_model
+from .._model import Model, as_model, check_has_inertia
 from .._reduction import generalized_force
 from ..dynamics._field import State, field_args, vector_field
 from ..dynamics._results import result_value
@@ -302,6 +302,7 @@ def _routed(model: Model, options: SensitivityOptions) -> Model:
     which the loop's steps resolve, as the state's do, and the quadrature's fixed panels do
     not (the slider-crank from rest, v_s = 0.005-0.05: d q(0.6 s)/d mu -0.0748 with 16
     panels, -0.0671 with 64, -0.05069 with 256, against -0.050702 by differences)."""
+    check_has_inertia(model.mechanism)
     frictions = frictions_of(model.loads)
     if not frictions:
         return model
