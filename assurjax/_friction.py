@@ -74,6 +74,9 @@ class AbstractFriction(AbstractLoad):
         the optional smoothing speed (checked > 0; None: the exact law) and the optional static
         coefficient (checked >= mu, with the exact law only; None: mu at rest too)."""
         name = type(self).__name__
+        if not isinstance(pair, str):
+            raise MechanismError(f"{name}: the pair must be named by a string (a joint's or a prismatic pair's name), "
+                                 f"got {pair!r}")
         for key, value in (("coefficient", coefficient), ("viscous", viscous)):
             check_value(MechanismError, f"{name}: {key}", value, shape=(), nonnegative=True)
         if smoothing is not None:
@@ -706,8 +709,14 @@ def _implicit_root_jvp(primals, tangents, *, find):
 
     _, moved_by = jax.jvp(lambda *v: residual(u, *v), values, value_tangents)
     jacobian = jax.jacfwd(residual)(u, *values)  # I - dlaw/du
-    du = lx.linear_solve(lx.MatrixLinearOperator(jacobian), -moved_by, small_solver()).value
-    return (u, ok), (du, None)
+    # where no root was found (a jam: u is NaN) the tangent is 0 beside a NaN value, so that
+    # no NaN reaches lineax, which raises on it from inside the program (in reverse mode too:
+    # the selects below transpose to selects of the cotangents). Tested on primal values only:
+    # a test of the tangents themselves would not be linear in them.
+    finite = jnp.all(jnp.isfinite(jacobian)) & jnp.all(jnp.isfinite(u))
+    jacobian = jnp.where(finite, jacobian, jnp.eye(len(u)))
+    du = lx.linear_solve(lx.MatrixLinearOperator(jacobian), jnp.where(finite, -moved_by, 0.0), small_solver()).value
+    return (u, ok), (jnp.where(finite, du, 0.0), None)
 
 
 class FixedPoint(NamedTuple):

@@ -21,7 +21,7 @@ from ._geometry import perp, rotation, wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
 from ._positions import stacked_positions
-from ._values import check_values
+from ._values import check_state_count, check_values
 
 
 class Kinematics(eqx.Module):
@@ -367,6 +367,7 @@ def kinematics(
     if order not in (0, 1, 2):
         raise AssurjaxError(f"order must be 0, 1 or 2, got {order}")
     check_values(AssurjaxError, "kinematics", q=q, omega=omega, alpha=alpha)
+    check_state_count(AssurjaxError, "kinematics", np.shape(q))
     q = jnp.asarray(q, dtype=float)
     for name, value in (("omega", omega), ("alpha", alpha)):
         if not _broadcasts_to(np.shape(value), q.shape):

@@ -202,7 +202,9 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
       and ``t`` (s) broadcast against it (they matter only for loads that depend on them).
     - ``loads``: a sequence of loads; ``gravity``: a 2-vector (m/s^2), default 0.
 
-    Returns a :class:`Reduction`; also usable under ``jax.vmap`` / ``jax.jit``.
+    Returns a :class:`Reduction`; also usable under ``jax.vmap`` / ``jax.jit``. Joint
+    friction is left out of ``torque``: it depends on the reactions, so on dw/dt, and the
+    simulation and :func:`assurjax.inverse_dynamics` solve it.
 
     **Example:**
     >>> scene = assurjax.load_scene("watt_sixbar")

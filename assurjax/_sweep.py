@@ -39,7 +39,7 @@ from ._errors import AssurjaxError
 from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
-from ._model import check_has_inertia
+from ._model import Model, check_has_inertia
 from ._values import check_values
 
 BATCH_AXIS = "batch"
@@ -337,7 +337,8 @@ def batch_simulate(
     """
     from .dynamics._settings import check_single_start, fixed_step_from, settings_from
     from .dynamics._solve import simulate_core
-    from .dynamics._stick import batch_settings
+    from .dynamics._solution import batch_summary
+    from .dynamics._stick import batch_settings, jammed_members
 
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
@@ -362,7 +363,10 @@ def batch_simulate(
         _SIM_ITEMS[key] = item
     n = batch_size(mechanisms)
     batch = (mechanisms, broadcast_batch(loads, n), broadcast_batch(gravity, n))
-    return sweep(_SIM_ITEMS[key], batch, chunk_size=chunk_size, mesh=mesh, progress=progress, desc="simulate")
+    sols = sweep(_SIM_ITEMS[key], batch, chunk_size=chunk_size, mesh=mesh, progress=progress, desc="simulate")
+    mechanism, loads, gravity = jax.tree.map(lambda x: x[0], batch)  # Model() checks one model's shapes
+    models = eqx.tree_at(lambda m: (m.mechanism, m.loads, m.gravity), Model(mechanism, gravity, loads), batch)
+    return batch_summary(sols, jammed_members(sols, models, models_batched=True))
 
 
 _SIM_ITEMS: dict = {}

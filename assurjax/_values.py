@@ -3,6 +3,8 @@ both reject a bad value with the same words (the caller adds where the value is)
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,7 +55,7 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
         return None  # the common case, decided without NumPy (~25 us less per value)
     if shape is not None and (problem := shape_problem(x, shape)) is not None:
         return problem
-    v = concrete(x)
+    v = None if _not_numbers(x) else concrete(x)  # NumPy would read "0.1" as 0.1 and True as 1.0
     if v is None:  # a traced value is checked where it is concrete; anything else is no number
         return None if _traced(x) else f"must be a number or an array of numbers, got {x!r:.60}"
     shown = x if np.ndim(x) == 0 else v.tolist() if v.size <= 8 else f"an array of shape {v.shape}"
@@ -68,6 +70,28 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
         return f"must be a non-zero vector, got {shown}"
     return None
+
+
+# States one analysis call takes (kinematics, reactions, inverse dynamics): each state's
+# results are a few hundred bytes to kilobytes, and a call holds them all at once
+STATES_LIMIT = 1_000_000
+
+
+def check_state_count(error: type[Exception], where: str, shape: tuple[int, ...]) -> None:
+    """Raise ``error`` where an analysis along states of this ``shape`` asks for more than
+    STATES_LIMIT of them (the request is bounded, not left to run out of memory)."""
+    count = math.prod(shape)
+    if count > STATES_LIMIT:
+        raise error(f"{where}: at most {STATES_LIMIT:,} states per call, got {count:,} (shape {tuple(shape)}); "
+                    "split them over several calls")
+
+
+def _not_numbers(x) -> bool:
+    """Whether ``x`` holds something other than numbers (strings, flags, objects)."""
+    try:
+        return np.asarray(x).dtype.kind not in "iuf"
+    except Exception:  # a tracer (np.asarray refuses it), or nothing NumPy can read
+        return not _traced(x)
 
 
 def _traced(x) -> bool:

@@ -152,6 +152,9 @@ def _sweep_range(scene, start, stop) -> tuple[float, float]:
         default = (q0 - reach, q0 + reach)
     else:
         default = (q0 - np.pi, q0 + np.pi)
+    for option, value in (("--start", start), ("--stop", stop)):
+        if value is not None and not np.isfinite(value):
+            raise UserError(f"{option} must be a finite number, got {value}")
     lo = default[0] if start is None else start
     hi = default[1] if stop is None else stop
     if not hi > lo:
@@ -205,7 +208,7 @@ def cmd_kinematics(args) -> int:
     ax = viz.plot_coupler_curves(frames, points)
     files.append(_savefig(ax.figure, out / "coupler_curves.png"))
     ax = viz.plot_angular_velocities(frames, driver_kind=_driver_kind(mech))
-    ax.set_ylabel(f"angular velocity for unit driving speed (rad/s per {units['omega']})")
+    ax.set_ylabel(f"angular velocity per unit driving speed\n(rad/s per {units['omega']})")
     files.append(_savefig(ax.figure, out / "angular_velocities.png"))
     q_show = float(q[np.flatnonzero(frames.ok)[np.argmin(np.abs(q[frames.ok] - scene.state["q0"]))]])
     drawing = viz.draw_mechanism(mech, q_show, velocities=points[:3], trace=points, trace_q=q)
@@ -296,20 +299,30 @@ def _friction_unit(pair: str) -> str:
     return "N" if "/" in pair else "N m"
 
 
-def _friction_lines(t, along: _Along, peaks: dict) -> list[str]:
+def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     """The friction's energy loss over the motion per element (trapezoidal rule on the
     samples) and its largest value (``peaks``, located on the dense output), for the
-    summary; none without friction."""
+    summary; none without friction. Where the friction is the only dissipative load, its
+    total is the integrated one (``sol.dissipated``), and samples too coarse to resolve it
+    are said to be."""
     import numpy as np
 
+    from ._friction import frictions_of
     from ._peaks import FRICTION
 
     if not along.friction:
         return []
-    lost = {k: -float(np.trapezoid(p, np.asarray(t))) for k, p in along.friction_power.items()}
+    lost = {k: -float(np.trapezoid(p, np.asarray(sol.t))) for k, p in along.friction_power.items()}
     total = sum(lost.values())
     shares = ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(lost.items(), key=lambda kv: -kv[1])) if total > 0 else ""
-    lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
+    only_friction = sum(load.dissipative for load in scene.loads) == len(frictions_of(scene.loads))
+    integrated = float(sol.dissipated[-1]) if only_friction and sol.dissipated is not None else None
+    if integrated is not None and abs(total - integrated) > 1e-3 * abs(integrated):
+        lines = [f"  friction: {integrated:.5g} J lost over the motion (integrated); shares from the friction power at the "
+                 f"{len(sol.t)} samples, which resolve {total:.5g} J of it (more --samples for finer shares)"
+                 + (f": {shares}" if shares else "")]
+    else:
+        lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
     located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {peaks[FRICTION + k].t:.4f} s"
                         for k in along.friction)
     lines.append(f"  peak |friction| (located on the dense output): {located}")
@@ -446,6 +459,8 @@ def _reduced_figure(scene):
 
     from . import viz
 
+    from ._friction import frictions_of
+
     q = _one_period(scene)
     red = assurjax.reduce(scene, q)
     ok = np.asarray(red.ok).all(axis=-1)
@@ -454,7 +469,10 @@ def _reduced_figure(scene):
     kind = _driver_kind(scene.mechanism)
     axes = viz.plot_reduced(q, j, tau, driver_kind=kind)
     period = "the slider's stroke" if kind == "slider" else "one crank turn"
-    axes[0].figure.suptitle(f"{scene.name}: inertia and load reduced to the driver over {period}")
+    left_out = [what for what, present in (("at omega = 0", any(load.velocity_dependent for load in scene.loads)),
+                                           ("without joint friction", bool(frictions_of(scene.loads)))) if present]
+    axes[0].figure.suptitle(f"{scene.name}: inertia and load reduced to the driver over {period}"
+                            + (f"\n(loads {', '.join(left_out)})" if left_out else ""))
     return axes[0].figure
 
 
@@ -647,10 +665,10 @@ def cmd_run(args) -> int:
         print("  energy balance: not checked (energies not requested)")
     spacing = (float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))) / (samples - 1)
     grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
-    print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps")
+    print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps tried (rejected ones included)")
     if peaks:
         _print_peaks(peaks, units, scene, moves=_moves(sol))
-    for line in _friction_lines(sol.t, along, peaks) if along else ():
+    for line in _friction_lines(scene, sol, along, peaks) if along else ():
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
         print(f"  friction law: regularized as asked in {', '.join(smooth)} (sign(rate) -> tanh(rate / v_s), v_s each "
@@ -717,7 +735,7 @@ def cmd_reactions(args) -> int:
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
     _print_peaks(peaks, units, scene, moves=_moves(sol))
-    for line in _friction_lines(sol.t, along, peaks):
+    for line in _friction_lines(scene, sol, along, peaks):
         print(line)
     _print_files(files)
     return 0
@@ -755,6 +773,18 @@ def _print_files(files):
 # ---------------------------------------------------------------------------- argument parsing
 
 
+COMMON_FLAGS = ("debug", "quiet", "no_cache")
+
+
+def parse_args(parser: argparse.ArgumentParser, argv=None) -> argparse.Namespace:
+    """The parsed arguments, the common flags False where given neither before nor after the command."""
+    args = parser.parse_args(argv)
+    for flag in COMMON_FLAGS:
+        if not hasattr(args, flag):
+            setattr(args, flag, False)
+    return args
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
@@ -762,8 +792,10 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--no-cache", action="store_true", default=argparse.SUPPRESS,
                         help="do not keep compiled programs on disk (default: kept in $ASSURJAX_CACHE_DIR or "
                              "~/.cache/assurjax; ASSURJAX_NO_CACHE=1 also turns it off)")
+    # the common options go before or after the command; their defaults are filled in by
+    # parse_args below (set_defaults here would reach the subcommands' copies of them, which
+    # share these actions, and reset a --debug given before the command)
     parser = argparse.ArgumentParser(prog="assurjax", description="Dynamics of planar one-DOF linkages built from Assur groups.", parents=[common])
-    parser.set_defaults(debug=False, quiet=False, no_cache=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     # ---- run
@@ -825,7 +857,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     matplotlib.use("Agg")  # files only: works without a display
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parse_args(parser, argv)
     except SystemExit as e:  # argparse already printed its usage message
         return int(e.code or 0)
     try:

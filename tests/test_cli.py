@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 import assurjax
-from assurjax.cli import DEFAULT_SCENE, build_parser, main
+from assurjax.cli import DEFAULT_SCENE, build_parser, main, parse_args
 
 sys.path.insert(0, os.path.dirname(__file__))
 import joint_reference as jr  # noqa: E402
@@ -44,6 +44,13 @@ def test_run_defaults_to_the_watt_sixbar():
     assert build_parser().parse_args(["run"]).scene == "watt_sixbar"
 
 
+def test_common_options_before_or_after_the_command():
+    for argv in (["--debug", "--no-cache", "run"], ["run", "--debug", "--no-cache"]):
+        args = parse_args(build_parser(), argv)
+        assert args.debug and args.no_cache and not args.quiet, argv
+    assert not parse_args(build_parser(), ["run"]).debug
+
+
 def test_run_writes_every_file(watt_run):
     status, out = watt_run
     assert status == 0
@@ -59,6 +66,7 @@ def test_run_csv_columns_and_values(watt_run):
     expected = {"t", "q", "omega", "domega", "T", "V", "E", "x_A", "y_A", "x_B", "y_B", "x_E", "y_E", "theta_link2", "driving"}
     expected |= {f"{c}_{j}" for j in ("O2", "A", "E") for c in ("Fx", "Fy", "F")}
     assert expected <= set(cols)
+    assert np.all(np.diff(cols["t"]) > 0)  # once per time (a solver step ending on a sample time was saved twice)
     # A is on the unit crank: closed form x_A = cos q, y_A = sin q
     np.testing.assert_allclose(cols["x_A"], np.cos(cols["q"]), atol=1e-12)
     np.testing.assert_allclose(cols["y_A"], np.sin(cols["q"]), atol=1e-12)
@@ -364,6 +372,13 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert friction["t"] == force["t"] and friction["value"] == pytest.approx(0.3 * 0.04 * force["value"], rel=1e-12)
     assert friction["value"] >= np.max(np.abs(cols["friction_O"]))
     assert f"peak |friction| (located on the dense output): O {friction['value']:.5g} N m at t = {friction['t']:.4f} s" in printed
+    # with samples too coarse for the trapezoidal rule the total is the integrated one, and said to be
+    coarse = tmp_path / "coarse"
+    assert main(["run", str(write_scene(ROUGH_ARM_RUN)), "--out", str(coarse), "--samples", "5", "--no-animation",
+                 "--quiet"]) == 0
+    few = read_csv(coarse / "solution.csv")
+    assert few["W"][-1] == pytest.approx(cols["W"][-1], rel=1e-9)
+    assert f"friction: {-few['W'][-1]:.5g} J lost over the motion (integrated); shares from the friction power at the" in capsys.readouterr().out
 
 
 def test_summary_says_where_a_run_ends_held_at_rest(write_scene, capsys):
@@ -428,10 +443,12 @@ def test_summary_names_samples_held_where_the_friction_self_locks():
     from assurjax._peaks import Peak
     from assurjax.cli import _Along, _friction_lines
 
-    t = np.linspace(0.0, 1.0, 5)
+    from types import SimpleNamespace
+
+    scene, sol = SimpleNamespace(loads=()), SimpleNamespace(t=np.linspace(0.0, 1.0, 5), dissipated=None)
     along = lambda ok: _Along({}, np.zeros(5), np.ones(5, bool), {"A": np.ones(5)}, {"A": -np.ones(5)}, 0.0, ok)  # noqa: E731
     peaks = {"friction A": Peak("friction A", 1.0, 0.25)}
-    lines = _friction_lines(t, along(np.array([True, False, False, True, True])), peaks)
+    lines = _friction_lines(scene, sol, along(np.array([True, False, False, True, True])), peaks)
     assert lines[0].startswith("  friction: 1 J lost over the motion")
     assert "self-locks the mechanism at 2 of 5 samples" in lines[-1]
-    assert not any("self-locks" in line for line in _friction_lines(t, along(np.ones(5, bool)), peaks))
+    assert not any("self-locks" in line for line in _friction_lines(scene, sol, along(np.ones(5, bool)), peaks))

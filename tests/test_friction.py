@@ -996,6 +996,10 @@ def test_a_friction_jam_is_named(slider):
                       rtol=1e-10, atol=1e-10)  # run()'s program
     assert not sol.successful
     assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20)"), sol.status
+    # the differentiable final state has no q(T) to give: it says why (it returned the start as q(T))
+    with pytest.raises(aj.AssurjaxError, match="final_state: the motion did not end as asked: the joint friction jams "
+                                              "the mechanism at t = 0 s"):
+        aj.synthesis.final_state(slider.with_loads(STRONG), 0.5, q0=0.5, omega0=20.0)
     for steps in (1, 4, 16):
         with pytest.raises(RuntimeError, match="did not converge"):
             _strong_reference(20.0, steps).forward(0.5, 20.0)
@@ -1016,6 +1020,16 @@ def test_a_jammed_member_of_a_batch_keeps_its_last_state(slider):
     assert "solver failures" not in batch.status
     assert abs(batch.q_final[0] - alone.q_final) < 1e-8 and batch.omega_final[0] == 0.0
     assert (batch.t_final[1], batch.q_final[1], batch.omega_final[1]) == (0.0, 0.5, 20.0)
+    # its one saved row is its start (it was NaN: the dense output of the attempt that met the jam)
+    valid = batch.valid[1]
+    assert valid.sum() == 1 and (batch.q[1][valid][0], batch.omega[1][valid][0]) == (0.5, 20.0)
+    # a batch of mechanisms counts the jams too (its status was empty)
+    mechanisms = jax.tree.map(lambda x: np.stack([x, x]), slider.mechanism)
+    members = aj.batch_simulate(slider.with_loads(STRONG), mechanisms, q0=0.5, omega0=20.0, t1=0.5, progress=False)
+    assert members.status.startswith("batch of 2: 2 jammed by the joint friction"), members.status
+    # under a transformation the final state of a jammed run is NaN (not its start)
+    q, w = jax.jit(lambda w0: aj.synthesis.final_state(slider.with_loads(STRONG), 0.5, q0=0.5, omega0=w0))(20.0)
+    assert np.isnan(q) and np.isnan(w)
 
 
 # ---------------------------------------------------------------------------- against the joint-based reference

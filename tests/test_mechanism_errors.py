@@ -465,3 +465,33 @@ def test_traced_values_are_not_checked_so_jit_and_grad_work():
 
     value, grads = jax.jit(jax.value_and_grad(coupler_mass_times_stiffness, argnums=(0, 1)))(2.0, 3.0)
     assert float(value) == 6.0 and [float(g) for g in grads] == [3.0, 2.0]
+
+
+# -- numbers and requests checked where they are given -------------------------------------------
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: assurjax.JointFriction(["A"], 0.1, 0.01), "JointFriction: the pair must be named by a string"),
+    (lambda: assurjax.JointFriction("A", "0.1", 0.01), "JointFriction: coefficient must be a number or an array of numbers, got '0.1'"),
+    (lambda: assurjax.JointFriction("A", True, 0.01), "JointFriction: coefficient must be a number or an array of numbers, got True"),
+    (lambda: assurjax.SlideFriction("slider/ground", 0.1, "0.05"), "SlideFriction: length must be a number"),
+])
+def test_friction_numbers_are_numbers(make, message):
+    # NumPy reads "0.1" as 0.1 and True as 1.0: the scene loader refused them, the API took them
+    with pytest.raises(MechanismError, match=message):
+        make()
+
+
+def test_requests_for_work_and_solvers_without_friction_are_refused_by_name():
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(assurjax.AssurjaxError, match="inverse_dynamics: the times t: at most 1,000,000 states per call"):
+        assurjax.inverse_dynamics(scene, lambda t: 2.0 * t, np.zeros(1_000_001))
+    with pytest.raises(assurjax.AssurjaxError, match="kinematics: at most 1,000,000 states per call, got 2,000,000"):
+        assurjax.kinematics(scene.mechanism, np.zeros((1000, 2000)))
+    with pytest.raises(assurjax.AssurjaxError, match="reactions: at most 1,000,000 states per call"):
+        assurjax.reactions(scene, (np.zeros(1_000_001), 0.0, 0.0))
+    with pytest.raises(assurjax.AssurjaxError, match="saveat must be a 1-D array of at least one time"):
+        assurjax.simulate(scene, saveat=[])
+    rough = scene.with_loads((assurjax.JointFriction("A", 0.1, 0.01),))
+    with pytest.raises(assurjax.AssurjaxError, match="solver='seed_euler' .* has no joint friction"):
+        assurjax.simulate(rough, solver="seed_euler")

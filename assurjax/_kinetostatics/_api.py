@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
-from .._values import check_values, found_words
+from .._values import check_state_count, check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
@@ -365,10 +365,12 @@ def _checked_shape(state) -> tuple[int, ...]:
     check_values(AssurjaxError, "state", t=t, q=q, omega=omega, domega=alpha)
     shapes = [np.shape(v) for v in state]
     try:
-        return jnp.broadcast_shapes(*shapes)
+        shape = jnp.broadcast_shapes(*shapes)
     except ValueError:
         raise AssurjaxError("a state's q, omega, domega and t must broadcast together, got shapes "
                             + ", ".join(f"{n} {s}" for n, s in zip(STATE_NAMES, shapes))) from None
+    check_state_count(AssurjaxError, "reactions", shape)
+    return shape
 
 
 def _wanted_groups(mechanism: Mechanism, joints) -> tuple[int, ...] | None:
@@ -436,6 +438,7 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     >>> r.driving.shape
     (101,)
     """
+    check_state_count(AssurjaxError, "inverse_dynamics: the times t", np.shape(t))
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
         q, omega, alpha = _derivatives(motion, t)

@@ -445,6 +445,9 @@ def simulate(
 
         if np.ndim(q0) or np.ndim(omega0):
             raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
+        if frictions_of(model.loads):
+            raise AssurjaxError(f"solver={settings.solver!r} (a baseline, Durango et al.'s scheme) has no joint friction; "
+                                "the scene has friction elements: use the default solver")
         return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
                                    standstill=settings.standstill)
     if settings.steps is not None:
@@ -567,8 +570,8 @@ def simulation_table(scene) -> dict:
 def _checked_saveat(saveat, t0, t1) -> np.ndarray:
     """The save times as a 1-D float array, sorted from t0 towards t1 and inside [t0, t1]."""
     saveat = np.asarray(saveat, dtype=float)
-    if saveat.ndim != 1:
-        raise AssurjaxError(f"saveat must be a 1-D array of times, got shape {saveat.shape}")
+    if saveat.ndim != 1 or not saveat.size:
+        raise AssurjaxError(f"saveat must be a 1-D array of at least one time, got shape {saveat.shape}")
     steps = np.diff(saveat) * np.sign(t1 - t0)
     if np.any(steps < 0) or not np.all(np.isfinite(saveat)):
         raise AssurjaxError("saveat must be finite times in the direction from t0 to t1")

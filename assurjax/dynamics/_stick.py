@@ -217,7 +217,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         end = jnp.where(refused, start, end)
         y_end = jax.tree.map(lambda z_end, z: jnp.where(refused, z, z_end), y_end, y._replace(friction_rates=start_rates))
         inside = (ts >= start) & (ts <= end) & ~filled & ~refused
-        saved = jax.tree.map(lambda old, new: jnp.where(_expand(inside, old), new[:-1], old), saved, sol.ys)
+        # a time at the end takes the end's state: a chunk's row there is the dense output of its
+        # last attempt, NaN for a member stopped by a jam at its start (end = start)
+        saved = jax.tree.map(lambda old, new, z_end: jnp.where(_expand(inside, old), jnp.where(_expand(ts == end, old), z_end, new[:-1]), old),
+                             saved, sol.ys, y_end)
         filled = filled | inside
         fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
         # a stick segment stopped by a user event (its margins are read only where there are any)
@@ -302,31 +305,39 @@ def with_jam_status(sol: Solution, model: Model) -> Solution:
     return replaced(sol, status=jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final)))
 
 
-def jammed_members(sols: Solution, model: Model) -> np.ndarray:
+def jammed_members(sols: Solution, model: Model, *, models_batched: bool = False) -> np.ndarray:
     """Which runs (host arrays: one run or a batch) stopped where the joint friction jams:
     with friction, stopped on NaN ahead while moving, and the friction of that motion has no
     consistent solution at the end or just past it (one program for all members,
-    compiled only where some member is such a run)."""
+    compiled only where some member is such a run). ``models_batched``: ``model``'s arrays
+    carry the batch axis too (a batch of mechanisms, ``batch_simulate``)."""
     candidates = (result_code(sols.result) == DT_MIN) & (np.asarray(sols.omega_final) != 0.0) & bool(frictions_of(model.loads))
     if not np.any(candidates):
         return candidates
     ends = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (sols.t_final, sols.q_final, sols.omega_final))
-    return candidates & np.asarray(_jams(model, *ends)).reshape(candidates.shape)
+    jams = _jams_each(model, *ends) if models_batched else _jams(model, *ends)
+    return candidates & np.asarray(jams).reshape(candidates.shape)
+
+
+def _jams_at(model: Model, t, q, omega):
+    """Whether the friction of the motion in sign(omega) has no consistent solution at
+    (t, q, omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt there)."""
+    direction = jnp.sign(omega)
+    at_end = frictional(model, t, State(q, omega), direction, iterate=False)
+    h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
+    alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
+    ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
+                                          iterate=False).consistent)(h)
+    return ~(at_end.consistent & jnp.all(ahead))
 
 
 @jit
 def _jams(model: Model, t, q, omega):
-    """Per run (arrays): whether the friction of the motion in sign(omega) has no consistent
-    solution at (t, q, omega) or a little way along it (the JAM_PROBES, extrapolated with
-    dw/dt at the state)."""
+    """:func:`_jams_at` per run (arrays), one model."""
+    return jax.vmap(lambda t, q, omega: _jams_at(model, t, q, omega))(t, q, omega)
 
-    def one(t, q, omega):
-        direction = jnp.sign(omega)
-        at_end = frictional(model, t, State(q, omega), direction, iterate=False)
-        h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
-        alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
-        ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
-                                              iterate=False).consistent)(h)
-        return ~(at_end.consistent & jnp.all(ahead))
 
-    return jax.vmap(one)(t, q, omega)
+@jit
+def _jams_each(models: Model, t, q, omega):
+    """:func:`_jams_at` per run (arrays), each with its model (batched arrays)."""
+    return jax.vmap(_jams_at)(models, t, q, omega)

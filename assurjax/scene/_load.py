@@ -34,7 +34,7 @@ def scene_path(path_or_name: str | Path) -> Path:
     path = Path(path_or_name)
     if path.suffix == ".toml" or path.exists():
         if not path.is_file():
-            raise SceneError(f"{path}: no such scene file")
+            raise SceneError(f"{path}: " + ("a directory, not a scene file" if path.is_dir() else "no such scene file"))
         return path
     bundled = resources.files(BUNDLED) / f"{path_or_name}.toml"
     if not bundled.is_file():

@@ -36,11 +36,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from .._errors import AssurjaxError
 from .._jit import jit
 from .._model import check_has_inertia
 from ..dynamics._field import arrival_acceleration
+from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
 from ..dynamics._settings import check_single_start, fixed_step_from, settings_from
+from ..dynamics._stick import jammed_members
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
 
@@ -71,17 +75,65 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     without stop events; differentiable with respect to every array of ``scene``
     (mechanism parameters, gravity, load values). ``settings``: fields of
     :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``, ``dt``,
-    ``max_steps``) over the scene's ``[simulation]``."""
+    ``max_steps``) over the scene's ``[simulation]``.
+
+    A run that does not reach ``t1`` (the joint friction jams the mechanism, a group locks
+    up, the step budget runs out) has no q(T): called as it is, this raises
+    :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``, ``vmap``,
+    ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run."""
     _check_start(scene, q0, omega0, t1)
     if adjoint in SENSITIVITY_ROUTES:
-        q, w, _ = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return q, w
+        q, w, result = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
+        return _route_as_asked(result, "final_state", q, w)
     opts = _settings(scene, {"check_assembly": False, **settings}, standstill=False, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
-    return sol.q_final, sol.omega_final
+    return _as_asked(sol, scene.model, opts, "final_state", sol.q_final, sol.omega_final, ended=sol.event < 0)
+
+
+def _traced(*values) -> bool:
+    return any(isinstance(v, jax.core.Tracer) for v in values)
+
+
+def _failed_as_nan(ok, values):
+    """``values`` where ``ok``; NaN where not (a flag: False), with derivative 0 there: a NaN
+    derivative would carry NaN cotangents back through the run's linear solves, which
+    lineax refuses in reverse mode with an error raised from inside the program."""
+    return tuple(jnp.where(ok, v, jnp.nan) if jnp.issubdtype(jnp.result_type(v), jnp.floating) else v & ok
+                 for v in values)
+
+
+def _route_as_asked(result, what: str, *values):
+    """:func:`_as_asked` for the sensitivity routes, which end at t1 or their standstill
+    event unless the solver fails (``result``: its integer code)."""
+    ok = (result == FINISHED[0]) | (result == FINISHED[1])
+    if _traced(ok, *values):
+        return _failed_as_nan(ok, values)
+    if not bool(np.all(ok)):
+        raise AssurjaxError(f"{what}: the motion did not end as asked: {result_text(int(result_code(result)))} (under "
+                            "jit, vmap or grad this result is NaN)")
+    return values
+
+
+def _as_asked(sol, model, settings, what: str, *values, ended):
+    """``values`` of a run that ended as asked (``ended``: at t1, or at the event asked for,
+    and no solver failure). Where it did not (the joint friction jams it, a group locks up,
+    the step budget runs out), the values are not the result asked for: outside any
+    transformation raise, naming how it ended; under one (jit, vmap, grad), NaN in its place."""
+    ok = finished(sol.result) & ended
+    if _traced(ok, sol.t_final, sol.q_final, sol.omega_final, *values):
+        return _failed_as_nan(ok, values)
+    if not bool(np.all(ok)):
+        code, event, t_final = int(result_code(sol.result)), int(sol.event), float(sol.t_final)
+        failed = int(sol.failed_group_index)
+        group = model.mechanism.groups[failed].name if failed >= 0 else None
+        status = (jam_text(t_final, float(sol.q_final), float(sol.omega_final)) if jammed_members(sol, model).any()
+                  else status_text(code, event, group, t_final, max_steps=settings.max_steps))
+        raise AssurjaxError(f"{what}: the motion did not end as asked: {status} (under jit, vmap or grad this "
+                            "result is NaN)")
+    return values
 
 
 def _run(model, q0, omega0, t0, t1, dt, settings):
@@ -112,11 +164,14 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     which is correct whether or not the event location itself carries a gradient.
     With ``adjoint="quadrature"`` or ``"sensitivity"`` the same formula is applied to
     the forward sensitivities at t* (one solve for the whole gradient).
+
+    A run that fails before its standstill or ``t1`` (a jam, a lock-up, the step budget)
+    raises :class:`assurjax.AssurjaxError`, or under a transformation gives t* = NaN, ok False.
     """
     _check_start(scene, q0, omega0, t1)
     if adjoint in SENSITIVITY_ROUTES:
-        t_star, ok, _ = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return t_star, ok
+        t_star, ok, result = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
+        return _route_as_asked(result, "standstill_time", t_star, ok)
     opts = _settings(scene, settings, standstill=True, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
@@ -128,4 +183,6 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
                                                        jnp.asarray(state.get("t0", 0.0), dtype=float)))
     w = sol.omega_final
     t_star = sol.t_final - (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha)
-    return t_star, sol.event == 0
+    # at its standstill, or at t1 with none before it (ok False)
+    return _as_asked(sol, scene.model, opts, "standstill_time", t_star, sol.event == STANDSTILL,
+                     ended=sol.event <= STANDSTILL)
