@@ -261,10 +261,13 @@ def _simulate(scene, samples: int):
 
 
 def _with_solver_steps(scene) -> bool:
-    """Outputs at the solver's own steps as well as the grid, where simulate offers them."""
+    """Outputs at the solver's own steps as well as the grid, where simulate offers them and
+    the run's default step budget stays within what it saves (long runs: the grid alone)."""
+    from .dynamics._settings import SAVED_STEPS_LIMIT, step_budget
     from .dynamics._solve import saves_solver_steps
 
-    return saves_solver_steps(scene.loads)
+    budget = scene.simulation.get("max_steps", step_budget(scene.state.get("t0", 0.0), scene.state.get("t1", 1.0)))
+    return saves_solver_steps(scene.loads) and budget <= SAVED_STEPS_LIMIT
 
 
 class _Along(NamedTuple):
@@ -383,6 +386,11 @@ def _size(mechanism) -> float:
     return float(np.max(np.ptp(pts, axis=0))) or 1.0
 
 
+def _in_scene_order(wanted, names) -> list[str]:
+    """``names`` in the order the scene lists them (``wanted``), any others after."""
+    return [n for n in wanted if n in names] + [n for n in names if n not in wanted]
+
+
 def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) -> dict:
     import numpy as np
 
@@ -393,10 +401,11 @@ def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) 
                         ("balance", "balance")):
         if getattr(sol, field, None) is not None:
             cols[name] = getattr(sol, field)
-    for p, xy in getattr(sol, "points", {}).items():
-        cols |= {f"x_{p}": np.asarray(xy)[:, 0], f"y_{p}": np.asarray(xy)[:, 1]}
-    for link, theta in getattr(sol, "angles", {}).items():
-        cols[f"theta_{link}"] = theta
+    points, angles = getattr(sol, "points", {}), getattr(sol, "angles", {})
+    for p in _in_scene_order(scene.outputs["points"], points):  # a pytree's dicts come back sorted by name
+        cols |= {f"x_{p}": np.asarray(points[p])[:, 0], f"y_{p}": np.asarray(points[p])[:, 1]}
+    for link in _in_scene_order(scene.outputs["angles"], angles):
+        cols[f"theta_{link}"] = angles[link]
     for joint, f in forces.items():
         cols |= {f"Fx_{joint}": f[:, 0], f"Fy_{joint}": f[:, 1], f"F_{joint}": np.hypot(f[:, 0], f[:, 1])}
     if driving is not None:

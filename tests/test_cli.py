@@ -44,6 +44,18 @@ def test_run_defaults_to_the_watt_sixbar():
     assert build_parser().parse_args(["run"]).scene == "watt_sixbar"
 
 
+def test_csv_columns_in_the_scenes_order():
+    from types import SimpleNamespace
+
+    from assurjax.cli import _solution_columns
+
+    t = np.zeros(3)
+    scene = SimpleNamespace(outputs={"points": ["Z", "A"], "angles": ["crank", "arm"]})
+    sol = SimpleNamespace(t=t, q=t, omega=t, points={"A": np.zeros((3, 2)), "Z": np.zeros((3, 2))},
+                          angles={"arm": t, "crank": t})  # sorted, as a pytree's dicts come back
+    assert list(_solution_columns(scene, sol, {}, None))[3:] == ["x_Z", "y_Z", "x_A", "y_A", "theta_crank", "theta_arm"]
+
+
 def test_common_options_before_or_after_the_command():
     for argv in (["--debug", "--no-cache", "run"], ["run", "--debug", "--no-cache"]):
         args = parse_args(build_parser(), argv)

@@ -492,6 +492,8 @@ def test_requests_for_work_and_solvers_without_friction_are_refused_by_name():
         assurjax.reactions(scene, (np.zeros(1_000_001), 0.0, 0.0))
     with pytest.raises(assurjax.AssurjaxError, match="saveat must be a 1-D array of at least one time"):
         assurjax.simulate(scene, saveat=[])
+    with pytest.raises(assurjax.AssurjaxError, match="save_steps saves every solver step: max_steps must be at most 100000"):
+        assurjax.simulate(scene, save_steps=True, max_steps=200_000)
     rough = scene.with_loads((assurjax.JointFriction("A", 0.1, 0.01),))
     with pytest.raises(assurjax.AssurjaxError, match="solver='seed_euler' .* has no joint friction"):
         assurjax.simulate(rough, solver="seed_euler")

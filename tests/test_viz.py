@@ -108,6 +108,9 @@ def test_line_plots_carry_units_and_legends(watt_frames):
         assert ax.get_legend() is not None
     axes = viz.plot_reduced(t, 1 + t, -t)
     assert "kg m^2" in axes[0].get_ylabel() and "N m" in axes[1].get_ylabel()
+    assert axes[0].get_yscale() == "linear"
+    # near a dead point J_red grows without bound: a log scale shows the rest of the turn
+    assert viz.plot_reduced(t, 1 / (1e-9 + (t - 0.5) ** 2))[0].get_yscale() == "log"
     # |F| = hypot(Fx, Fy)
     np.testing.assert_allclose(checks[3][0].lines[0].get_ydata(), np.sqrt(2.0))
     # with the work W and the dissipated energy D: T + V - W and D drawn as given
@@ -115,6 +118,12 @@ def test_line_plots_carry_units_and_legends(watt_frames):
     assert [line.get_label() for line in ax.lines][2:] == ["T + V - W", "dissipated (friction, dampers)"]
     np.testing.assert_allclose(ax.lines[2].get_ydata(), 1 + 0.5 * t)
     np.testing.assert_allclose(ax.lines[3].get_ydata(), 0.5 * t)
+
+
+def test_a_point_at_rest_is_drawn_as_a_point(watt):
+    frames = viz.mechanism_frames(watt, np.full(5, 0.3))  # the same configuration throughout
+    ax = viz.plot_coupler_curves(frames, ["E"])
+    assert ax.lines[0].get_marker() == "o" and ax.lines[0].get_label() == "E (at rest)"
 
 
 def test_velocity_polygon_closes(roberts_scene):

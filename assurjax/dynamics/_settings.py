@@ -124,6 +124,9 @@ WORK_LIMITS: dict[str, tuple[int, int]] = {
 }
 
 
+SAVED_STEPS_LIMIT = WORK_LIMITS["samples"][0]  # steps a run saves with save_steps, rows like samples
+
+
 def _bounded(key: str, check: Callable) -> Callable:
     return lambda v: check(v) and v <= WORK_LIMITS[key][0]
 

@@ -30,7 +30,7 @@ from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
-from ._settings import (BASELINES, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
+from ._settings import (BASELINES, SAVED_STEPS_LIMIT, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
@@ -459,6 +459,12 @@ def simulate(
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
     max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
+    if settings.save_steps:  # every step is a saved row (with its outputs): the budget is the request for memory
+        if prepared.budget_per_span:
+            max_steps = min(max_steps, SAVED_STEPS_LIMIT)
+        elif max_steps > SAVED_STEPS_LIMIT:
+            raise AssurjaxError(f"save_steps saves every solver step: max_steps must be at most {SAVED_STEPS_LIMIT} with it, "
+                                f"got {max_steps} (use samples or saveat for longer runs)")
     step = None if step is None else np.asarray(step, dtype=float)
     settings, table = prepared.resolved(table, batch, max_steps)
     if batch is not None:

@@ -52,7 +52,9 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
     names = list(points if points is not None else frames.points)
     for k, name in enumerate(names):
         xy = masked(frames.points[name], frames.ok) * s
-        ax.plot(xy[:, 0], xy[:, 1], color=trace_color(k), label=f"path of {name}")
+        still = np.ptp(np.asarray(frames.points[name])[np.asarray(frames.ok)], axis=0).max(initial=0.0) == 0.0
+        ax.plot(xy[:, 0], xy[:, 1], "o" if still else "-", color=trace_color(k),
+                label=f"{name} (at rest)" if still else f"path of {name}")
     if equal:
         ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(f"x ({unit})")
@@ -141,6 +143,9 @@ def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank
         _, axes = plt.subplots(1, 2 if tau_red is not None else 1, figsize=(10 if tau_red is not None else 5, 4), squeeze=False, layout="constrained")
         axes = axes[0]
     plot_against(q, {"J_red": j_red}, xlabel=driving_label(driver_kind), ylabel="reduced inertia (kg)" if slider else "reduced inertia (kg m^2)", ax=axes[0], title="reduced inertia")
+    shown = np.asarray(j_red)[np.isfinite(j_red)]
+    if shown.size and shown.min() > 0 and shown.max() > 1e3 * shown.min():  # near a dead point J_red grows without bound
+        axes[0].set_yscale("log")
     if tau_red is not None:
         plot_against(q, {"tau_red": tau_red}, xlabel=driving_label(driver_kind), ylabel="reduced load (N)" if slider else "reduced torque (N m)", ax=axes[1], title="reduced load")
     return axes
