@@ -367,7 +367,8 @@ def simulate(
     default is the scene's ``[simulation] stop``, and no stop without one: the motion
     runs to t1), ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the
     baseline ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
-    over seconds of motion; pass 1e-10 or tighter for reference-quality runs; with joint
+    over seconds of motion in the bundled scenes, up to ~1e-5 rad seen in stick-slip with
+    joint friction; pass 1e-10 or tighter for reference-quality runs; with joint
     friction the friction is solved at each right-hand side to 1e-2 of the tighter of the
     two, not below 1e-12), ``dt`` (a
     fixed step, s), ``max_step`` (the longest adaptive step, s; default: no limit -- set it

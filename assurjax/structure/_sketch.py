@@ -128,6 +128,8 @@ class Sketch:
 def _number(v, what: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(float(v)):
         raise MechanismError(f"{what}: expected a finite number, got {v!r}")
+    if abs(float(v)) > MAGNITUDE_LIMIT:
+        raise MechanismError(f"{what}: must be at most {MAGNITUDE_LIMIT:g} in magnitude, got {v!r}")
     return float(v)
 
 
