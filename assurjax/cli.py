@@ -467,7 +467,6 @@ def _reduced_figure(scene):
     import assurjax
 
     from . import viz
-
     from ._friction import frictions_of
 
     q = _one_period(scene)

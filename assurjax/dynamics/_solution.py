@@ -234,9 +234,11 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
     status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
-    rows = np.arange(int(np.count_nonzero(sol.valid)))
+    n = int(np.count_nonzero(sol.valid))
+    rows = slice(0, n)  # views, where indices copy
     if settings.save_steps:  # once per time: a solver step that ends on a requested time is saved twice
-        rows = rows[np.diff(np.asarray(sol.t)[rows], prepend=-np.inf) != 0]
+        fresh = np.diff(np.asarray(sol.t)[:n], prepend=-np.inf) != 0
+        rows = rows if fresh.all() else np.flatnonzero(fresh)
     reached = saved_rows(sol, rows)
     return replaced(reached, t_stop=t_stop, failed_group=group, status=status)
 

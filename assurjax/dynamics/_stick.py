@@ -219,8 +219,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         inside = (ts >= start) & (ts <= end) & ~filled & ~refused
         # a time at the end takes the end's state: a chunk's row there is the dense output of its
         # last attempt, NaN for a member stopped by a jam at its start (end = start)
-        saved = jax.tree.map(lambda old, new, z_end: jnp.where(_expand(inside, old), jnp.where(_expand(ts == end, old), z_end, new[:-1]), old),
-                             saved, sol.ys, y_end)
+        def save(old, new, z_end):
+            return jnp.where(_expand(inside, old), jnp.where(_expand(ts == end, old), z_end, new[:-1]), old)
+
+        saved = jax.tree.map(save, saved, sol.ys, y_end)
         filled = filled | inside
         fired = jnp.asarray(False if sol.event_mask is None else sol.event_mask)  # a stick segment's: break-away or user
         # a stick segment stopped by a user event (its margins are read only where there are any)
