@@ -373,7 +373,7 @@ def kinematics(
         if not _broadcasts_to(np.shape(value), q.shape):
             raise AssurjaxError(f"kinematics: {name} of shape {np.shape(value)} does not broadcast to q's shape {q.shape}")
     omega, alpha = (jnp.broadcast_to(jnp.asarray(v, dtype=q.dtype), q.shape) for v in (omega, alpha))
-    pts = None if points is None else tuple(points)
+    pts = None if points is None else (points,) if isinstance(points, str) else tuple(points)
     if pts is not None:
         unknown = [p for p in pts if p not in dict(mechanism.owner)]
         if unknown:

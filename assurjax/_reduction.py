@@ -29,10 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from ._errors import AssurjaxError
 from ._jit import jit
 from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
 from ._loads import any_velocity_dependent, check_loads, driver_effort
 from ._mechanism import Mechanism
+from ._values import check_state_count, check_values
 
 
 def reduced_acceleration(inertia, dinertia, force, omega):
@@ -213,8 +215,15 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
     ((50,), ['crank2', 'dyad34', 'dyad56'])
     """
     mechanism, loads, gravity = _unpack(scene_or_mechanism, loads, gravity)
+    check_values(AssurjaxError, "reduce", q=q, omega=omega, t=t)
+    check_values(AssurjaxError, "reduce", shape=(2,), gravity=gravity)
+    check_state_count(AssurjaxError, "reduce", np.shape(q))
     q = jnp.asarray(q, dtype=float)
-    shape = jnp.broadcast_shapes(q.shape, jnp.shape(omega), jnp.shape(t))
+    try:
+        shape = jnp.broadcast_shapes(q.shape, jnp.shape(omega), jnp.shape(t))
+    except ValueError:
+        raise AssurjaxError(f"reduce: q, omega and t must broadcast together, got shapes {q.shape}, {jnp.shape(omega)}, "
+                            f"{jnp.shape(t)}") from None
     q, omega, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, omega, t))
     if not shape:
         return reduce_single(mechanism, gravity, loads, q, omega, t)  # jitted inside (_reduce_with_kinematics)

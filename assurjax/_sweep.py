@@ -336,7 +336,7 @@ def batch_simulate(
     member that locks up or fails does not stop the others).
     """
     from .dynamics._settings import check_single_start, fixed_step_from, settings_from
-    from .dynamics._solve import simulate_core
+    from .dynamics._solve import checked_saveat, simulate_core
     from .dynamics._solution import batch_summary
     from .dynamics._stick import batch_settings, jammed_members
 
@@ -351,6 +351,8 @@ def batch_simulate(
     options = batch_settings(options, scene.loads)
     step = fixed_step_from(scene, settings.get("dt"))
     gravity, loads = scene.gravity, scene.loads
+    if saveat is not None:  # as simulate's
+        saveat = checked_saveat(saveat, t0, t1)
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)
     key = (options, None if ts is None else tuple(np.asarray(ts).tolist()), float(q0), float(omega0), float(t0), float(t1),
            None if step is None else float(step))

@@ -256,7 +256,7 @@ def test_unknown_point_in_kinematics():
         (lambda m: assurjax.static_torque(m, [0.1, np.inf]), ["state: q", "finite"]),
         (lambda m: assurjax.breakaway_band(m, "0.1 rad"), ["state: q", "must be a number", "'0.1 rad'"]),
         (lambda m: assurjax.reactions(m, (0.1, "fast", 0.0)), ["state: omega", "must be a number", "'fast'"]),
-        (lambda m: assurjax.inverse_dynamics(m, lambda t: t, [0.0, np.nan]), ["state: t", "finite"]),
+        (lambda m: assurjax.inverse_dynamics(m, lambda t: t, [0.0, np.nan]), ["inverse_dynamics: t", "finite"]),
         (lambda m: assurjax.inverse_dynamics(m, lambda t: jnp.stack([t, t]), [0.0, 0.1]),
          ["inverse_dynamics", "motion q(t)", "a single number", "shape (2,)"]),
         (lambda m: assurjax.inverse_kinematics(m, ("B", "x"), np.nan, 0.5), ["inverse kinematics: value", "finite"]),
@@ -497,3 +497,53 @@ def test_requests_for_work_and_solvers_without_friction_are_refused_by_name():
     rough = scene.with_loads((assurjax.JointFriction("A", 0.1, 0.01),))
     with pytest.raises(assurjax.AssurjaxError, match="solver='seed_euler' .* has no joint friction"):
         assurjax.simulate(rough, solver="seed_euler")
+
+
+def test_more_inputs_named_where_they_are_given():
+    scene = assurjax.load_scene("slider_crank")
+    for kwargs, message in ((dict(q=np.nan), "reduce: q must be finite"), (dict(q=None), "reduce: q must be a number"),
+                            (dict(q=0.3, gravity=[0.0, -9.81, 0.0]), "reduce: gravity must be a 2-vector")):
+        with pytest.raises(assurjax.AssurjaxError, match=message):
+            assurjax.reduce(scene, **kwargs)
+    for motion, message in ((lambda t: None, "motion q\\(t\\) must return a number, it returns None"),
+                            (lambda t: "x", "motion q\\(t\\) must return a number, it returns 'x'")):
+        with pytest.raises(assurjax.AssurjaxError, match=message):
+            assurjax.inverse_dynamics(scene, motion, np.linspace(0.0, 1.0, 3))
+    with pytest.raises(assurjax.AssurjaxError, match="inverse_dynamics: t must be a number"):
+        assurjax.inverse_dynamics(scene, lambda t: 2.0 * t, None)
+    with pytest.raises(assurjax.AssurjaxError, match="unknown adjoint 'foo'; choose one of .*'quadrature', 'sensitivity'"):
+        synthesis.final_state(scene, 0.5, adjoint="foo")
+    with pytest.raises(assurjax.AssurjaxError, match="standstill_time: adjoint='backsolve' solves no events"):
+        synthesis.standstill_time(scene, adjoint="backsolve")
+    with pytest.raises(assurjax.AssurjaxError, match="quadrature needs integers panels >= 1 and nodes from 2 to 64"):
+        synthesis.final_state(scene, 0.5, adjoint="quadrature", panels=2.5)
+    with pytest.raises(assurjax.AssurjaxError, match="panels \\* nodes at most 100,000"):
+        synthesis.final_state(scene, 0.5, adjoint="quadrature", panels=10**7)
+    with pytest.raises(assurjax.AssurjaxError, match="saveat: at most 100,000 times"):
+        assurjax.simulate(scene, saveat=np.linspace(0.0, 1.0, 100_001))
+    with pytest.raises(assurjax.AssurjaxError, match="saveat must be finite times"):
+        assurjax.batch_simulate(scene, jax.tree.map(lambda x: np.stack([x, x]), scene.mechanism), saveat=[0.0, np.nan])
+
+
+def test_inverse_dynamics_of_an_integer_motion_holds_it_there():
+    # a crank held at q = 1 (an int): the effort is the static torque there, as for q = 1.0
+    scene = assurjax.load_scene("watt_sixbar")
+    held = assurjax.inverse_dynamics(scene, lambda t: 1, np.linspace(0.0, 1.0, 3)).driving
+    np.testing.assert_allclose(held, assurjax.inverse_dynamics(scene, lambda t: 1.0 + 0.0 * t, np.linspace(0.0, 1.0, 3)).driving)
+
+
+def test_a_batch_counts_a_member_that_cannot_assemble_at_the_start_once():
+    import dataclasses
+
+    from assurjax.dynamics._results import LOCKUP, NO_EVENT, START_NOT_ASSEMBLED
+    from assurjax.dynamics._solution import batch_summary
+
+    @dataclasses.dataclass
+    class Ends:  # the fields batch_summary reads
+        result: np.ndarray
+        event: np.ndarray
+        status: str = ""
+
+    # its event says lock-up (the check that found it); it was counted there as well
+    summary = batch_summary(Ends(np.array([0, START_NOT_ASSEMBLED]), np.array([NO_EVENT, LOCKUP])))
+    assert summary.status == "batch of 2: 1 reached t1, 1 cannot assemble at the start"

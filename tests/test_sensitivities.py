@@ -348,3 +348,20 @@ def test_backsolve_adjoint_matches_the_recursive_one():
         back = jax.grad(theta)(-9.81, "backsolve", loads)
         recursive = jax.grad(theta)(-9.81, "recursive", loads)
         np.testing.assert_allclose(back, recursive, rtol=1e-6)
+
+
+def test_final_state_past_a_lock_up_is_no_result():
+    """A slider-crank whose rod (0.05 m) is shorter than its crank (0.1 m) locks up within
+    0.5 s (simulate stops there). final_state, which does not stop at a lock-up, returned
+    the pose it integrated on to, where the mechanism does not assemble, with a finite
+    derivative; now it says so, and under jit the result is NaN."""
+    scene = assurjax.load_scene("slider_crank")
+    short = eqx.tree_at(lambda s: s.mechanism.links["rod"].points["B"], scene, jnp.array([0.05, 0.0]))
+    assert assurjax.simulate(short, t1=0.5).status.startswith("group 'rod_slider' can no longer assemble")
+    with pytest.raises(assurjax.AssurjaxError, match="final_state: the motion did not end as asked: the mechanism does "
+                                                     "not assemble at its final q: the motion passed a lock-up"):
+        syn.final_state(short, 0.5)
+    q, w = jax.jit(lambda m: syn.final_state(short.replace_mechanism(m), 0.5))(short.mechanism)
+    assert np.isnan(q) and np.isnan(w)
+    q, w = syn.final_state(scene, 0.5)  # the bundled one runs on: a finite result, and it assembles there
+    assert np.isfinite(q) and np.asarray(assurjax.positions(scene.mechanism, q).ok).all()

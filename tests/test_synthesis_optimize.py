@@ -298,3 +298,19 @@ def test_bad_options_are_reported():
     with pytest.raises(AssurjaxError, match="fixed length"):
         syn.straight_line_problem(LENGTHS, fixed=("XY",))
     assert math.isfinite(syn.optimize(design, _path_objective, optax.adam(0.1), 3, has_aux=True).loss)
+
+
+def test_optimize_requests_and_starts_are_checked_by_name():
+    # starts outside the bounds were clipped to them (where the sigmoid is flat: they never moved),
+    # NaN starts ended 'infeasible'; 10**9 steps allocated their history up front
+    design, objective = syn.straight_line_problem(LENGTHS)
+    x0 = design.start()
+    outside = jax.tree.map(lambda x, lo: jnp.stack([x, jnp.where(jnp.isfinite(lo), lo - 1.0, jnp.nan)]), x0, design.lower)
+    with pytest.raises(AssurjaxError, match="optimize: starts\\[1\\]: selected parameter"):
+        syn.optimize(design, objective, optax.adam, 10, starts=outside, has_aux=True, options={"learning_rate": 1e-3})
+    with pytest.raises(AssurjaxError, match="optimize: steps must be an integer from 0 to 1,000,000, got 1000000000"):
+        syn.optimize(design, objective, optax.adam, 10**9, has_aux=True, options={"learning_rate": 1e-3})
+    with pytest.raises(AssurjaxError, match="optimize: steps must be an integer"):
+        syn.optimize(design, objective, optax.adam, 2.5, has_aux=True, options={"learning_rate": 1e-3})
+    with pytest.raises(AssurjaxError, match="optimize: starts must be from 1 to 10,000"):
+        syn.optimize(design, objective, optax.adam, 10, starts=10**8, has_aux=True, options={"learning_rate": 1e-3})

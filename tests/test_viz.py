@@ -120,6 +120,21 @@ def test_line_plots_carry_units_and_legends(watt_frames):
     np.testing.assert_allclose(ax.lines[3].get_ydata(), 0.5 * t)
 
 
+@pytest.mark.parametrize("call, message", [
+    (lambda m: viz.animate(m, [0.1, 0.2], trace=["ZZ"]), "animate: trace: unknown point\\(s\\) \\['ZZ'\\]"),
+    (lambda m: viz.animate(m, [], trace=["E"]), "mechanism_frames: q must be one value or a 1-D array of at least one"),
+    (lambda m: viz.animate(m, [0.1, 0.2], omega=[1.0, 2.0, 3.0]), "mechanism_frames: omega of shape \\(3,\\)"),
+    (lambda m: viz.animate(m, [0.1, 0.2], t=[0.0]), "animate: t must give one time per value of q"),
+    (lambda m: viz.draw_mechanism(m, np.array([0.3])), "draw_mechanism: q must be a single number"),
+    (lambda m: viz.draw_mechanism(assurjax.load_scene("watt_sixbar"), 0.3), "expected an assurjax.Mechanism"),
+    (lambda m: viz.save_gif([], "x.gif"), "save_gif: no frames to write"),
+    (lambda m: viz.save_gif([np.zeros((4, 4, 3), np.uint8)], "x.png"), "save_gif: the path must end in .gif"),
+])
+def test_bad_drawing_requests_are_named(watt, call, message):
+    with pytest.raises(assurjax.AssurjaxError, match=message):
+        call(watt)
+
+
 def test_a_point_at_rest_is_drawn_as_a_point(watt):
     frames = viz.mechanism_frames(watt, np.full(5, 0.3))  # the same configuration throughout
     ax = viz.plot_coupler_curves(frames, ["E"])

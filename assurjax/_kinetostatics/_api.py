@@ -438,15 +438,30 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     >>> r.driving.shape
     (101,)
     """
+    check_values(AssurjaxError, "inverse_dynamics", t=t)
     check_state_count(AssurjaxError, "inverse_dynamics: the times t", np.shape(t))
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
-        q, omega, alpha = _derivatives(motion, t)
+        q, omega, alpha = _derivatives(_as_float(motion), t)
     else:
         if not isinstance(motion, (tuple, list)) or len(motion) != 3:
             raise AssurjaxError("motion must be a function q(t) or samples (q, omega, domega) at the times t")
         q, omega, alpha = (jnp.asarray(v, dtype=float) for v in motion)
     return reactions(scene, (q, omega, alpha, t), joints=joints, method=method, check=check)
+
+
+def _as_float(motion):
+    """``motion`` returning floats (an integer q(t), e.g. a crank held at q = 1, has no
+    derivative to take), and refusing what is no number by name."""
+    def q(t):
+        value = motion(t)
+        if not hasattr(value, "dtype") and not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a number, it returns {value!r:.60}")
+        if hasattr(value, "dtype") and not jnp.issubdtype(value.dtype, jnp.number):
+            raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a number, it returns an array of {value.dtype}")
+        return jnp.asarray(value, dtype=float)
+
+    return q
 
 
 def _derivatives(motion, t):

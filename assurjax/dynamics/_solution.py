@@ -293,11 +293,11 @@ def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
     the members stopped where the joint friction jams (counted apart from solver failures)."""
     codes = result_code(sols.result)
     events, results = np.asarray(sols.event), np.where(np.isin(codes, FINISHED), 0, codes)
-    parts = [f"{np.sum(events == code)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
-             if np.any(events == code)]
+    unassembled = codes == START_NOT_ASSEMBLED  # its event says lock-up too: counted once, below
+    parts = [f"{np.sum((events == code) & ~unassembled)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
+             if np.any((events == code) & ~unassembled)]
     parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
     parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
-    unassembled = result_code(sols.result) == START_NOT_ASSEMBLED
     parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
     jammed = np.zeros(codes.shape, dtype=bool) if jammed is None else jammed
     parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []

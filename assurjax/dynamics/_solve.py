@@ -30,7 +30,7 @@ from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
-from ._settings import (BASELINES, SAVED_STEPS_LIMIT, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
+from ._settings import (BASELINES, SAVED_STEPS_LIMIT, WORK_LIMITS, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
                         lockup_controller, state_problem, step_budget)
 from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
@@ -456,7 +456,7 @@ def simulate(
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
-    saveat = None if saveat is None else _checked_saveat(saveat, t0, t1)
+    saveat = None if saveat is None else checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
     max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
@@ -574,11 +574,13 @@ def simulation_table(scene) -> dict:
     return {} if scene is None else scene.simulation
 
 
-def _checked_saveat(saveat, t0, t1) -> np.ndarray:
+def checked_saveat(saveat, t0, t1) -> np.ndarray:
     """The save times as a 1-D float array, sorted from t0 towards t1 and inside [t0, t1]."""
     saveat = np.asarray(saveat, dtype=float)
     if saveat.ndim != 1 or not saveat.size:
         raise AssurjaxError(f"saveat must be a 1-D array of at least one time, got shape {saveat.shape}")
+    if saveat.size > WORK_LIMITS["samples"][0]:  # bounded as samples are
+        raise AssurjaxError(f"saveat: at most {WORK_LIMITS['samples'][0]:,} times, got {saveat.size:,}")
     steps = np.diff(saveat) * np.sign(t1 - t0)
     if np.any(steps < 0) or not np.all(np.isfinite(saveat)):
         raise AssurjaxError("saveat must be finite times in the direction from t0 to t1")
@@ -598,7 +600,13 @@ def _batch_shape(q0, omega0):
         raise AssurjaxError(f"q0 (shape {q0.shape}) and omega0 (shape {omega0.shape}) do not broadcast together") from None
     if len(shape) != 1:
         raise AssurjaxError(f"a batch of starting states needs 1-D q0/omega0, got shape {shape}")
+    if not 1 <= shape[0] <= MAX_STARTS:
+        raise AssurjaxError(f"a batch of starting states holds 1 to {MAX_STARTS:,} of them, got {shape[0]:,} "
+                            "(split larger batches over several calls)")
     return shape
+
+
+MAX_STARTS = 1_000_000  # starting states per simulate call: each saves its samples
 
 
 def _resolve_reduction(settings: Settings, table, model: Model, batch):

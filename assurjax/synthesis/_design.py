@@ -65,7 +65,7 @@ class Design(eqx.Module):
             self.fixed = jax.tree.map(lambda x, f: jnp.broadcast_to(jnp.asarray(f, dtype=bool), x.shape), x0, per_leaf)
         except ValueError as e:
             raise AssurjaxError(f"Design: fixed must be a boolean or a pytree of booleans shaped like the selection ({e})") from None
-        _check_inside(x0, self.lower, self.upper, self.fixed)
+        check_inside(x0, self.lower, self.upper, self.fixed)
 
     def start(self) -> Any:
         """The selected parameter values of the base design (the start values)."""
@@ -104,12 +104,16 @@ def _bound(x0, bound, default, which: str):
         raise AssurjaxError(f"Design: {which} bounds must be a number or a pytree shaped like the selection ({e})") from None
 
 
-def _check_inside(x0, lower, upper, fixed):
+def check_inside(x0, lower, upper, fixed):
     paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(x0)[0]]
     for name, x, lo, hi, f in zip(paths, jax.tree.leaves(x0), jax.tree.leaves(lower), jax.tree.leaves(upper), jax.tree.leaves(fixed)):
         free = ~np.asarray(f)
         x, lo, hi = np.asarray(x)[free], np.asarray(lo)[free], np.asarray(hi)[free]
         where = f"selected parameter {name or '(the selection)'}"
+        if np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+            raise AssurjaxError(f"Design: {where}: bounds must be numbers or +-inf (no bound), got lower {lo}, upper {hi}")
+        if not np.all(np.isfinite(x)):
+            raise AssurjaxError(f"Design: {where}: the starting value must be finite, got {x}")
         if np.any(lo > hi) or np.any(~np.isinf(lo) & ~np.isinf(hi) & (lo == hi)):
             raise AssurjaxError(f"Design: {where}: empty bounds (lower {lo} must be below upper {hi})")
         if np.any(x <= lo) or np.any(x >= hi):

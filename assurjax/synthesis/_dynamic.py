@@ -41,9 +41,10 @@ import numpy as np
 from .._errors import AssurjaxError
 from .._jit import jit
 from .._model import check_has_inertia
+from .._positions import assembled
 from ..dynamics._field import arrival_acceleration
 from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
-from ..dynamics._settings import check_single_start, fixed_step_from, settings_from
+from ..dynamics._settings import ADJOINTS, check_single_start, fixed_step_from, settings_from
 from ..dynamics._stick import jammed_members
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
@@ -62,8 +63,12 @@ def _settings(scene, settings: dict, **fixed):
     return opts._replace(reduction="exact") if opts.reduction == "auto" else opts
 
 
-def _check_start(scene, q0, omega0, t1) -> None:
-    """:func:`check_single_start` of the caller's start and horizon, else the scene's [state]."""
+def _check_start(scene, q0, omega0, t1, adjoint) -> None:
+    """:func:`check_single_start` of the caller's start and horizon, else the scene's [state];
+    the adjoint's name."""
+    known = sorted(ADJOINTS) + sorted(SENSITIVITY_ROUTES)
+    if adjoint not in known:
+        raise AssurjaxError(f"unknown adjoint {adjoint!r}; choose one of {known}")
     check_has_inertia(scene.mechanism)
     state = scene.state
     check_single_start(state.get("q0", 0.0) if q0 is None else q0, state.get("omega0", 0.0) if omega0 is None else omega0,
@@ -77,20 +82,27 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``, ``dt``,
     ``max_steps``) over the scene's ``[simulation]``.
 
-    A run that does not reach ``t1`` (the joint friction jams the mechanism, a group locks
-    up, the step budget runs out) has no q(T): called as it is, this raises
-    :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``, ``vmap``,
-    ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run."""
-    _check_start(scene, q0, omega0, t1)
+    A run that does not reach ``t1`` (the joint friction jams the mechanism, the step
+    budget runs out) or ends where the mechanism does not assemble (it passed a lock-up: the
+    run does not stop at one unless ``check_assembly=True``) has no q(T): called as it is,
+    this raises :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``,
+    ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run."""
+    _check_start(scene, q0, omega0, t1, adjoint)
     if adjoint in SENSITIVITY_ROUTES:
         q, w, result = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return _route_as_asked(result, "final_state", q, w)
+        return _route_as_asked(result, "final_state", q, w, assembles=jnp.all(assembled(scene.mechanism, q)))
     opts = _settings(scene, {"check_assembly": False, **settings}, standstill=False, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
-    return _as_asked(sol, scene.model, opts, "final_state", sol.q_final, sol.omega_final, ended=sol.event < 0)
+    assembles = jnp.all(assembled(scene.mechanism, sol.q_final))  # past a lock-up the motion means nothing
+    return _as_asked(sol, scene.model, opts, "final_state", sol.q_final, sol.omega_final, ended=sol.event < 0,
+                     assembles=assembles)
+
+
+LOCKUP_PASSED = ("the mechanism does not assemble at its final q: the motion passed a lock-up (a limit position) "
+                 "before t1 (check_assembly=True stops it there)")
 
 
 def _traced(*values) -> bool:
@@ -105,26 +117,30 @@ def _failed_as_nan(ok, values):
                  for v in values)
 
 
-def _route_as_asked(result, what: str, *values):
+def _route_as_asked(result, what: str, *values, assembles=True):
     """:func:`_as_asked` for the sensitivity routes, which end at t1 or their standstill
     event unless the solver fails (``result``: its integer code)."""
-    ok = (result == FINISHED[0]) | (result == FINISHED[1])
+    finished_ok = (result == FINISHED[0]) | (result == FINISHED[1])
+    ok = finished_ok & assembles
     if _traced(ok, *values):
         return _failed_as_nan(ok, values)
     if not bool(np.all(ok)):
-        raise AssurjaxError(f"{what}: the motion did not end as asked: {result_text(int(result_code(result)))} (under "
-                            "jit, vmap or grad this result is NaN)")
+        why = result_text(int(result_code(result))) if not bool(np.all(finished_ok)) else LOCKUP_PASSED
+        raise AssurjaxError(f"{what}: the motion did not end as asked: {why} (under jit, vmap or grad this result is NaN)")
     return values
 
 
-def _as_asked(sol, model, settings, what: str, *values, ended):
+def _as_asked(sol, model, settings, what: str, *values, ended, assembles=True):
     """``values`` of a run that ended as asked (``ended``: at t1, or at the event asked for,
     and no solver failure). Where it did not (the joint friction jams it, a group locks up,
     the step budget runs out), the values are not the result asked for: outside any
     transformation raise, naming how it ended; under one (jit, vmap, grad), NaN in its place."""
-    ok = finished(sol.result) & ended
+    ok = finished(sol.result) & ended & assembles
     if _traced(ok, sol.t_final, sol.q_final, sol.omega_final, *values):
         return _failed_as_nan(ok, values)
+    if bool(np.all(finished(sol.result) & ended)) and not bool(np.all(assembles)):
+        raise AssurjaxError(f"{what}: the motion did not end as asked: {LOCKUP_PASSED} (under jit, vmap or grad this "
+                            "result is NaN)")
     if not bool(np.all(ok)):
         code, event, t_final = int(result_code(sol.result)), int(sol.event), float(sol.t_final)
         failed = int(sol.failed_group_index)
@@ -168,7 +184,10 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     A run that fails before its standstill or ``t1`` (a jam, a lock-up, the step budget)
     raises :class:`assurjax.AssurjaxError`, or under a transformation gives t* = NaN, ok False.
     """
-    _check_start(scene, q0, omega0, t1)
+    _check_start(scene, q0, omega0, t1, adjoint)
+    if adjoint == "backsolve":  # diffrax's BacksolveAdjoint takes no events
+        raise AssurjaxError("standstill_time: adjoint='backsolve' solves no events, and the standstill is one; use "
+                            "'recursive', 'forward', 'quadrature' or 'sensitivity'")
     if adjoint in SENSITIVITY_ROUTES:
         t_star, ok, result = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return _route_as_asked(result, "standstill_time", t_star, ok)

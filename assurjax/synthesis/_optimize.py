@@ -23,7 +23,10 @@ from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
 from .._structure import by_structure
 from .._values import all_finite
-from ._design import Design
+from ._design import Design, check_inside
+
+MAX_STEPS = 1_000_000  # optimizer steps per call: the history is allocated for them up front
+MAX_STARTS = 10_000  # starting designs per call
 
 STATUSES = ("steps", "target", "converged", "infeasible")
 _STEPS, _TARGET, _CONVERGED, _INFEASIBLE, _RUNNING = 0, 1, 2, 3, -1
@@ -426,8 +429,8 @@ def optimize(
     ...                       schedule={"sharpness": [50.0, 200.0, 1000.0]}, starts=4)
     >>> result.loss, result.values, result.evaluations
     """
-    if steps < 0:
-        raise AssurjaxError(f"steps must be non-negative, got {steps}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
+        raise AssurjaxError(f"optimize: steps must be an integer from 0 to {MAX_STEPS:,}, got {steps!r}")
     if batch not in ("auto", "vmap", "sequential"):
         raise AssurjaxError(f"optimize: batch must be 'auto', 'vmap' or 'sequential', got {batch!r}")
     if compile_mode not in COMPILE_MODES:
@@ -505,9 +508,9 @@ def _starting_values(design: Design, starts, seed: int):
     x0 = design.start()
     if starts is None:
         return jax.tree.map(lambda x: x[None], x0)
-    if isinstance(starts, (int, np.integer)):
-        if starts < 1:
-            raise AssurjaxError(f"optimize: starts must be at least 1, got {starts}")
+    if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
+        if not 1 <= starts <= MAX_STARTS:
+            raise AssurjaxError(f"optimize: starts must be from 1 to {MAX_STARTS:,}, got {starts}")
         for lo, hi in zip(jax.tree.leaves(design.lower), jax.tree.leaves(design.upper)):
             if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
                 raise AssurjaxError("optimize: random starts need finite lower and upper bounds on every design variable")
@@ -522,6 +525,14 @@ def _starting_values(design: Design, starts, seed: int):
         given = jax.tree.map(lambda x, s: jnp.asarray(s, dtype=x.dtype).reshape((-1,) + jnp.shape(x)), x0, starts)
     except (ValueError, TypeError) as e:
         raise AssurjaxError(f"optimize: starts must be parameter values shaped like the selection, with a leading start axis ({e})") from None
+    counts = {int(np.shape(x)[0]) for x in jax.tree.leaves(given)}
+    if len(counts) != 1 or not 1 <= counts.pop() <= MAX_STARTS:
+        raise AssurjaxError(f"optimize: starts must give every parameter the same number of starts, 1 to {MAX_STARTS:,}")
+    for k in range(int(np.shape(jax.tree.leaves(given)[0])[0])):  # each inside its bounds, as Design's own start
+        try:
+            check_inside(jax.tree.map(lambda g: g[k], given), design.lower, design.upper, design.fixed)
+        except AssurjaxError as e:
+            raise AssurjaxError(f"optimize: starts[{k}]: {str(e).removeprefix('Design: ')}") from None
     return given
 
 

@@ -342,9 +342,17 @@ def _options(scene, settings: dict) -> SensitivityOptions:
     options = SensitivityOptions(settings=settings_from(scene, **settings), dt=dt, **own)
     if options.method not in ("loop", "quadrature"):
         raise AssurjaxError(f"sensitivity method must be 'loop' or 'quadrature', got {options.method!r}")
-    if options.panels < 1 or options.nodes < 2:
-        raise AssurjaxError(f"quadrature needs panels >= 1 and nodes >= 2, got panels={options.panels}, nodes={options.nodes}")
+    counts = (options.panels, options.nodes)
+    if (not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in counts) or options.panels < 1
+            or not 2 <= options.nodes <= MAX_NODES or options.panels * options.nodes > MAX_QUADRATURE_NODES):
+        raise AssurjaxError(f"quadrature needs integers panels >= 1 and nodes from 2 to {MAX_NODES}, "
+                            f"panels * nodes at most {MAX_QUADRATURE_NODES:,}; got panels={options.panels!r}, "
+                            f"nodes={options.nodes!r}")
     return options
+
+
+MAX_NODES = 64  # Gauss-Legendre nodes per panel (NumPy's rule loses accuracy past ~100)
+MAX_QUADRATURE_NODES = 100_000  # nodes in all: each holds a reverse pass's state
 
 
 def final_state_sensitivity(scene, t1, *, q0=None, omega0=None, mechanism=None, gravity=None, loads=None, **settings):

@@ -25,7 +25,7 @@ from .._errors import AssurjaxError
 from .._mechanism import Mechanism
 from .._values import check_value
 from ._draw import MechanismDrawing, place_legend
-from ._frames import mechanism_frames
+from ._frames import mechanism_frames, point_names
 
 MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
 
@@ -62,7 +62,9 @@ def animate(
     if np.size(q) > MAX_FRAMES:
         raise AssurjaxError(f"animate: at most {MAX_FRAMES} frames (values of q), got {np.size(q)}: take every k-th sample, q[::k]")
     check_value(AssurjaxError, "animate: interval_ms", interval_ms, shape=(), positive=True)
-    velocities = tuple(velocities)
+    velocities, trace = point_names(mechanism, velocities, "animate: velocities"), point_names(mechanism, trace, "animate: trace")
+    if t is not None and np.shape(t) != (np.size(q),):
+        raise AssurjaxError(f"animate: t must give one time per value of q ({np.size(q)}), got shape {np.shape(t)}")
     frames = mechanism_frames(mechanism, q, omega, velocities=bool(velocities))
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
@@ -138,7 +140,11 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     from PIL import Image
 
     path = Path(path)
+    if path.suffix.lower() != ".gif":  # Pillow would write whatever the suffix names
+        raise AssurjaxError(f"save_gif: the path must end in .gif, got {str(path)!r}")
     images = _images(anim, progress)
+    if not len(images):
+        raise AssurjaxError("save_gif: no frames to write")
     first = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
     rest = [Image.fromarray(im).quantize(palette=first, dither=Image.Dither.NONE) for im in images[1:]]
     first.save(path, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)

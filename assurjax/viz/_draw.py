@@ -11,9 +11,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Polygon
 
+from .._errors import AssurjaxError
 from .._mechanism import Mechanism
+from .._values import check_values
 from ..groups import GROUND
-from ._frames import Frames, extent, length_scale, mechanism_frames
+from ._frames import Frames, extent, length_scale, mechanism_frames, point_names
 
 LINK_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 VELOCITY_COLOR = "crimson"
@@ -225,9 +227,11 @@ def draw_mechanism(
     **Example:**
     >>> drawing = assurjax.viz.draw_mechanism(mech, 1.0, velocities=["P"], trace=["P"], unit="mm")
     """
+    velocities = point_names(mechanism, velocities, "draw_mechanism: velocities")
+    trace = point_names(mechanism, trace, "draw_mechanism: trace")
+    check_values(AssurjaxError, "draw_mechanism", shape=(), q=q, omega=omega)
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
-    velocities, trace = tuple(velocities), tuple(trace)
     frames = mechanism_frames(mechanism, [q], omega, velocities=bool(velocities))
     trace_frames = None
     if trace:
@@ -236,6 +240,7 @@ def draw_mechanism(
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels,
                                velocity_scale=velocity_scale, trace_frames=trace_frames)
     drawing.update(0)
-    ax.set_title(f"{mechanism.name} at q = {q:.4g} {'m' if mechanism.driver.kind == 'slider' else 'rad'}")
+    unassembled = "" if frames.ok[0] else " (it does not assemble there: the drawing means nothing)"
+    ax.set_title(f"{mechanism.name} at q = {float(q):.4g} {'m' if mechanism.driver.kind == 'slider' else 'rad'}{unassembled}")
     place_legend(ax)
     return drawing

@@ -11,6 +11,7 @@ from collections.abc import Iterable, Mapping
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .._errors import AssurjaxError
 from ._draw import trace_color
 from ._frames import Frames, length_scale, masked
 
@@ -49,10 +50,14 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
     >>> assurjax.viz.plot_coupler_curves(frames, ["E"], unit="mm")
     """
     ax, s = _axes(ax), length_scale(unit)
-    names = list(points if points is not None else frames.points)
+    names = [points] if isinstance(points, str) else list(points if points is not None else frames.points)
+    unknown = [n for n in names if n not in frames.points]
+    if unknown:
+        raise AssurjaxError(f"plot_coupler_curves: unknown point(s) {unknown}; the frames have {sorted(frames.points)}")
     for k, name in enumerate(names):
         xy = masked(frames.points[name], frames.ok) * s
-        still = np.ptp(np.asarray(frames.points[name])[np.asarray(frames.ok)], axis=0).max(initial=0.0) == 0.0
+        shown = np.asarray(frames.points[name])[np.asarray(frames.ok)]
+        still = shown.size > 0 and np.ptp(shown, axis=0).max() == 0.0
         ax.plot(xy[:, 0], xy[:, 1], "o" if still else "-", color=trace_color(k),
                 label=f"{name} (at rest)" if still else f"path of {name}")
     if equal:
@@ -133,11 +138,16 @@ def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, component
     return plot_time_histories(t, series, ylabel="reaction force (N)", ax=ax, title="joint reactions")
 
 
-def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank"):
+def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank", ok=None):
     """Reduced inertia J_red(q) (kg m^2, or kg for a slider) and reduced load
     tau_red(q) (N m, or N) against the driving coordinate (Durango et al. 2014, eqs. 3-6).
 
-    Pass one period of q (one crank turn, or the slider's stroke): the curves repeat after it."""
+    Pass one period of q (one crank turn, or the slider's stroke): the curves repeat after it.
+    ``ok``: where the mechanism assembles (e.g. ``Reduction.ok.all(axis=-1)``); elsewhere the
+    values mean nothing and are left out (gaps)."""
+    if ok is not None:
+        j_red = masked(j_red, ok)
+        tau_red = None if tau_red is None else masked(tau_red, ok)
     slider = driver_kind == "slider"
     if axes is None:
         _, axes = plt.subplots(1, 2 if tau_red is not None else 1, figsize=(10 if tau_red is not None else 5, 4), squeeze=False, layout="constrained")
