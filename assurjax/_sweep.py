@@ -114,8 +114,17 @@ def perturb(
     if not (isinstance(n, numbers.Integral) and 0 < n <= MAX_COPIES):
         raise AssurjaxError(f"perturb: n must be a positive integer, at most {MAX_COPIES}, got {n!r}")
     check_values(AssurjaxError, "perturb", shape=(), relative=relative, absolute=absolute)
+    if not isinstance(mechanism, Mechanism) and select is None:
+        raise AssurjaxError(f"perturb: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
+                            f"{type(mechanism).__name__}; other pytrees need a select")
+    if not (isinstance(key, jax.Array) and jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+            or np.shape(key) == (2,) and jnp.issubdtype(jnp.result_type(key), jnp.unsignedinteger)):
+        raise AssurjaxError(f"perturb: key must be a JAX random key (jax.random.key(0) or jax.random.PRNGKey(0)), got {key!r}")
     select = point_coordinates if select is None else select
-    chosen = select(mechanism)
+    try:
+        chosen = select(mechanism)
+    except (KeyError, AttributeError, IndexError, TypeError) as e:
+        raise AssurjaxError(f"perturb: select failed on the mechanism ({type(e).__name__}: {e})") from None
     leaves, treedef = jax.tree.flatten(chosen)
     keys = jax.random.split(key, 2 * len(leaves))
     new = []
@@ -199,9 +208,12 @@ def sweep(
     n = int(batch) if isinstance(batch, (int, np.integer)) else batch_size(batch)
     if n <= 0:
         raise AssurjaxError(f"sweep: empty batch (size {n})")
-    size = n if chunk_size is None else min(int(chunk_size), n)
-    if size <= 0:
-        raise AssurjaxError(f"sweep: chunk_size must be positive, got {chunk_size}")
+    if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer))
+                                   or chunk_size <= 0):
+        raise AssurjaxError(f"sweep: chunk_size must be a positive integer, got {chunk_size!r}")
+    if isinstance(batch, (int, np.integer)) and chunk_size is None and n > MAX_COPIES:
+        raise AssurjaxError(f"sweep: {n:,} items in one call; give a chunk_size (at most {MAX_COPIES:,} items a call)")
+    size = n if chunk_size is None else min(int(chunk_size), n, MAX_COPIES)
     if mesh is not None:
         size = -(-size // mesh.size) * mesh.size
     run = _compiled_vmap(fn)

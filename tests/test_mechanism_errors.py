@@ -264,6 +264,9 @@ def test_unknown_point_in_kinematics():
         (lambda m: assurjax.batch_kinematics(assurjax.stack_mechanisms([m, m]), [0.1, np.nan]), ["batch_kinematics: q", "finite"]),
         (lambda m: assurjax.perturb(m, jax.random.key(0), 4, relative=np.inf), ["perturb: relative", "finite"]),
         (lambda m: assurjax.perturb(m, jax.random.key(0), 10**9), ["perturb: n", "at most 10000000"]),
+        (lambda m: assurjax.perturb(m, 0, 4), ["perturb: key must be a JAX random key"]),
+        (lambda m: assurjax.perturb(m, jax.random.key(0), 4, select=lambda x: x.links["zz"]), ["perturb: select failed", "'zz'"]),
+        (lambda m: assurjax.sweep(lambda i: i, 10, chunk_size=2.5), ["sweep: chunk_size must be a positive integer"]),
     ],
 )
 def test_states_given_to_the_analyses_are_checked(call, fragments):

@@ -314,3 +314,15 @@ def test_optimize_requests_and_starts_are_checked_by_name():
         syn.optimize(design, objective, optax.adam, 2.5, has_aux=True, options={"learning_rate": 1e-3})
     with pytest.raises(AssurjaxError, match="optimize: starts must be from 1 to 10,000"):
         syn.optimize(design, objective, optax.adam, 10, starts=10**8, has_aux=True, options={"learning_rate": 1e-3})
+
+
+@pytest.mark.parametrize("option, message", [
+    (dict(patience=-3), "optimize: patience must be an integer from 0"),
+    (dict(restarts=-1), "optimize: restarts must be an integer from 0"),
+    (dict(rtol=np.nan), "optimize: rtol must be finite"),
+    (dict(target=np.nan), "optimize: target must be finite"),
+])
+def test_optimize_settings_are_checked_by_name(option, message):
+    design, objective = syn.straight_line_problem(LENGTHS)
+    with pytest.raises(AssurjaxError, match=message):
+        syn.optimize(design, objective, optax.adam, 10, has_aux=True, options={"learning_rate": 1e-3}, **option)

@@ -22,7 +22,7 @@ import optax
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
 from .._structure import by_structure
-from .._values import all_finite
+from .._values import all_finite, check_values
 from ._design import Design, check_inside
 
 MAX_STEPS = 1_000_000  # optimizer steps per call: the history is allocated for them up front
@@ -431,6 +431,12 @@ def optimize(
     """
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
         raise AssurjaxError(f"optimize: steps must be an integer from 0 to {MAX_STEPS:,}, got {steps!r}")
+    for name, value in (("patience", patience), ("restarts", restarts), ("max_backtracks", max_backtracks)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= MAX_STEPS:
+            raise AssurjaxError(f"optimize: {name} must be an integer from 0 to {MAX_STEPS:,}, got {value!r}")
+    check_values(AssurjaxError, "optimize", rtol=rtol, gtol=gtol, **({} if target is None else {"target": target}))
+    if rtol < 0 or gtol < 0:
+        raise AssurjaxError(f"optimize: rtol and gtol must be non-negative, got {rtol}, {gtol}")
     if batch not in ("auto", "vmap", "sequential"):
         raise AssurjaxError(f"optimize: batch must be 'auto', 'vmap' or 'sequential', got {batch!r}")
     if compile_mode not in COMPILE_MODES:
