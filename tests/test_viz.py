@@ -135,6 +135,16 @@ def test_bad_drawing_requests_are_named(watt, call, message):
         call(watt)
 
 
+def test_a_wide_drawing_keeps_its_labels_and_legend_inside_the_figure(tmp_path):
+    # equal aspect: in the fixed 8 x 5 in figure the strandbeest's y label and legend were cut off
+    mech = assurjax.load_scene("strandbeest").mechanism
+    drawing = viz.draw_mechanism(mech, 0.3, trace=["FL0", "FR0"])
+    drawing.ax.figure.savefig(tmp_path / "wide.png")
+    ink = np.asarray(Image.open(tmp_path / "wide.png").convert("L")) < 128
+    assert not ink[:, :2].any() and not ink[:, -2:].any()
+    assert drawing.ax.get_legend() is not None
+
+
 def test_a_point_at_rest_is_drawn_as_a_point(watt):
     frames = viz.mechanism_frames(watt, np.full(5, 0.3))  # the same configuration throughout
     ax = viz.plot_coupler_curves(frames, ["E"])

@@ -230,7 +230,8 @@ def draw_mechanism(
     velocities = point_names(mechanism, velocities, "draw_mechanism: velocities")
     trace = point_names(mechanism, trace, "draw_mechanism: trace")
     check_values(AssurjaxError, "draw_mechanism", shape=(), q=q, omega=omega)
-    if ax is None:
+    own_figure = ax is None
+    if own_figure:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     frames = mechanism_frames(mechanism, [q], omega, velocities=bool(velocities))
     trace_frames = None
@@ -243,4 +244,8 @@ def draw_mechanism(
     unassembled = "" if frames.ok[0] else " (it does not assemble there: the drawing means nothing)"
     ax.set_title(f"{mechanism.name} at q = {float(q):.4g} {'m' if mechanism.driver.kind == 'slider' else 'rad'}{unassembled}")
     place_legend(ax)
+    if own_figure:  # wide enough for an equal-aspect drawing beside its labels and legend (a wide one was clipped)
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        beside = 0.9 + (1.6 if ax.get_legend() is not None else 0.0)  # inches: the y label, the legend
+        ax.figure.set_size_inches(min(max(8.0, 4.0 * (x1 - x0) / (y1 - y0) + beside), 16.0), 5.0)
     return drawing
