@@ -326,3 +326,12 @@ def test_optimize_settings_are_checked_by_name(option, message):
     design, objective = syn.straight_line_problem(LENGTHS)
     with pytest.raises(AssurjaxError, match=message):
         syn.optimize(design, objective, optax.adam, 10, has_aux=True, options={"learning_rate": 1e-3}, **option)
+
+
+def test_standstill_problem_horizon_and_link_are_checked():
+    # a horizon before the target could only end 'infeasible', reported as "cannot assemble"
+    scene = assurjax.load_scene("watt_sixbar")
+    with pytest.raises(AssurjaxError, match="standstill_time_problem: t1 = 1.0 s must lie past the target 1.6 s"):
+        syn.standstill_time_problem(scene, 1.6, t1=1.0)
+    with pytest.raises(AssurjaxError, match="standstill_time_problem: unknown link 'zz'"):
+        syn.standstill_time_problem(scene, 1.6, link="zz")

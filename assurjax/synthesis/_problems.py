@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssemblyError, AssurjaxError
+from .._values import check_values
 from ._design import Design
 from ._dynamic import standstill_time
 from ._linkages import roberts_like
@@ -195,10 +196,15 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
     >>> result = syn.optimize(design, objective, optax.adam(0.2), 200, has_aux=True, target=1e-8)
     >>> result.history.aux["standstill"][-1], result.values   # s; (kg, m)
     """
+    check_values(AssurjaxError, "standstill_time_problem", target=target, **({} if t1 is None else {"t1": t1}))
     if not target > 0:
         raise AssurjaxError(f"standstill_time_problem: target must be a positive time (s), got {target}")
     link = scene.mechanism.driver.links[0] if link is None else link
+    if link not in scene.mechanism.links:
+        raise AssurjaxError(f"standstill_time_problem: unknown link {link!r}; the mechanism has {list(scene.mechanism.links)}")
     horizon = max(1.5 * target, float(scene.state.get("t1", 0.0))) if t1 is None else t1
+    if not horizon > target:  # the standstill at the target would lie past the horizon: no design could reach it
+        raise AssurjaxError(f"standstill_time_problem: t1 = {horizon} s must lie past the target {target} s")
     base = (jnp.asarray(mass[0], dtype=float), jnp.asarray(position[0], dtype=float))
     design = Design(base, lambda v: v, lower=(mass[1], position[1]), upper=(mass[2], position[2]))
 
