@@ -370,21 +370,34 @@ def kinematics(
     check_state_count(AssurjaxError, "kinematics", np.shape(q))
     q = jnp.asarray(q, dtype=float)
     for name, value in (("omega", omega), ("alpha", alpha)):
-        if not _broadcasts_to(np.shape(value), q.shape):
+        if not broadcasts_to(np.shape(value), q.shape):
             raise AssurjaxError(f"kinematics: {name} of shape {np.shape(value)} does not broadcast to q's shape {q.shape}")
     omega, alpha = (jnp.broadcast_to(jnp.asarray(v, dtype=q.dtype), q.shape) for v in (omega, alpha))
-    pts = None if points is None else (points,) if isinstance(points, str) else tuple(points)
-    if pts is not None:
-        unknown = [p for p in pts if p not in dict(mechanism.owner)]
-        if unknown:
-            raise AssurjaxError(f"unknown point(s) {unknown}; the mechanism has {list(mechanism.point_names)}")
+    pts = None if points is None else point_names(mechanism, points, "kinematics")
     kin = _kinematics_batch(mechanism, q, omega, alpha, pts, order, (bool(coms), bool(angles)))
     if check:
         raise_if_not_assembled(mechanism, kin.ok, q)
     return kin
 
 
-def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
+def check_mechanism(mechanism, what: str) -> None:
+    if not isinstance(mechanism, Mechanism):
+        raise AssurjaxError(f"{what}: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
+                            f"{type(mechanism).__name__}")
+
+
+def point_names(mechanism: Mechanism, names, what: str) -> tuple[str, ...]:
+    """``names`` as a tuple of the mechanism's point names (one name may be a plain string),
+    unknown ones refused by name."""
+    check_mechanism(mechanism, what)
+    names = (names,) if isinstance(names, str) else tuple(names)
+    unknown = [n for n in names if n not in mechanism.point_names]
+    if unknown:
+        raise AssurjaxError(f"{what}: unknown point(s) {unknown}; the mechanism has {sorted(mechanism.point_names)}")
+    return names
+
+
+def broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
     try:
         return np.broadcast_shapes(shape, target) == target
     except ValueError:

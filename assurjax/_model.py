@@ -69,20 +69,27 @@ def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=
     )
 
 
+def massless_members(mechanism: Mechanism) -> np.ndarray:
+    """Where no link has mass or moment of inertia: the indices of such members of a batch of
+    mechanisms, [0] for one such mechanism, none where any value is traced."""
+    total = 0.0
+    for link in mechanism.links.values():
+        mass, inertia = concrete(link.mass), concrete(link.inertia)
+        if mass is None or inertia is None:
+            return np.zeros(0, dtype=int)
+        total = total + np.abs(mass) + np.abs(inertia)
+    return np.flatnonzero(np.ravel(total) == 0.0)
+
+
 def check_has_inertia(mechanism: Mechanism) -> None:
     """Raise :class:`AssurjaxError` where no link has mass or moment of inertia (in any
     member of a batch of mechanisms): the reduced inertia is then zero, and the equation of
     motion has no solution. Forward dynamics needs this; kinematics and statics do not.
     Traced values are not checked."""
-    total = 0.0
-    for link in mechanism.links.values():
-        mass, inertia = concrete(link.mass), concrete(link.inertia)
-        if mass is None or inertia is None:
-            return
-        total = total + np.abs(mass) + np.abs(inertia)
-    empty = np.flatnonzero(np.ravel(total) == 0.0)
+    empty = massless_members(mechanism)
     if empty.size:
-        member = f" (batch member {int(empty[0])})" if np.ndim(total) else ""
+        batched = any(np.ndim(link.mass) for link in mechanism.links.values())
+        member = f" (batch member {int(empty[0])})" if batched else ""
         raise AssurjaxError(f"mechanism '{mechanism.name}'{member}: no link has a mass or a moment of inertia, so its "
                             "reduced inertia is zero and its motion is undetermined; give the links masses (in a "
                             "sketch's link table: mass, inertia or density; in a scene file: [links.NAME] mass = ...). "

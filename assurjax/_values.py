@@ -55,7 +55,7 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
         return None  # the common case, decided without NumPy (~25 us less per value)
     if shape is not None and (problem := shape_problem(x, shape)) is not None:
         return problem
-    v = None if _not_numbers(x) else concrete(x)  # NumPy would read "0.1" as 0.1 and True as 1.0
+    v = _as_numbers(x)
     if v is None:  # a traced value is checked where it is concrete; anything else is no number
         return None if _traced(x) else f"must be a number or an array of numbers, got {x!r:.60}"
     shown = x if np.ndim(x) == 0 else v.tolist() if v.size <= 8 else f"an array of shape {v.shape}"
@@ -86,12 +86,15 @@ def check_state_count(error: type[Exception], where: str, shape: tuple[int, ...]
                     "split them over several calls")
 
 
-def _not_numbers(x) -> bool:
-    """Whether ``x`` holds something other than numbers (strings, flags, objects)."""
+def _as_numbers(x) -> np.ndarray | None:
+    """``x`` as a float NumPy array, read once; None for a tracer and for what holds anything
+    but numbers: strings, flags, objects (NumPy would read "0.1" as 0.1 and True as 1.0)."""
     try:
-        return np.asarray(x).dtype.kind not in "iuf"
+        raw = np.asarray(x)
     except Exception:  # a tracer (np.asarray refuses it), or nothing NumPy can read
-        return not _traced(x)
+        return None
+    flags = isinstance(x, (list, tuple)) and any(isinstance(e, (bool, np.bool_)) for e in x)  # [True, 0.3]: floats
+    return None if flags or raw.dtype.kind not in "iuf" else raw.astype(float)
 
 
 def _traced(x) -> bool:

@@ -3,14 +3,13 @@ lists of joints, ground joints, sliding pairs, the driver), validated on constru
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from typing import NamedTuple
 
 import numpy as np
 
 from .._errors import MechanismError
-from .._values import MAGNITUDE_LIMIT
+from .._values import check_value
 from ..groups import GROUND
 
 LINK_FIELDS = ("joints", "mass", "inertia", "com", "density")
@@ -126,25 +125,13 @@ class Sketch:
 
 
 def _number(v, what: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(float(v)):
-        raise MechanismError(f"{what}: expected a finite number, got {v!r}")
-    if abs(float(v)) > MAGNITUDE_LIMIT:
-        raise MechanismError(f"{what}: must be at most {MAGNITUDE_LIMIT:g} in magnitude, got {v!r}")
+    check_value(MechanismError, f"{what}:", v, shape=())
     return float(v)
 
 
 def _point(v, what: str) -> np.ndarray:
-    try:
-        arr = np.asarray(v)
-    except (TypeError, ValueError):
-        arr = None
-    # numbers only: NumPy would read "0.5" or True as 0.5 and 1.0
-    flags = isinstance(v, (list, tuple)) and any(isinstance(x, (bool, np.bool_)) for x in v)
-    if arr is None or flags or arr.shape != (2,) or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
-        raise MechanismError(f"{what}: expected a finite point [x, y] of numbers, got {v!r}")
-    if np.any(np.abs(arr) > MAGNITUDE_LIMIT):
-        raise MechanismError(f"{what}: coordinates must be at most {MAGNITUDE_LIMIT:g} m in magnitude, got {v!r}")
-    return arr.astype(float)
+    check_value(MechanismError, f"{what}: a point [x, y] (m)", v, shape=(2,))
+    return np.asarray(v, dtype=float)
 
 
 def _names(v, what: str) -> tuple[str, ...]:

@@ -90,15 +90,17 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     _check_start(scene, q0, omega0, t1, adjoint)
     if adjoint in SENSITIVITY_ROUTES:
         q, w, result = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return _route_as_asked(result, "final_state", q, w, assembles=jnp.all(assembled(scene.mechanism, q)))
+        return _route_as_asked("final_state", result, (q, w), pose=(scene.mechanism, q))
     opts = _settings(scene, {"check_assembly": False, **settings}, standstill=False, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
-    sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
-    assembles = jnp.all(assembled(scene.mechanism, sol.q_final))  # past a lock-up the motion means nothing
-    return _as_asked(sol, scene.model, opts, "final_state", sol.q_final, sol.omega_final, ended=sol.event < 0,
-                     assembles=assembles)
+    # past a lock-up the motion means nothing: whether the final pose assembles, in the run's program
+    model = scene.model
+    sol, assembles = _run(model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts,
+                          final_pose=True)
+    return _run_as_asked("final_state", sol, model, opts, (sol.q_final, sol.omega_final),
+                         ended=lambda event: event < 0, assembles=assembles)
 
 
 LOCKUP_PASSED = ("the mechanism does not assemble at its final q: the motion passed a lock-up (a limit position) "
@@ -117,54 +119,70 @@ def _failed_as_nan(ok, values):
                  for v in values)
 
 
-def _route_as_asked(result, what: str, *values, assembles=True):
-    """:func:`_as_asked` for the sensitivity routes, which end at t1 or their standstill
-    event unless the solver fails (``result``: its integer code)."""
-    finished_ok = (result == FINISHED[0]) | (result == FINISHED[1])
-    ok = finished_ok & assembles
-    if _traced(ok, *values):
-        return _failed_as_nan(ok, values)
-    if not bool(np.all(ok)):
-        why = result_text(int(result_code(result))) if not bool(np.all(finished_ok)) else LOCKUP_PASSED
-        raise AssurjaxError(f"{what}: the motion did not end as asked: {why} (under jit, vmap or grad this result is NaN)")
+def _raise_unless(what: str, ended, assembles, why) -> None:
+    """Outside any transformation (host values): raise where a run did not end as asked
+    (``ended``: at t1, or at the event asked for, and no solver failure; ``why()`` says how it
+    ended) or where the mechanism does not assemble at its end (a lock-up passed)."""
+    if not ended:
+        reason = why()
+    elif not assembles:
+        reason = LOCKUP_PASSED
+    else:
+        return
+    raise AssurjaxError(f"{what}: the motion did not end as asked: {reason} (under jit, vmap or grad this result is NaN)")
+
+
+def _route_as_asked(what: str, result, values: tuple, *, pose=None) -> tuple:
+    """``values`` of a sensitivity route, which ends at t1 or its standstill event unless the
+    solver fails (``result``: its integer code); ``pose``: (mechanism, final q) where the
+    final pose must assemble. Refused as :func:`_run_as_asked` refuses a run."""
+    if _traced(result, *values):
+        ok = (result == FINISHED[0]) | (result == FINISHED[1])
+        return _failed_as_nan(ok if pose is None else ok & jnp.all(assembled(*pose)), values)
+    _raise_unless(what, int(result_code(result)) in FINISHED, True if pose is None else bool(np.all(assembled(*pose))),
+                  lambda: result_text(int(result_code(result))))
     return values
 
 
-def _as_asked(sol, model, settings, what: str, *values, ended, assembles=True):
-    """``values`` of a run that ended as asked (``ended``: at t1, or at the event asked for,
-    and no solver failure). Where it did not (the joint friction jams it, a group locks up,
-    the step budget runs out), the values are not the result asked for: outside any
-    transformation raise, naming how it ended; under one (jit, vmap, grad), NaN in its place."""
-    ok = finished(sol.result) & ended & assembles
-    if _traced(ok, sol.t_final, sol.q_final, sol.omega_final, *values):
-        return _failed_as_nan(ok, values)
-    if bool(np.all(finished(sol.result) & ended)) and not bool(np.all(assembles)):
-        raise AssurjaxError(f"{what}: the motion did not end as asked: {LOCKUP_PASSED} (under jit, vmap or grad this "
-                            "result is NaN)")
-    if not bool(np.all(ok)):
+def _run_as_asked(what: str, sol, model, settings, values: tuple, *, ended, assembles=True) -> tuple:
+    """``values`` of a run of ``simulate_core`` that ended as asked (``ended(event)``: the stop
+    events allowed; and no solver failure) where the mechanism assembles at its end. Where it
+    did not (the joint friction jams it, a group locks up, the step budget runs out), the
+    values are not the result asked for: outside any transformation raise, naming how it
+    ended (its status); under one (jit, vmap, grad), NaN in its place. The flags are read on
+    the host where nothing is traced: as jax operations, called one by one, they cost more
+    than the run (final_state of the Watt six-bar 0.50 -> 0.75 ms)."""
+    if _traced(sol.t_final, sol.q_final, sol.omega_final, *values):
+        return _failed_as_nan(finished(sol.result) & ended(sol.event) & assembles, values)
+
+    def why():
         code, event, t_final = int(result_code(sol.result)), int(sol.event), float(sol.t_final)
+        if jammed_members(sol, model).any():
+            return jam_text(t_final, float(sol.q_final), float(sol.omega_final))
         failed = int(sol.failed_group_index)
         group = model.mechanism.groups[failed].name if failed >= 0 else None
-        status = (jam_text(t_final, float(sol.q_final), float(sol.omega_final)) if jammed_members(sol, model).any()
-                  else status_text(code, event, group, t_final, max_steps=settings.max_steps))
-        raise AssurjaxError(f"{what}: the motion did not end as asked: {status} (under jit, vmap or grad this "
-                            "result is NaN)")
+        return status_text(code, event, group, t_final, max_steps=settings.max_steps)
+
+    _raise_unless(what, int(result_code(sol.result)) in FINISHED and ended(int(sol.event)), bool(assembles), why)
     return values
 
 
-def _run(model, q0, omega0, t0, t1, dt, settings):
-    """``simulate_core`` as one cached program (:func:`_core_program`), its numbers as arrays."""
+def _run(model, q0, omega0, t0, t1, dt, settings, *, final_pose: bool = False):
+    """``simulate_core`` as one cached program (:func:`_core_program`), its numbers as arrays;
+    with ``final_pose``, (the Solution, whether the mechanism assembles at its final q)."""
     numbers = tuple(None if v is None else jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1, dt))
-    return _core_program(model, *numbers, settings)
+    return _core_program(model, *numbers, settings, final_pose)
 
 
 @jit
-def _core_program(model, q0, omega0, t0, t1, dt, settings):
+def _core_program(model, q0, omega0, t0, t1, dt, settings, final_pose: bool):
     """``simulate_core`` compiled once per structure and settings, the model's arrays and the
     numbers traced. Called in pieces, under a ``jax.grad`` that the user has not jitted, the
     segment loop of the exact friction law was traced and compiled anew at every call (the
-    slider-crank's derivative in mu: 51 s a call, 0.1 s once compiled)."""
-    return simulate_core(model, None, (), q0, omega0, t0, t1, None, dt, settings=settings)
+    slider-crank's derivative in mu: 51 s a call, 0.1 s once compiled). ``final_pose``: also
+    whether the mechanism assembles at the final q."""
+    sol = simulate_core(model, None, (), q0, omega0, t0, t1, None, dt, settings=settings)
+    return (sol, jnp.all(assembled(model.mechanism, sol.q_final))) if final_pose else sol
 
 
 def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "recursive", **settings):
@@ -190,18 +208,19 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
                             "'recursive', 'forward', 'quadrature' or 'sensitivity'")
     if adjoint in SENSITIVITY_ROUTES:
         t_star, ok, result = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return _route_as_asked(result, "standstill_time", t_star, ok)
+        return _route_as_asked("standstill_time", result, (t_star, ok))
     opts = _settings(scene, settings, standstill=True, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t1 = state.get("t1", 1.0) if t1 is None else t1
-    sol = _run(scene.model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
-    alpha = jax.lax.stop_gradient(arrival_acceleration(scene.model, sol.t_final, sol.q_final, sol.omega_final,
+    model = scene.model
+    sol = _run(model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
+    alpha = jax.lax.stop_gradient(arrival_acceleration(model, sol.t_final, sol.q_final, sol.omega_final,
                                                        jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float),
                                                        jnp.asarray(state.get("t0", 0.0), dtype=float)))
     w = sol.omega_final
     t_star = sol.t_final - (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha)
     # at its standstill, or at t1 with none before it (ok False)
-    return _as_asked(sol, scene.model, opts, "standstill_time", t_star, sol.event == STANDSTILL,
-                     ended=sol.event <= STANDSTILL)
+    return _run_as_asked("standstill_time", sol, model, opts, (t_star, sol.event == STANDSTILL),
+                         ended=lambda event: event <= STANDSTILL)

@@ -22,10 +22,11 @@ from matplotlib.animation import FuncAnimation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from .._errors import AssurjaxError
+from .._kinematics import point_names
 from .._mechanism import Mechanism
 from .._values import check_value
 from ._draw import MechanismDrawing, place_legend
-from ._frames import mechanism_frames, point_names
+from ._frames import mechanism_frames
 
 MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
 

@@ -12,10 +12,11 @@ import numpy as np
 from matplotlib.patches import Polygon
 
 from .._errors import AssurjaxError
+from .._kinematics import point_names
 from .._mechanism import Mechanism
 from .._values import check_values
 from ..groups import GROUND
-from ._frames import Frames, extent, length_scale, mechanism_frames, point_names
+from ._frames import Frames, extent, length_scale, mechanism_frames
 
 LINK_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 VELOCITY_COLOR = "crimson"

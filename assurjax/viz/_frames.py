@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._kinematics import Kinematics, kinematics
+from .._kinematics import Kinematics, broadcasts_to, check_mechanism, kinematics
 from .._mechanism import Mechanism
 from .._values import check_values
 
@@ -64,36 +64,16 @@ def frames_from_kinematics(kin: Kinematics) -> Frames:
     )
 
 
-def point_names(mechanism: Mechanism, names, what: str) -> tuple[str, ...]:
-    """``names`` as a tuple of the mechanism's point names (one name may be a plain string),
-    unknown ones refused by name."""
-    if not isinstance(mechanism, Mechanism):
-        raise AssurjaxError(f"{what}: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
-                            f"{type(mechanism).__name__}")
-    names = (names,) if isinstance(names, str) else tuple(names)
-    unknown = [n for n in names if n not in mechanism.point_names]
-    if unknown:
-        raise AssurjaxError(f"{what}: unknown point(s) {unknown}; the mechanism has {sorted(mechanism.point_names)}")
-    return names
-
-
-def _broadcasts(shape, target) -> bool:
-    try:
-        return np.broadcast_shapes(shape, target) == target
-    except ValueError:
-        return False
-
-
 def mechanism_frames(mechanism: Mechanism, q, omega=None, *, velocities: bool = False) -> Frames:
     """Kinematics of ``mechanism`` at every q in ``q`` (configurations that do not
     assemble are kept and flagged in ``Frames.ok``). ``omega`` (rad/s or m/s) scales
     the velocities; it defaults to 1, i.e. velocities are kinematic coefficients."""
-    point_names(mechanism, (), "mechanism_frames")
+    check_mechanism(mechanism, "mechanism_frames")
     check_values(AssurjaxError, "mechanism_frames", q=q)
     q = np.atleast_1d(np.asarray(q, dtype=float))
     if q.ndim != 1 or not q.size:
         raise AssurjaxError(f"mechanism_frames: q must be one value or a 1-D array of at least one, got shape {q.shape}")
-    if omega is not None and not _broadcasts(np.shape(omega), q.shape):
+    if omega is not None and not broadcasts_to(np.shape(omega), q.shape):
         raise AssurjaxError(f"mechanism_frames: omega of shape {np.shape(omega)} does not match q's {q.shape}")
     omega = np.ones_like(q) if omega is None else np.broadcast_to(np.asarray(omega, dtype=float), q.shape)
     kin = kinematics(mechanism, q, omega, order=1 if velocities else 0, check=False)
