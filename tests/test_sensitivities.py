@@ -359,9 +359,29 @@ def test_final_state_past_a_lock_up_is_no_result():
     short = eqx.tree_at(lambda s: s.mechanism.links["rod"].points["B"], scene, jnp.array([0.05, 0.0]))
     assert assurjax.simulate(short, t1=0.5).status.startswith("group 'rod_slider' can no longer assemble")
     with pytest.raises(assurjax.AssurjaxError, match="final_state: the motion did not end as asked: the mechanism does "
-                                                     "not assemble at its final q: the motion passed a lock-up"):
+                                                     "not assemble where the motion ended: it passed a lock-up"):
         syn.final_state(short, 0.5)
     q, w = jax.jit(lambda m: syn.final_state(short.replace_mechanism(m), 0.5))(short.mechanism)
     assert np.isnan(q) and np.isnan(w)
     q, w = syn.final_state(scene, 0.5)  # the bundled one runs on: a finite result, and it assembles there
     assert np.isfinite(q) and np.asarray(assurjax.positions(scene.mechanism, q).ok).all()
+
+
+def test_standstill_time_past_a_lock_up_is_no_result():
+    """The sensitivity routes integrate through a lock-up (no assembly checks): an offset
+    slider-crank that locks up at 0.31 s (simulate stops there) came to a 'standstill' at
+    0.77 s, ok True, in a pose that does not assemble. Now refused as simulate's route
+    refuses it; the public standstill_time_sensitivity gives NaN and ok False."""
+    scene = assurjax.load_scene("slider_crank")
+    offset = next(i for i, g in enumerate(scene.mechanism.groups) if g.name == "rod_slider")
+    locking = eqx.tree_at(lambda s: s.mechanism.groups[offset].offset, scene, jnp.asarray(0.25))
+    sol = assurjax.simulate(locking, t1=2.0, stop=None)
+    assert sol.status.startswith("group 'rod_slider' can no longer assemble")
+    for adjoint in ("recursive", "quadrature", "sensitivity"):
+        with pytest.raises(assurjax.AssurjaxError, match="standstill_time: the motion did not end as asked"):
+            syn.standstill_time(locking, t1=2.0, adjoint=adjoint)
+    t_star, ok, _ = syn.standstill_time_sensitivity(locking, t1=2.0)
+    assert np.isnan(t_star) and not ok
+    t_star, ok = syn.standstill_time(scene, t1=2.0, adjoint="quadrature")  # the bundled one: no lock-up
+    assert ok and np.isfinite(t_star)
+    assert np.asarray(assurjax.positions(scene.mechanism, syn.final_state(scene, t_star)[0]).ok).all()

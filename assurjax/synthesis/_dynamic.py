@@ -47,7 +47,7 @@ from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result
 from ..dynamics._settings import ADJOINTS, check_single_start, fixed_step_from, settings_from
 from ..dynamics._stick import jammed_members
 from ..dynamics._solve import simulate_core
-from ._sensitivity import final_state_sensitivity, standstill_time_sensitivity
+from ._sensitivity import final_state_sensitivity, standstill_state
 
 SENSITIVITY_ROUTES = {"quadrature": "quadrature", "sensitivity": "loop"}
 
@@ -103,8 +103,8 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
                          ended=lambda event: event < 0, assembles=assembles)
 
 
-LOCKUP_PASSED = ("the mechanism does not assemble at its final q: the motion passed a lock-up (a limit position) "
-                 "before t1 (check_assembly=True stops it there)")
+LOCKUP_PASSED = ("the mechanism does not assemble where the motion ended: it passed a lock-up (a limit position) "
+                 "on the way (simulate's check_assembly=True stops there)")
 
 
 def _traced(*values) -> bool:
@@ -207,8 +207,8 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
         raise AssurjaxError("standstill_time: adjoint='backsolve' solves no events, and the standstill is one; use "
                             "'recursive', 'forward', 'quadrature' or 'sensitivity'")
     if adjoint in SENSITIVITY_ROUTES:
-        t_star, ok, result = standstill_time_sensitivity(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
-        return _route_as_asked("standstill_time", result, (t_star, ok))
+        t_star, q_star, ok, result = standstill_state(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
+        return _route_as_asked("standstill_time", result, (t_star, ok), pose=(scene.mechanism, q_star))
     opts = _settings(scene, settings, standstill=True, adjoint=adjoint)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0

@@ -52,6 +52,7 @@ from .._errors import AssurjaxError
 from .._friction import frictions_of, smoothed_only
 from .._jit import jit
 from .._model import Model, as_model, check_has_inertia
+from .._positions import assembled
 from .._reduction import generalized_force
 from ..dynamics._field import State, field_args, vector_field
 from ..dynamics._results import result_value
@@ -278,7 +279,7 @@ def _standstill_fn(f, options: SensitivityOptions):
     @jax.custom_jvp
     def stop(p, y0, t0, t1, direction):
         t, q, w, fired, result = _plain(f, p, y0, t0, t1, direction, options, True)
-        return t, fired, result
+        return t, q, fired, result
 
     @stop.defjvp
     def stop_jvp(primals, tangents):
@@ -286,9 +287,9 @@ def _standstill_fn(f, options: SensitivityOptions):
         dp, dy0, dt0, dt1, _ = tangents
         t, q, w, s, fired, result = _augmented(f, p, y0, t0, t1, direction, options, True)
         alpha = f(t, (q, w), p)[1]  # dw/dt at the standstill
-        dw = _state_tangent(f, p, y0, t0, s, dp, dy0, dt0)[1]
+        dq, dw = _state_tangent(f, p, y0, t0, s, dp, dy0, dt0)
         dt = jnp.where(fired, -dw / jnp.where(alpha == 0, 1.0, alpha), dt1)
-        return (t, fired, result), (dt, _no_tangent(fired), _no_tangent(result))
+        return (t, q, fired, result), (dt, dq + w * dt, _no_tangent(fired), _no_tangent(result))
 
     return stop
 
@@ -379,11 +380,23 @@ def standstill_time_sensitivity(scene, *, t1=None, q0=None, omega0=None, mechani
     """The first standstill time t* (s) after the scene's initial state (omega = 0 against
     the direction of motion; from rest, the direction the loads start it in), an ok flag
     (False: no standstill before ``t1``; t* is then ``t1``) and the diffrax result code.
+    Where the mechanism does not assemble at t* (the motion passed a lock-up before it,
+    which this route, without assembly checks, integrates through), t* is NaN and ok False.
 
     dt*/dP = -(dw/dP at t*) / (dw/dt at t*) (implicit function theorem on w(t*, P) = 0),
     with dw/dP from the forward sensitivities integrated up to the event: one augmented
     solve for the whole gradient.
     """
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    t, q, fired, result = standstill_state(scene, t1=t1, q0=q0, omega0=omega0, mechanism=mechanism, gravity=gravity,
+                                           loads=loads, **settings)
+    assembles = jnp.all(assembled(model.mechanism, q))
+    return jnp.where(assembles, t, jnp.nan), fired & assembles, result
+
+
+def standstill_state(scene, *, t1=None, q0=None, omega0=None, mechanism=None, gravity=None, loads=None, **settings):
+    """(t*, q(t*), ok, result code) of :func:`standstill_time_sensitivity`, q(t*) as it was
+    integrated, whether or not the mechanism assembles there (its callers check that)."""
     options = _options(scene, settings)
     model = _routed(as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads), options)
     y0 = _initial(scene, q0, omega0)
