@@ -506,9 +506,12 @@ def test_singular_dyad_is_a_clear_error_not_nan():
     r = static_reactions(scene, jnp.array([0.0, 0.4]), check=False)  # flags instead of raising
     assert np.asarray(r.ok).tolist() == [[True, False], [True, True]]
     assert all(np.all(np.isfinite(np.asarray(v))) for v in r.forces.values())
-    # the same system, solved whole, is singular too
-    with pytest.raises(SingularConfigurationError):
-        reactions(scene, (0.0, 0.0, 0.0), method="dense")
+    # the same system, solved whole, is singular too, and the error names the same group (the
+    # whole mechanism's system named its first group, the crank)
+    for method in ("dense", "global"):
+        with pytest.raises(SingularConfigurationError, match="group 'dyad' \\(RRR\\).*singular") as info:
+            reactions(scene, (0.0, 0.0, 0.0), method=method)
+        assert info.value.group == "dyad"
 
 
 # ----------------------------------------------------------------------------- seed 003

@@ -579,6 +579,11 @@ def _run(scene, state, joints, method, check, *, static):
     result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs, friction=friction,
                        friction_power=friction_power, friction_ok=friction_ok)
     if check:
+        if method == "global" and not isinstance(ok, jax.core.Tracer) and not np.asarray(ok).all():
+            # one system for all: its flag says the mechanism is singular, not where. The system is
+            # block-triangular in the formation sequence, singular where some group's block is:
+            # the group-by-group solve's flags name that group
+            ok = _batched(model, (q, omega, alpha, t), "modular", groups, static)[3]
         raise_if_singular(mechanism, ok, q)
     return result
 
