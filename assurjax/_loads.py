@@ -37,12 +37,13 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
-from ._values import check_value, found_words, shape_words
+from ._values import check_value, concrete, found_words, shape_words
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import COM_PREFIX, Mechanism, Pose
 from .groups._base import GROUND
@@ -73,8 +74,9 @@ class Polynomial(eqx.Module):
 
 
 class Table(eqx.Module):
-    """Piecewise-linear interpolation of ``values`` at increasing ``x`` (of ``variable``);
-    constant beyond the ends, or wrapped with ``period`` (e.g. 2 pi for a crank angle)."""
+    """Piecewise-linear interpolation of ``values`` at increasing ``x`` (of ``variable``; an
+    x given twice is a jump); constant beyond the ends, or wrapped with ``period`` (e.g. 2 pi
+    for a crank angle; at least the x range)."""
 
     x: Array
     values: Array
@@ -84,13 +86,21 @@ class Table(eqx.Module):
     def __init__(self, x, values, variable: str = "q", period: float | None = None):
         if variable not in VARIABLES:
             raise MechanismError(f"Table: variable must be one of {VARIABLES}, got {variable!r}")
+        check_value(MechanismError, "Table: x", x)
+        check_value(MechanismError, "Table: values", values)
         self.x, self.values = jnp.asarray(x, dtype=float), jnp.asarray(values, dtype=float)
-        check_value(MechanismError, "Table: x", self.x)
-        check_value(MechanismError, "Table: values", self.values)
         if period is not None:
             check_value(MechanismError, "Table: period", period, positive=True)
         if self.x.ndim != 1 or self.x.shape != self.values.shape or self.x.shape[0] < 2:
             raise MechanismError(f"Table: x and values must be two 1-D arrays of the same length >= 2, got shapes {self.x.shape} and {self.values.shape}")
+        points = concrete(self.x)  # checked where given, not under a trace
+        if points is not None:
+            if np.any(np.diff(points) < 0):
+                raise MechanismError(f"Table: x must be increasing (a repeated x is a jump; the interval search reads x "
+                                     f"sorted), got {points.tolist()}")
+            if period is not None and points[-1] - points[0] > float(period):
+                raise MechanismError(f"Table: the period {float(period):g} is shorter than the x range {points[-1] - points[0]:g}: "
+                                     "a periodic table wraps x into [x[0], x[0] + period), so the values past it would never be read")
         self.variable, self.period = variable, period
 
     def __call__(self, q, omega, t):
@@ -148,6 +158,31 @@ def _velocity_dependent(*values, flag: bool | None = None) -> bool:
         elif callable(v):
             return True
     return False
+
+
+ARGUMENTS = ("q", "omega", "t")  # a value function's arguments, in order
+
+
+def reads(value, argument: str) -> bool:
+    """Whether a load value may depend on ``argument`` ("omega" or "t"): a form in it, or a
+    function whose traced program uses it (a structural test: a function that uses t and
+    cancels it counts as reading it; one that cannot be traced counts too). Exact where a
+    probe at some points is not: a drive switched on at t = 0.5 has d/dt = 0 at t = 0."""
+    if isinstance(value, Vector):
+        return reads(value.x, argument) or reads(value.y, argument)
+    if isinstance(value, (Polynomial, Table)):
+        return value.variable == argument
+    if not callable(value):
+        return False
+    try:
+        program = jax.make_jaxpr(lambda q, omega, t: evaluate(value, q, omega, t))(0.0, 0.0, 0.0).jaxpr
+    except Exception:  # not traceable: whatever it reads, it fails where it is evaluated
+        return True
+    used = {program.invars[ARGUMENTS.index(argument)]}
+    for eqn in program.eqns:  # an equation (or a nested program, whole) uses what its inputs use
+        if any(not isinstance(v, jax.extend.core.Literal) and v in used for v in eqn.invars):
+            used.update(eqn.outvars)
+    return any(not isinstance(v, jax.extend.core.Literal) and v in used for v in program.outvars)
 
 
 def _has_time_form(value, *, functions: bool = False) -> bool:
@@ -230,6 +265,11 @@ class AbstractLoad(eqx.Module):
     def may_depend_on_time(self) -> bool:
         """:meth:`time_dependent`, or some value is a function (not inspected: it may read t)."""
         return any(_has_time_form(v, functions=True) for v in self._values().values())
+
+    def reads(self, argument: str) -> bool:
+        """Whether some value of the load may depend on ``argument`` ("omega" or "t"), its
+        functions' programs inspected (see :func:`reads`)."""
+        return any(reads(v, argument) for v in self._values().values())
 
     value_shape: ClassVar[tuple[int, ...]] = ()  # of each value field: a number (a force: a 2-vector)
 
@@ -643,18 +683,28 @@ def check_loads(mechanism: Mechanism, loads) -> None:
                 raise MechanismError(f"{type(load).__name__}: {name}, {problem}")
 
 
+def _check_inputs(mechanism: Mechanism, loads, *, gravity=None) -> None:
+    """The public load functions' checks: the loads (:func:`check_loads`) and the gravity."""
+    check_loads(mechanism, tuple(loads))
+    if gravity is not None:
+        check_value(MechanismError, "gravity", gravity, shape=(2,))
+
+
 def any_velocity_dependent(loads) -> bool:
     """True when some load (or driving effort) depends on the driving velocity."""
     return any(load.velocity_dependent for load in loads)
 
 
-def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0) -> dict[str, tuple[Array, Array]]:
+def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0, *, check: bool = True) -> dict[str, tuple[Array, Array]]:
     """Resultant applied force (N) and moment about the COM (N m, counterclockwise
     positive) on every moving link, from gravity (m/s^2, a 2-vector) and every
     load except the driving effort.
 
     ``kin`` is a single-configuration :class:`assurjax.Kinematics` (``order >= 1``
-    when a load depends on velocity)."""
+    when a load depends on velocity). ``check``: the loads' points and links and the
+    gravity checked first (:class:`assurjax.MechanismError` naming what is unknown)."""
+    if check:
+        _check_inputs(mechanism, loads, gravity=gravity)
     g = jnp.asarray(gravity, dtype=float)
     out = {name: [link.mass * g, jnp.zeros(())] for name, link in mechanism.links.items()}
     for load in loads:
@@ -664,16 +714,22 @@ def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0) -> dict[s
     return {name: (f, m) for name, (f, m) in out.items()}
 
 
-def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0) -> Array:
-    """Torque (N m, crank) or force (N, slider) that the driving loads put on the driver; 0 if none."""
+def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0, *, check: bool = True) -> Array:
+    """Torque (N m, crank) or force (N, slider) that the driving loads put on the driver; 0 if
+    none. ``check``: the loads checked first, as in :func:`applied_wrenches`."""
+    if check:
+        _check_inputs(mechanism, loads)
     total = jnp.zeros(())
     for load in loads:
         total = total + load.effort(mechanism, q, omega, t)
     return total
 
 
-def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose) -> Array:
-    """Potential energy (J) of gravity (-sum m g . r_G, zero at the origin) and springs."""
+def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose, *, check: bool = True) -> Array:
+    """Potential energy (J) of gravity (-sum m g . r_G, zero at the origin) and springs.
+    ``check``: the loads and the gravity checked first, as in :func:`applied_wrenches`."""
+    if check:
+        _check_inputs(mechanism, loads, gravity=gravity)
     g = jnp.asarray(gravity, dtype=float)
     v = jnp.zeros(())
     for name, link in mechanism.links.items():
@@ -683,8 +739,11 @@ def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose) -> Array:
     return v
 
 
-def dissipated_power(mechanism: Mechanism, loads, kin) -> Array:
-    """Power (W, >= 0) removed by the dampers at the configuration ``kin`` (with velocities)."""
+def dissipated_power(mechanism: Mechanism, loads, kin, *, check: bool = True) -> Array:
+    """Power (W, >= 0) removed by the dampers at the configuration ``kin`` (with velocities).
+    ``check``: the loads checked first, as in :func:`applied_wrenches`."""
+    if check:
+        _check_inputs(mechanism, loads)
     total = jnp.zeros(())
     for load in loads:
         total = total + load.dissipation(mechanism, kin)

@@ -87,7 +87,7 @@ def generalized_force(mechanism: Mechanism, gravity, loads, q, omega, t) -> Arra
     coeffs = coefficients(mechanism, q, order=1)
     kin = kinematics_from_coefficients(coeffs, omega, velocities=any_velocity_dependent(loads))
     mass, _ = _link_parameters(mechanism, coeffs.names[1])
-    return jnp.sum(_torque_terms(mechanism, coeffs, mass, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t)
+    return jnp.sum(_torque_terms(mechanism, coeffs, mass, gravity, loads, kin, t)) + driver_effort(mechanism, loads, q, omega, t, check=False)
 
 
 def kinematics_from_coefficients(coeffs: Coefficients, omega, *, velocities: bool = True) -> Kinematics:
@@ -169,7 +169,7 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     row = {k: i for i, k in enumerate(coeffs.names[1])}
     per_group = {g.name: jnp.sum(terms[..., np.asarray([row[k] for k in g.links]), :], axis=-2) for g in mechanism.groups}
     gj, gdj, gt = ({name: v[..., c] for name, v in per_group.items()} for c in range(3))
-    effort = driver_effort(mechanism, loads, coeffs.q, omega, t)
+    effort = driver_effort(mechanism, loads, coeffs.q, omega, t, check=False)
     work_force = None
     if work:  # the loads outside V: every load but gravity and springs
         outside = tuple(load for load in loads if not load.conservative)

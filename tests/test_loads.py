@@ -136,6 +136,18 @@ def test_table_interpolates_as_numpy_does(n):
     np.testing.assert_allclose(slopes[inside], expected, rtol=1e-12)
 
 
+def test_a_table_out_of_order_is_a_clear_error():
+    """x out of order read values of other intervals (Table([2, 1, 0], [0, 1, 2]) at 0.5 gave
+    0, not 1.5); a period shorter than the x range never read the values past it."""
+    for x, message in ((["a", "b"], "Table: x"), ([2.0, 1.0, 0.0], "x must be increasing"),
+                       ([0.0, 2.0, 1.0], "x must be increasing")):
+        with pytest.raises(aj.MechanismError, match=message):
+            aj.Table(x, [0.0, 1.0, 2.0][:len(x)])
+    with pytest.raises(aj.MechanismError, match="period 0.5 is shorter than the x range 2"):
+        aj.Table([0.0, 1.0, 2.0], [0.0, 1.0, 0.0], period=0.5)
+    assert float(aj.Table([0.0, 1.0, 1.0, 2.0], [0.0, 1.0, 5.0, 6.0])(1.5, 0.0, 0.0)) == 5.5  # a jump at 1
+
+
 def test_unknown_point_or_link_is_a_clear_error(watt):
     from assurjax._loads import check_loads
 
@@ -145,6 +157,21 @@ def test_unknown_point_or_link_is_a_clear_error(watt):
         check_loads(watt.mechanism, (aj.Couple("link9", 1.0),))
     with pytest.raises(aj.MechanismError, match="exactly two links"):
         check_loads(watt.mechanism, (aj.RotaryDamper("Q", 1.0),))
+
+
+def test_the_public_load_functions_check_their_loads(watt, kin):
+    """They raised a raw KeyError 'Z' from inside the sum."""
+    m, g, pose = watt.mechanism, watt.gravity, aj.positions(watt.mechanism, 0.3)
+    with pytest.raises(aj.MechanismError, match="unknown point 'Z'"):
+        aj.potential_energy(m, g, [aj.Spring("O2", "Z", 1.0)], pose)
+    with pytest.raises(aj.MechanismError, match="unknown point 'Z'"):
+        aj.applied_wrenches(m, g, [aj.PointForce("Z", [1.0, 0.0])], kin)
+    with pytest.raises(aj.MechanismError, match="unknown point 'Z'"):
+        aj.dissipated_power(m, [aj.Damper("O2", "Z", 2.0)], kin)
+    with pytest.raises(aj.MechanismError, match="expected an assurjax load"):
+        aj.driver_effort(m, ["drive"], 0.0, 0.0)
+    with pytest.raises(aj.MechanismError, match="gravity"):
+        aj.applied_wrenches(m, [0.0, 0.0, -9.81], [], kin)
 
 
 SCENE = """

@@ -175,11 +175,44 @@ def _drive(a, b):
 def test_time_dependent_or_non_periodic_loads_are_clear_errors(watt):
     with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time"):
         aj.simulate(watt, reduction="table", loads=[aj.Drive(aj.Polynomial([0.0, 1.0], variable="t"))])
-    # User functions flagged velocity-independent are probed at the nodes.
-    with pytest.raises(aj.AssurjaxError, match=r"depend on time"):
+    # User functions flagged velocity-independent: their programs are read for t and omega
+    with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time t"):
         aj.build_table(watt.mechanism, watt.gravity, _drive(0.0, 0.1), 16)
+    with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on the driving velocity"):
+        aj.build_table(watt.mechanism, watt.gravity,
+                       [aj.Drive(lambda q, w, t: 0.1 * w, velocity_dependent=False)], 16)
     with pytest.raises(aj.AssurjaxError, match=r"not 2 pi-periodic"):
-        aj.build_table(watt.mechanism, watt.gravity, _drive(0.1, 0.0), 16)
+        aj.build_table(watt.mechanism, watt.gravity, [aj.Drive(lambda q, w, t: 0.1 * q, velocity_dependent=False)], 16)
+
+
+def test_a_drive_switched_on_later_is_not_tabulated():
+    """A drive that is 0 until t = 0.5 s (d/dt = 0 at t = 0, where a probe looked) was frozen
+    at its t = 0 value by the table, which reduction='auto' picks for 64 starts or more: the
+    slider-crank's crank at 0.51 rad after 1 s, 30.6 rad with the drive. The batch now runs
+    on the exact reduction, and equals a single run; asked for, the table is refused."""
+    scene = aj.load_scene("slider_crank").with_loads(
+        (aj.Drive(lambda q, w, t: jnp.where(t > 0.5, 3.0, 0.0), velocity_dependent=False),))
+    run = dict(omega0=1.0, t1=1.0, samples=2, stop=None)
+    single = aj.simulate(scene, q0=0.5, **run)
+    batch = aj.simulate(scene, q0=np.full(64, 0.5), **run)
+    assert single.q[-1] > 20.0  # driven on after 0.5 s (undriven, the crank ends at 0.51 rad: the table's answer)
+    np.testing.assert_allclose(batch.q[:, -1], single.q[-1], rtol=1e-6)
+    with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time t"):
+        aj.simulate(scene, q0=0.5, reduction="table", **run)
+
+
+def test_build_table_checks_its_arguments(watt):
+    """nodes = 2e6 took 2.4 GB, 8.9 was cut to 8, NaN gravity gave a table of NaN, an unknown
+    link a raw KeyError."""
+    m, g = watt.mechanism, watt.gravity
+    for nodes in (2_000_000, 8.9, "abc", 4):
+        with pytest.raises(aj.AssurjaxError, match=r"build_table: nodes: expected an integer from 8 to 1000000"):
+            aj.build_table(m, g, (), nodes)
+    for gravity, message in (([float("nan"), 0.0], "must be finite"), ([0.0, 0.0, 1.0], "must be a 2-vector")):
+        with pytest.raises(aj.AssurjaxError, match=f"build_table: gravity {message}"):
+            aj.build_table(m, gravity, (), 16)
+    with pytest.raises(aj.MechanismError, match="unknown link 'foo'"):
+        aj.build_table(m, g, (aj.Couple("foo", 1.0),), 16)
 
 
 def test_unknown_reduction_is_a_clear_error(watt):

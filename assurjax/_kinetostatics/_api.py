@@ -293,7 +293,7 @@ def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", group
     stacked, by :func:`stacked_at`."""
     model = as_model(model)
     mechanism = model.mechanism
-    wrenches = applied_wrenches(mechanism, model.gravity, model.loads, kin, t)
+    wrenches = applied_wrenches(mechanism, model.gravity, model.loads, kin, t, check=False)
     for link, (f, m) in (extra or {}).items():
         wrenches[link] = (wrenches[link][0] + f, wrenches[link][1] + m)
     known = _known_wrenches(mechanism, kin, wrenches)

@@ -255,7 +255,7 @@ def _rates(t, y: State, args: FieldArgs, f: Frictional | None):
         q=y.omega,
         omega=alpha,
         work=None if y.work is None else red.work_force * y.omega + friction_power,
-        dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin) - friction_power,
+        dissipated=None if y.dissipated is None else dissipated_power(model.mechanism, model.loads, kin, check=False) - friction_power,
         branch=None if y.branch is None else stacked_branch(model.mechanism, branch_rates(red, near(model, y), y.omega)),
         friction_rates=None if y.friction_rates is None else slopes * y.omega,
     )

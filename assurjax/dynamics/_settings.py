@@ -303,6 +303,9 @@ def check(settings: Settings) -> None:
         problem = setting_problem(key, getattr(settings, key))
         if problem is not None:
             raise AssurjaxError(f"setting '{key}': {problem}")
+    for key in ("fixed_step", "standstill", "check_assembly", "energies", "velocities", "accelerations", "domega"):
+        if not isinstance(getattr(settings, key), (bool, np.bool_)):  # a string 'no' read as True
+            raise AssurjaxError(f"setting '{key}': expected True or False, got {getattr(settings, key)!r}")
     if settings.reduction not in ("exact", "table", "auto"):
         raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
     if settings.adjoint not in ADJOINTS:

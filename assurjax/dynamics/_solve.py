@@ -559,8 +559,7 @@ def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
     model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
     check_has_inertia(model.mechanism)
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
-    settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"]),
-                                               "check_assembly": bool(options["check_assembly"])})
+    settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"])})
     _check_outputs(model.mechanism, settings)
     budget_per_span = options["max_steps"] is None and "max_steps" not in simulation_table(scene_or_none)
     return _Prepared(model, scene_or_none, settings, budget_per_span, split_arrays(model))

@@ -31,8 +31,8 @@ Validity (checked by :func:`build_table`, each a clear :class:`AssurjaxError`):
 
 - the driver is a crank (q an angle, the model 2 pi-periodic);
 - no load depends on the driving velocity (``velocity_dependent``) or on time
-  (forms in ``t``; functions are probed by a jvp in t at every node), and the
-  loads are 2 pi-periodic in q (probed at q + 2 pi);
+  (forms in ``omega`` or ``t``; functions whose traced program reads them, see
+  :func:`assurjax._loads.reads`), and the loads are 2 pi-periodic in q (probed at q + 2 pi);
 - every group assembles at every node (the crank turns fully); a crank that
   cannot turn fully needs the exact reduction (``reduction="exact"``).
 
@@ -52,11 +52,12 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._jit import jit
-from .._loads import any_velocity_dependent
+from .._loads import any_velocity_dependent, check_loads
 from .._mechanism import Mechanism
 from .._reduction import reduce_single, reduced_acceleration
+from .._values import check_value
 
-DEFAULT_TABLE_NODES = 4096
+DEFAULT_TABLE_NODES = 4096  # as _settings' (which imports the field, and it this module)
 TWO_PI = 2.0 * math.pi
 _PERIODIC_RTOL = 1e-9  # relative mismatch of tau at q and q + 2 pi taken as non-periodic
 
@@ -123,10 +124,12 @@ def check_tabulable(mechanism: Mechanism, loads) -> None:
         names = [type(load).__name__ for load in loads if load.velocity_dependent]
         raise AssurjaxError(f"reduction='table': the loads {names} depend on the driving velocity, so the reduction "
                             "is not a function of q alone. Use reduction='exact'.")
-    for load in loads:
-        if load.time_dependent():
-            raise AssurjaxError(f"reduction='table': a {type(load).__name__} load depends on time t, so the "
-                                "reduction is not a function of q alone. Use reduction='exact'.")
+    for load in loads:  # a function's program read (a probe in t at the nodes missed a drive switched on later)
+        for argument, what in (("omega", "the driving velocity omega"), ("t", "time t")):
+            if load.reads(argument):
+                raise AssurjaxError(f"reduction='table': a {type(load).__name__} load depends on {what} (a form in "
+                                    f"{argument}, or a function that reads it), so the reduction is not a function of "
+                                    "q alone. Use reduction='exact'.")
 
 
 def build_table_core(mechanism: Mechanism, gravity, loads, nodes: int = DEFAULT_TABLE_NODES) -> ReducedTable:
@@ -171,10 +174,15 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
     >>> table = assurjax.build_table(scene.mechanism, scene.gravity, scene.loads)
     >>> j, dj, tau = table(0.3)
     """
-    if int(nodes) < 8:
-        raise AssurjaxError(f"table_nodes must be at least 8, got {nodes}")
+    from ._settings import setting_problem  # imports the vector field, which imports this module
+
+    if (problem := setting_problem("table_nodes", nodes)) is not None:
+        raise AssurjaxError(f"build_table: nodes: {problem}")
+    if gravity is not None:
+        check_value(AssurjaxError, "build_table: gravity", gravity, shape=(2,))
     gravity = jnp.zeros(2) if gravity is None else jnp.asarray(gravity, dtype=float)
     loads = tuple(loads)
+    check_loads(mechanism, loads)
     check_tabulable(mechanism, loads)
     table, group_ok, dtau_dt, shift = jax.device_get(_build_and_probe(mechanism, gravity, loads, int(nodes)))
     _check_assembly(mechanism, np.asarray(group_ok), int(nodes))
