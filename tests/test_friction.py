@@ -629,6 +629,14 @@ def test_inverse_dynamics_at_rest_takes_the_least_drive_within_the_stiction_band
     start = aj.reactions(model, (theta[2:3], np.zeros(1), np.full(1, alpha)))
     pin = np.hypot(m * l_g * alpha * np.sin(theta[2]), m * g + m * l_g * alpha * np.cos(theta[2]))  # |m (a_G - g)|
     np.testing.assert_allclose(start.driving, inertia * alpha - gravity[2] + 0.3 * 0.04 * pin, rtol=1e-12)
+    # with the scene's drive k t (k = 0.5 N m/s): held, the drive it has where the band holds it
+    # (the least drive was reported, as if there were none), the nearest edge where it is outside
+    t = np.full(theta.shape, 0.2)
+    driven = aj.reactions(scene, (theta, np.zeros_like(theta), np.zeros_like(theta), t))
+    band = np.stack([-gravity - limit, -gravity + limit], axis=-1)
+    np.testing.assert_allclose(driven.driving, np.clip(0.5 * 0.2, band[:, 0], band[:, 1]), rtol=0, atol=1e-12)
+    assert 0 < np.count_nonzero(np.abs(driven.driving - 0.1) < 1e-12) < theta.size  # inside and outside
+    np.testing.assert_allclose(driven.friction["O"], -gravity - driven.driving, rtol=0, atol=1e-12)
 
 
 def test_breakaway_band_against_closed_forms_and_the_joint_based_reference(write_scene):

@@ -18,7 +18,7 @@ from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
 from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
                          solve_friction, static_model, states_per_call)
-from .._loads import AbstractLoad, Drive, applied_wrenches
+from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort
 from .._mechanism import Mechanism
 from .._model import Model, as_model
 from ._class4 import class4_topology, solve_class4_special
@@ -254,8 +254,10 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     friction values, which are solved for first when the model has joint friction:
     their signs follow omega, at rest those of the motion that starts (sign(alpha): the
     right limit the dynamics integrates). Held at rest (omega = alpha = 0), any drive
-    between the two break-away limits keeps the mechanism there: the one nearest 0 is
-    reported, with the friction values between those of the two limits in proportion
+    between the two break-away limits keeps the mechanism there: the drive of the model's
+    driving loads (:func:`assurjax.driver_effort`, 0 without them) is reported, or the limit
+    nearest it where it is outside them, with the friction values between those of the two
+    limits in proportion
     (how static friction shares out between the pairs is not determined by statics); the
     limits of the static coefficients, where elements have them.
     ``friction=True`` (a model with friction): also the friction values u, the
@@ -268,8 +270,11 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     # held at rest (direction 0): the limits of the static coefficients, where elements have them
     us, rates, consistent, (forces, couples, driving, ok) = _both_ways(static_model(model, direction == 0), coeffs, kin,
                                                                        omega, t, method, groups)
-    width = driving[1] - driving[0]  # <= 0: the band [tau_minus, tau_plus] holds it
-    share = jnp.clip(driving[1] / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
+    # held: the drive the loads put on the driver (a Drive, a MotorLine at rest), or where it is
+    # outside the band [tau_minus, tau_plus] (a held sample of a run needs none) its nearest edge
+    drive = driver_effort(model.mechanism, model.loads, coeffs.q, omega, t, check=False)
+    width = driving[1] - driving[0]  # <= 0: the band holds it
+    share = jnp.clip((driving[1] - drive) / jnp.where(width != 0, width, 1.0), 0.0, 1.0)
 
     def pick(x):  # moving: that direction's; held: between the two limits (the reactions are affine in u)
         held = share * x[0] + (1.0 - share) * x[1]
@@ -486,8 +491,8 @@ def static_torque(scene, q, *, t=0.0, check: bool = True) -> Array:
     ``q`` (w = dw/dt = 0) against gravity and the scene's loads: the balancing
     torque of gravity-balancing studies. Any shape of ``q``. Joint friction is left out:
     with it, any drive within the friction's break-away band (:func:`breakaway_band`) holds
-    the mechanism, and ``reactions(scene, (q, 0.0, 0.0))`` gives the one nearest 0 (with the
-    friction values)."""
+    the mechanism, and ``reactions(scene, (q, 0.0, 0.0))`` gives the scene's own drive there, or
+    without one the drive nearest 0 (with the friction values)."""
     return static_reactions(scene, q, t=t, check=check).driving
 
 
