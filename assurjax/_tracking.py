@@ -14,12 +14,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ._geometry import wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, positions
+from ._positions import STEP_SLACK
+from .groups._newton import IterativeGroup
 
 
 def tracked_links(mechanism: Mechanism) -> tuple[str, ...]:
@@ -62,7 +65,9 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
     fixed modes. Consecutive samples must be closer than the branches are apart
     away from the singular points (a few degrees of q is typical).
     Returns a :class:`Pose` with a leading axis of ``len(qs)``; ``ok`` is False
-    where a group cannot assemble.
+    where a group cannot assemble, and for an iterative group (triad, class IV) from where
+    its branch ends on (a limit position passed: Newton's method would land on another
+    assembly; see TRACK_TRUST).
 
     >>> scene = assurjax.n_four_bar(3)
     >>> pose = assurjax.positions_tracked(scene.mechanism, jnp.linspace(1.6, -4.7, 600))
@@ -73,19 +78,49 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
     start = branch_angles(mechanism, first)
 
     def step(carry, q):
-        angles, previous_angles, q_prev, dq_prev = carry
+        angles, previous_angles, q_prev, dq_prev, ended = carry
         ratio = (q - q_prev) / jnp.where(dq_prev == 0.0, 1.0, dq_prev)
         predicted = jax.tree.map(lambda a, b: a + wrap_angle(a - b) * ratio, angles, previous_angles)
         pose = positions(mechanism, q, near=predicted)
+        # an iterative group's branch that ended (a limit position passed) stays ended: a root
+        # found further on belongs to another assembly
+        ended = ended | ~_continued(mechanism, pose, angles, predicted, dq_prev != 0.0)
+        pose = eqx.tree_at(lambda p: p.ok, pose, pose.ok & ~ended)
         # a sample that cannot assemble (e.g. exactly at coinciding external joints)
         # must not steer the next prediction: carry the prediction over it instead
         assembled = jnp.all(pose.ok)
         reached = jax.tree.map(lambda a, p: jnp.where(assembled, a, p), branch_angles(mechanism, pose), predicted)
-        return (reached, angles, q, q - q_prev), _select(pose, pts)
+        return (reached, angles, q, q - q_prev, ended), _select(pose, pts)
 
-    carry = (start, start, qs[0], jnp.zeros_like(qs[0]))
+    carry = (start, start, qs[0], jnp.zeros_like(qs[0]), jnp.zeros(len(mechanism.groups), dtype=bool))
     _, rest = jax.lax.scan(step, carry, qs[1:])
     return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), _select(first, pts), rest)
+
+
+# An iterative group's root counts as the tracked branch's where it lies within TRACK_TRUST
+# times the secant's predicted move (plus STEP_SLACK rad) of the prediction. Past a limit
+# position the branch ends, and Newton's method lands on another assembly (a triad's angle
+# jumping by 0.5 rad between samples 0.3 degrees apart) where a dyad finds no root. Looser
+# than the continuation's STEP_TRUST: next to a limit position q* the angles go as
+# sqrt(q* - q), and evenly spaced samples, the last at q*, move 1 + sqrt(2) times the
+# secant's prediction (a miss of sqrt(2) times the predicted move).
+TRACK_TRUST = 1.5
+
+
+def _continued(mechanism: Mechanism, pose: Pose, angles: dict, predicted: dict, secant):
+    """Per group: False for an iterative group whose root is not on the tracked branch (see
+    TRACK_TRUST); ``secant``: whether the prediction had two samples (the first step's had one:
+    it is not tested)."""
+    flags = []
+    for group in mechanism.groups:
+        if not isinstance(group, IterativeGroup):
+            flags.append(jnp.asarray(True))
+            continue
+        links = group.unknown_links()
+        move = jnp.max(jnp.stack([jnp.abs(wrap_angle(predicted[k] - angles[k])) for k in links]))
+        miss = jnp.max(jnp.stack([jnp.abs(wrap_angle(pose.angles[k] - predicted[k])) for k in links]))
+        flags.append(~secant | (miss <= TRACK_TRUST * move + STEP_SLACK))
+    return jnp.stack(flags)
 
 
 def _select(pose: Pose, points: tuple[str, ...] | None) -> Pose:

@@ -312,6 +312,30 @@ def test_cannot_assemble_is_reported(scene, batch_positions):
     assert info.value.group == group
 
 
+def test_a_tracked_sweep_ends_with_the_branch():
+    """A triad on a crank of 0.25 m has a limit position at q* = 1.4309 rad. Past it the
+    tracked sweep's Newton solves landed on another assembly (P2 jumping 0.22 m between
+    samples 0.29 degrees apart, the median move 3 mm) and said ok; now the samples past it
+    are flagged, where the position analysis on its own (continued from the guess) finds no
+    assembly either, and those before it move continuously and close their loops."""
+    raw = raw_scene("triad_mechanism")
+    raw["links"]["crank"]["points"]["A"] = [0.25, 0.0]
+    mechanism = assurjax.scene_from_dict(raw).mechanism
+    qs = jnp.linspace(1.3, 1.6, 61)
+    tracked = assurjax.positions_tracked(mechanism, qs)
+    alone = jax.vmap(lambda q: assurjax.positions(mechanism, q))(qs)
+    ok = np.asarray(tracked.ok).all(-1)
+    np.testing.assert_array_equal(ok, np.asarray(alone.ok).all(-1))
+    assert 10 < np.count_nonzero(ok) < qs.size and not ok[np.argmin(ok):].any()  # from the limit on
+    moves = np.linalg.norm(np.diff(np.asarray(tracked.points["P2"])[ok], axis=0), axis=-1)
+    assert moves.max() < 10 * np.median(moves)
+    ref = LoopEquations("triad_mechanism")
+    ref.links["crank"]["A"] = np.array([0.25, 0.0])
+    for i in np.flatnonzero(ok):  # the loop equations, written apart, hold where it is ok
+        x = np.concatenate([np.asarray(tracked.points[p])[i] for p in ref.internal])
+        assert np.max(np.abs(ref.residual(x, float(qs[i])))) < TOL
+
+
 # Another assembly of each group at q0 (found by multi-start fsolve on the loop equations),
 # rounded to 1 cm: a guess, not an expected value.
 OTHER_BRANCH = {
