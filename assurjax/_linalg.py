@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
@@ -104,7 +105,13 @@ def lu_determinant(factors: tuple[Array, Array]) -> Array:
 class PlainLU(lx.AbstractLinearSolver):
     """lineax's ``LU`` without LAPACK, for the small square systems of a right-hand side
     (an iterative group's Newton steps and implicit derivatives, the friction's fallback):
-    operators on one 1-D array."""
+    operators on one 1-D array. ``finite``: a solution that is not finite (a singular
+    system, or non-finite input) is returned as 0, which lineax then counts a success: for
+    an implicit derivative at a failed solve (its value flagged not ok), where lineax raises
+    from inside the program, whatever the caller's ``throw``, and one failed member of a
+    vmapped batch stopped the whole batch."""
+
+    finite: bool = eqx.field(static=True, default=False)
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
         del options
@@ -122,6 +129,8 @@ class PlainLU(lx.AbstractLinearSolver):
             x = plain_lu_solve(factors, vector, transpose=transpose.value)
         else:
             x = solve_2x2(factors.T if transpose.value else factors, vector)
+        if self.finite:
+            x = jnp.where(jnp.all(jnp.isfinite(x)), x, 0.0)
         return x, lx.RESULTS.successful, {}
 
     def transpose(self, state, options: dict[str, Any]):

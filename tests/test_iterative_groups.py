@@ -336,6 +336,44 @@ def test_a_tracked_sweep_ends_with_the_branch():
         assert np.max(np.abs(ref.residual(x, float(qs[i])))) < TOL
 
 
+def test_a_failed_member_does_not_stop_a_batch(scene):
+    """A NaN crank angle in a vmapped batch (or a Newton start at a dead centre, whose first
+    step is 0/0) stopped the whole batch with an error raised by lineax from inside the
+    program (the implicit derivative's solve at the failed root); now that member is not ok,
+    and the others are those of single calls, velocities included."""
+    qs = jnp.array([0.1, jnp.nan, 0.4])
+    kin = jax.jit(jax.vmap(lambda q: assurjax.kinematics(scene.mechanism, q)))(qs)
+    assert np.asarray(kin.ok).all(-1).tolist() == [True, False, True]
+    for i in (0, 2):
+        single = assurjax.kinematics(scene.mechanism, qs[i])
+        for p in scene.mechanism.groups[1].internal_points():
+            np.testing.assert_allclose(np.asarray(kin.velocities[p])[i], np.asarray(single.velocities[p]), rtol=0, atol=1e-14)
+
+
+def test_a_guess_drawn_at_a_dead_centre_assembles():
+    """A triad drawn with its three binary links parallel (a dead centre, an exact assembly):
+    Newton's first step from it is 0/0. It was an error at every q; now the drawn pose is the
+    root it is (ok), and the loops close there."""
+    from assurjax.groups import Crank, Link, Triad
+
+    ground = {"O2": [-0.5, -0.5], "O5": [1.0, 0.0], "O6": [2.0, 0.0]}
+    links = {"crank": Link({"O2": [0.0, 0.0], "A": [0.5, 0.0]}, mass=1.0),
+             "T": Link({"P1": [0.0, 1.0], "P2": [1.0, 1.0], "P3": [2.0, 1.5]}, mass=1.0),
+             "L1": Link({"A": [0.0, -0.5], "P1": [0.0, 1.0]}, mass=1.0),
+             "L2": Link({"O5": [1.0, 0.0], "P2": [1.0, 1.0]}, mass=1.0),
+             "L3": Link({"O6": [2.0, 0.0], "P3": [2.0, 1.5]}, mass=1.0)}
+    guess = {"P1": jnp.array([0.0, 1.0]), "P2": jnp.array([1.0, 1.0]), "P3": jnp.array([2.0, 1.5])}
+    mechanism = assurjax.Mechanism(ground, links, [Crank("crank", ("crank",), "O2"),
+                                                   Triad("triad", ("T", "L1", "L2", "L3"), ("A", "O5", "O6", "P1", "P2", "P3"),
+                                                         guess, guess_q=0.0)])
+    pose = assurjax.positions(mechanism, 0.0, near={"L1": 0.0, "T": 0.0})
+    assert np.asarray(pose.ok).all()
+    for p, xy in guess.items():
+        np.testing.assert_allclose(np.asarray(pose.points[p]), np.asarray(xy), rtol=0, atol=1e-12)
+    assert link_point_errors(mechanism, pose) < 1e-12
+    assert np.asarray(assurjax.positions(mechanism, -0.1).ok).shape == (2,)  # no error away from it either
+
+
 # Another assembly of each group at q0 (found by multi-start fsolve on the loop equations),
 # rounded to 1 cm: a guess, not an expected value.
 OTHER_BRANCH = {

@@ -74,17 +74,23 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     differentiable goes through ``args``). Differentiation is implicit.
     ``loose``: stop at 1e-8 rad (closure 1e-6), enough for an intermediate
     continuation step whose only job is to stay on the branch.
-    Returns (z, ok); z is finite even when the solve fails (then z0 is returned)."""
+    Returns (z, ok); z is finite even when the solve fails (then z0 is returned). ok: z
+    closes the loops (its residual below the accepted closure), whether or not Newton's
+    steps met their own tolerance: next to a limit position they cannot (the Jacobian
+    nearly singular), and a start drawn there is already a root where the first step is
+    0/0. Where the solve fails (non-finite input, a singular Jacobian at the root) its
+    derivative is 0 beside ok False (:class:`PlainLU`'s ``finite``), not an error raised
+    from inside the program."""
     step_tol, f_tol = _tolerances(z0.dtype)
     if loose:
         step_tol, f_tol = max(step_tol, 1e-8), max(f_tol, 1e-6)
     solver = optx.Newton(rtol=step_tol, atol=step_tol, linear_solver=PlainLU())
-    adjoint = optx.ImplicitAdjoint(linear_solver=PlainLU())
+    adjoint = optx.ImplicitAdjoint(linear_solver=PlainLU(finite=True))
     sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
     finite = jnp.all(jnp.isfinite(sol.value))
     z = jnp.where(finite, sol.value, z0)
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
-    ok = (sol.result == optx.RESULTS.successful) & finite & (closure < f_tol)
+    ok = jnp.isfinite(closure) & (closure < f_tol)
     return z, ok
 
 
