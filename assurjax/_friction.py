@@ -306,6 +306,40 @@ def stacked_rate_terms(mechanism: Mechanism, frictions, names):
     return rate_terms
 
 
+def rates_and_slopes(mechanism, frictions, coeffs):
+    """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients, each
+    exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
+    has neither a Coulomb sign nor a slope that would give it one just ahead); and the
+    slopes as computed."""
+    if len(frictions) > SUMMED_TERMS:  # one array of terms: one sum, where one per element was a call each
+        rates_at, inputs = stacked_rate_terms(mechanism, frictions, coeffs.names), coeffs.stacked
+        size = lambda terms: jnp.sum(jnp.abs(terms), axis=-1)  # noqa: E731
+    else:
+        def rates_at(x, dx):
+            found = [f.rate_terms(mechanism, x, dx) for f in frictions]
+            return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
+
+        inputs = (coeffs.x, coeffs.dx, coeffs.d2x)
+        size = lambda terms: jnp.stack([jnp.sum(jnp.abs(t)) for t in terms])  # noqa: E731
+
+    # d/dq of the rates and of their terms: along q, x moves by dx and dx by d2x (at a dead
+    # point of a sub-chain its rates and their terms vanish together, the slopes' terms do not)
+    (rates, terms), (slopes, dterms) = jax.jvp(rates_at, inputs[:2], inputs[1:])
+    return without_roundoff(rates, size(terms)), without_roundoff(slopes, size(dterms)), slopes
+
+
+LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a motion reads the Coulomb signs it starts with
+
+
+def signs_ahead(rates, slopes, direction, q):
+    """The signs of the elements' d phi_k/dq just ahead of q in the direction of motion: a
+    rate 0 to round-off (a switch just located, a start on one, a dead point) takes the sign
+    it goes on with. At a slider-crank's dead point the slider's rate is 0, yet a start either
+    way slides it at once, and its friction loads the pins: the break-away limits there are
+    those of the starts, as the forward dynamics meets them."""
+    return jnp.sign(rates + slopes * direction * LOOKAHEAD * (1.0 + jnp.abs(q)))
+
+
 def frictions_of(loads) -> tuple[AbstractFriction, ...]:
     """The loads that need the joint reactions (the friction elements)."""
     return tuple(load for load in loads if load.needs_reactions)

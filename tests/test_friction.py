@@ -1351,3 +1351,30 @@ def test_fast_loops_give_the_same_triad_reactions():
     fast = run_fast_loops(FAST_LOOPS_TRIAD)
     for fast_values, values in zip(fast["triad"], rough_triad_reactions()):
         np.testing.assert_allclose(fast_values, values, rtol=1e-10, atol=1e-10 * np.max(np.abs(values)))
+
+
+def test_the_break_away_band_at_a_dead_point_is_that_of_the_starts():
+    """At the slider-crank's dead points (q = 0, pi) the slider's rate is 0, and the band gave
+    it no friction: 0.7089-0.7629 N m at q = 0 where 0.7077-0.7640 holds just beside it, and a
+    drive of 0.7634 did not start the mechanism that the band said it would (simulate reads
+    the signs just ahead). Now each edge is the start's that way, as the joint-based
+    reference's (which reads its signs at q +- 1e-6 through its own position analysis); and
+    driven just inside the band a run stays at rest with dw/dt = 0 (it was 0.09 rad/s^2 held),
+    just past it, it starts."""
+    import joint_reference_friction as jrf
+
+    scene, table = aj.load_scene("slider_crank"), jrf.SLIDER_CRANK_FRICTION
+    model = aj.Model(scene.mechanism, scene.gravity, tuple(scene.loads) + _package_frictions(scene.mechanism, table))
+    q = np.array([0.0, math.pi])
+    expected = np.array([jrf.slider_crank(0.5, 0.0).holding_range(qi) for qi in q])
+    band = np.stack(aj.breakaway_band(model, q), axis=-1)
+    np.testing.assert_allclose(band, expected, rtol=0, atol=1e-10)
+    beside = np.stack(aj.breakaway_band(model, q + 1e-9), axis=-1)  # continuous there
+    np.testing.assert_allclose(band, beside, rtol=0, atol=1e-6)
+    lower, upper = band[0]
+    for drive, moves in ((upper - 1e-6, 0), (upper + 1e-6, 1), (lower + 1e-6, 0), (lower - 1e-6, -1)):
+        driven = aj.Model(model.mechanism, model.gravity, model.loads + (aj.Drive(drive),))
+        sol = aj.simulate(driven, q0=0.0, omega0=0.0, t1=0.2, stop=None, samples=3, rtol=1e-10, atol=1e-10)
+        assert np.sign(sol.q[-1]) == moves, (drive, sol.q)
+        if not moves:
+            assert np.all(sol.domega == 0.0) and np.all(sol.omega == 0.0)

@@ -17,7 +17,7 @@ from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure
 from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
-                         solve_friction, static_model, states_per_call)
+                         rates_and_slopes, signs_ahead, solve_friction, static_model, states_per_call)
 from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort
 from .._mechanism import Mechanism
 from .._model import Model, as_model
@@ -196,12 +196,13 @@ def solve_global(mechanism: Mechanism, geom: Geometry, known: dict):
 
 def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, method: str, groups):
     """The joint friction of a motion forward and of one backward at the kinematics ``kin``
-    (their Coulomb signs those of the elements' relative rates times +1 and -1), stacked
+    (their Coulomb signs those of the elements' relative rates just ahead each way times +1
+    and -1, :func:`assurjax._friction.signs_ahead`; ``coeffs``: of order 2), stacked
     in that order: (friction values u (2, K), the rates per unit driving velocity (K,),
     whether each has a consistent solution (2,), and the reactions each gives: forces,
     couples, driving effort and ok, each with 2 in front)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    rates = jnp.stack([f.rate_coefficient(mechanism, coeffs.x, coeffs.dx) for f in frictions])
+    rates, slopes, _ = rates_and_slopes(mechanism, frictions, coeffs)
 
     def react(u, at_pairs=None):  # the pairs' reactions, for the friction law
         return from_kinematics(model, kin, t, extra=friction_wrenches(mechanism, kin, frictions, u), at_pairs=at_pairs)[:2]
@@ -209,7 +210,7 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
     linear = linearize_reactions(react, frictions, len(frictions))
 
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
-        signs = coulomb_signs(frictions, rates, omega, jnp.sign(rates) * d)
+        signs = coulomb_signs(frictions, rates, omega, signs_ahead(rates, slopes, d, coeffs.q) * d)
         u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, signs, omega, iterate=False)
         return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
                                               extra=friction_wrenches(mechanism, kin, frictions, u))

@@ -27,7 +27,7 @@ from jaxtyping import Array
 
 from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction_implicit,
                          friction_wrenches, frictions_of, has_static, iterate_friction, linearize_reactions,
-                         smoothed_only, solve_friction, stacked_rate_terms, static_model, without_roundoff)
+                         rates_and_slopes, signs_ahead, smoothed_only, solve_friction, static_model)
 from .._jit import FlatLayout, flattened_floats, jit, moved_leaves, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -345,9 +345,10 @@ def _start(model: Model, t, y: State, direction, coeffs, rate_signs, iterate: bo
     red, kin = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, y.omega, t, work=y.work is not None,
                                    rates=y.branch is not None)
 
-    rates, slopes, raw_slopes = _rates_and_slopes(mechanism, frictions, coeffs)
-    signs = jnp.sign(rates) if rate_signs is None else jnp.where(rate_signs != 0, rate_signs, jnp.sign(rates))
+    rates, slopes, raw_slopes = rates_and_slopes(mechanism, frictions, coeffs)
     direction = jnp.where(direction != 0, direction, rest_side(red.force))
+    ahead = signs_ahead(rates, slopes, direction, y.q)  # read at the state: those the motion goes on with
+    signs = ahead if rate_signs is None else jnp.where(rate_signs != 0, rate_signs, ahead)
     alpha0 = _acceleration(red, rates, jnp.zeros(len(frictions)), y.omega)
     linear, inertial = _linear_reactions(model, coeffs, t, y.omega, alpha0, rates / red.inertia)
     signs = coulomb_signs(frictions, rates, y.omega, signs * direction)
@@ -388,28 +389,6 @@ def rest_side(force):
     return jnp.where(force >= 0, 1.0, -1.0)
 
 
-def _rates_and_slopes(mechanism, frictions, coeffs):
-    """The elements' d phi_k/dq and d2 phi_k/dq2 (K,) from the kinematic coefficients, each
-    exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
-    has neither a Coulomb sign nor a slope that would give it one just ahead); and the
-    slopes as computed."""
-    if len(frictions) > SUMMED_TERMS:  # one array of terms: one sum, where one per element was a call each
-        rates_at, inputs = stacked_rate_terms(mechanism, frictions, coeffs.names), coeffs.stacked
-        size = lambda terms: jnp.sum(jnp.abs(terms), axis=-1)  # noqa: E731
-    else:
-        def rates_at(x, dx):
-            found = [f.rate_terms(mechanism, x, dx) for f in frictions]
-            return jnp.stack([rate for rate, _ in found]), [terms for _, terms in found]
-
-        inputs = (coeffs.x, coeffs.dx, coeffs.d2x)
-        size = lambda terms: jnp.stack([jnp.sum(jnp.abs(t)) for t in terms])  # noqa: E731
-
-    # d/dq of the rates and of their terms: along q, x moves by dx and dx by d2x (at a dead
-    # point of a sub-chain its rates and their terms vanish together, the slopes' terms do not)
-    (rates, terms), (slopes, dterms) = jax.jvp(rates_at, inputs[:2], inputs[1:])
-    return without_roundoff(rates, size(terms)), without_roundoff(slopes, size(dterms)), slopes
-
-
 def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
     """What a segment of stick and slip starts from, without a friction solve: the only
     direction a motion from rest can take (:func:`rest_side` of the generalized force at
@@ -420,7 +399,7 @@ def start_kinematics(model: Model, t, y: State, bridge: float = 0.0):
     mechanism = model.mechanism
     coeffs = kinematic_coefficients(model, y, bridge)
     red, _ = reduce_coefficients(mechanism, model.gravity, model.loads, coeffs, jnp.zeros_like(y.omega), t)
-    rates, slopes, _ = _rates_and_slopes(mechanism, frictions_of(model.loads), coeffs)
+    rates, slopes, _ = rates_and_slopes(mechanism, frictions_of(model.loads), coeffs)
     return rest_side(red.force), rates, slopes, coeffs
 
 

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of, has_static, iteration_tolerance
+from .._friction import frictions_of, has_static, iteration_tolerance, signs_ahead
 from .._jit import any_mapped, jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
@@ -65,7 +65,6 @@ from ._solution import Solution, no_outputs, replaced
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 FIRST_STEP = 1e-4  # in chunks, the first call's first step, times t1 - t0 (the controller adapts it)
 BATCH_SEGMENT_STEPS = 16  # Settings.segment_steps of simulate's batches (benchmarks/bench_friction.py)
-LOOKAHEAD = 1e-8  # rad or m of q (times 1 + |q|): where a segment reads the signs it starts with
 
 
 def batch_settings(settings: Settings, loads) -> Settings:
@@ -180,7 +179,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
         # goes on with
-        signs = jnp.sign(rates + slopes * direction * LOOKAHEAD * (1.0 + jnp.abs(y.q)))
+        signs = signs_ahead(rates, slopes, direction, y.q)
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
