@@ -237,6 +237,11 @@ def test_inverse_kinematics_out_of_reach():
     mech = assurjax.load_scene("slider_crank").mechanism  # x_B stays within [0.2, 0.4] m
     with raises(AssemblyError, "inverse kinematics", "out of reach"):
         assurjax.inverse_kinematics(mech, lambda pose: pose.points["B"][0], 0.6, 0.5)
+    # under jit nothing can be raised: q was a meaningless number (4308 rad on the triad), now NaN
+    q, pose = jax.jit(lambda v: assurjax.inverse_kinematics(mech, ("B", "x"), v, 0.5))(jnp.array(0.6))
+    assert np.isnan(q) and not np.asarray(pose.ok).all()
+    q, pose = jax.jit(lambda v: assurjax.inverse_kinematics(mech, ("B", "x"), v, 0.5))(jnp.array(0.35))
+    assert abs(float(pose.points["B"][0]) - 0.35) < 1e-12  # within reach: the root
 
 
 def test_unknown_point_in_kinematics():
