@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 DEFAULT_SCENE = "watt_sixbar"
+SCENE_HELP = "a scene file (.toml) or a bundled scene's name (see 'assurjax scenes')"
 USER_ERROR, INTERNAL_ERROR = 2, 1
 RUN_SAMPLES = 2001  # output times of run/reactions unless the scene's [simulation] samples says otherwise
 SWEEP_SAMPLES = 721  # configurations of a kinematic sweep: half-degree steps over a crank turn
@@ -128,7 +129,7 @@ def cmd_validate(args) -> int:
     print(f"  links: {', '.join(mech.links)}")
     print(f"  formation: {' -> '.join(f'{g.name} ({g.kind})' for g in mech.groups)}")
     print(f"  loads: {len(scene.loads)}, gravity: {np.asarray(scene.gravity).tolist()} m/s^2")
-    print(f"  assembles at q0 = {scene.state['q0']:.6g} ({len(pose.points)} points)")
+    print(f"  assembles at q0 = {scene.state['q0']:.6g} {_units(_driver_kind(mech))['q']} ({len(pose.points)} points)")
     for note in scene.notes:
         print(f"  note: {note}")
     if massless_members(mech).size:
@@ -819,7 +820,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     # ---- validate
     p = sub.add_parser("validate", parents=[common], help="check a scene (exit status 2 if it is bad)")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.set_defaults(func=cmd_validate)
 
     # ---- scenes
@@ -828,7 +829,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     # ---- kinematics
     p = sub.add_parser("kinematics", parents=[common], help="sweep the driving coordinate: coupler curves, angular velocities")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
     p.add_argument("--samples", type=int, default=SWEEP_SAMPLES, help=f"configurations in the sweep (default: {SWEEP_SAMPLES})")
     p.add_argument("--start", type=float, help="first driving coordinate (rad or m; default q0 - pi for a crank)")
@@ -837,7 +838,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     # ---- reactions
     p = sub.add_parser("reactions", parents=[common], help="joint reactions and driving effort along the simulated motion")
-    p.add_argument("scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--out", help="output directory (default: assurjax-out/<scene name>)")
     p.add_argument("--samples", type=int, help=f"equally spaced output times, saved with the solver's own steps (default: the scene's [simulation] samples, else {RUN_SAMPLES})")
     p.add_argument("--static", action="store_true", help="the mechanism held at rest at q0 instead (printed only)")

@@ -4,6 +4,8 @@ import os
 import re
 import subprocess
 import sys
+import tomllib
+from importlib import resources
 from pathlib import Path
 
 import jax
@@ -146,3 +148,23 @@ def test_float32_opt_in():
     env = {**os.environ, "ASSURJAX_FLOAT32": "1", "JAX_ENABLE_X64": "0"}
     out = subprocess.run([sys.executable, "-c", FLOAT32_SCRIPT], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+def test_integer_modes_and_misspelt_required_fields():
+    """docs/scene-format.md: modes 1 and -1 mean +1 and -1 (they were refused); a required
+    field misspelt was reported missing without the key the table has instead."""
+    raw = tomllib.loads((resources.files("assurjax.scenes") / "watt_sixbar.toml").read_text())
+    named = assurjax.scene_from_dict(raw).mechanism
+    for entry in raw["formation"]:
+        if "mode" in entry:
+            entry["mode"] = {"left": 1, "right": -1}[entry["mode"]]
+    numbered = assurjax.scene_from_dict(raw).mechanism
+    for a, b in zip(named.groups, numbered.groups):
+        assert getattr(a, "mode", None) == getattr(b, "mode", None)
+    raw["formation"][1]["mode"] = True  # a flag is no mode
+    with pytest.raises(assurjax.SceneError, match="field 'mode': expected 'left'/'right'"):
+        assurjax.scene_from_dict(raw)
+    raw = tomllib.loads((resources.files("assurjax.scenes") / "slider_crank.toml").read_text())
+    raw["loads"] = [{"type": "spring", "points": ["O", "B"], "stifness": 1.0}]
+    with pytest.raises(assurjax.SceneError, match="missing field 'stiffness' \\(the table has 'stifness': misspelt\\?\\)"):
+        assurjax.scene_from_dict(raw)

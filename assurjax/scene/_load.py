@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from collections.abc import Callable
 from importlib import resources
@@ -83,7 +84,9 @@ class Fields:
         self.used.add(key)
         if key not in self.table:
             if default is ...:
-                raise SceneError(f"{self.source}: {self.where}: missing field '{key}'")
+                close = difflib.get_close_matches(key, [k for k in self.table if isinstance(k, str)], n=1)
+                hint = f" (the table has '{close[0]}': misspelt?)" if close else ""
+                raise SceneError(f"{self.source}: {self.where}: missing field '{key}'{hint}")
             return default
         return self.table[key]
 
@@ -137,8 +140,8 @@ class Fields:
 
     def mode(self, key: str = "mode", default: Any = ...) -> int:
         v = self.raw(key, default)
-        if not isinstance(v, str) or v not in MODES:
-            self.fail(key, f"expected 'left'/'right' (or 'forward'/'backward', '+'/'-'), got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (str, int)) or v not in MODES:
+            self.fail(key, f"expected 'left'/'right' (or 'forward'/'backward', '+'/'-', 1/-1), got {v!r}")
         return MODES[v]
 
     def reject_unknown(self, allowed: set[str] | None = None):
