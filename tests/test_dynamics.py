@@ -332,6 +332,23 @@ def test_seed_euler_baseline_converges_with_order_one(watt):
     assert np.all(np.abs(slopes - 1.0) < 0.25), (errors, slopes)
 
 
+def test_seed_euler_baseline_checks_its_inputs(watt):
+    """A negative dq ran time backwards (t = -4e301 s), dq = 0 took 20 000 steps that did
+    nothing, NaN starts ran, an unknown link was a raw KeyError, max_steps had no bound, and
+    simulate(..., solver='seed_euler') dropped its max_steps."""
+    m, g = watt.mechanism, watt.gravity
+    for kw, message in ((dict(dq=-1e-3), "dq must be positive"), (dict(dq=0.0), "dq must be positive"),
+                        (dict(dq=2.0), "dq is a step in q"), (dict(max_steps=3_000_000), "max_steps: expected"),
+                        (dict(t1=-1.0), "t1 must be after t0")):
+        with pytest.raises(aj.AssurjaxError, match=f"simulate_seed_euler: {message}"):
+            aj.simulate_seed_euler(m, g, (), 0.0, 0.0, **kw)
+    with pytest.raises(aj.AssurjaxError, match="simulate_seed_euler: q0 must be finite"):
+        aj.simulate_seed_euler(m, g, (), float("nan"), 0.0)
+    with pytest.raises(aj.MechanismError, match="unknown link 'foo'"):
+        aj.simulate_seed_euler(m, g, (aj.Couple("foo", 1.0),), 0.0, 0.0)
+    assert aj.simulate(watt, solver="seed_euler", max_steps=10, stop=None, t1=5.0).q.shape == (11,)
+
+
 # ----------------------------------------------------------------------------- user events, retracing
 
 

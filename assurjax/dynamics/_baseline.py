@@ -9,8 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._errors import AssurjaxError
 from .._jit import jit
+from .._loads import check_loads
 from .._reduction import reduce_single
+from .._values import check_value
+from ._settings import setting_problem
 
 
 class SeedEulerSolution(NamedTuple):
@@ -62,9 +66,19 @@ def simulate_seed_euler(mechanism, gravity, loads, q0, omega0, *, t0=0.0, t1=1.0
     """Durango et al.'s scheme (Euler in q with a fixed step ``dq`` rad, Durango et al. 2014 eq. 2) — a
     labelled baseline for benchmarks, first order in ``dq``. Integrates until ``t1``,
     the first standstill (``standstill=True``) or ``max_steps`` steps of ``dq``
-    (default: 20 000)."""
+    (default: 20 000; at most 1 000 000)."""
+    for name, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
+        check_value(AssurjaxError, f"simulate_seed_euler: {name}", value, shape=())
+    check_value(AssurjaxError, "simulate_seed_euler: dq", dq, shape=(), positive=True)
+    if float(dq) > 1.0:
+        raise AssurjaxError(f"simulate_seed_euler: dq is a step in q (rad or m), at most 1, got {float(dq):g}")
+    if not float(t1) > float(t0):
+        raise AssurjaxError(f"simulate_seed_euler: t1 must be after t0, got t0 = {float(t0):g}, t1 = {float(t1):g}")
+    if max_steps is not None and (problem := setting_problem("steps", max_steps)) is not None:
+        raise AssurjaxError(f"simulate_seed_euler: max_steps: {problem}")
     n = int(max_steps or 20000)
     loads = tuple(loads)
+    check_loads(mechanism, loads)
     q, w, t, go, t_stop = _seed_euler_core(mechanism, jnp.asarray(gravity, dtype=float), loads, jnp.asarray(q0, dtype=float),
                                           jnp.asarray(omega0, dtype=float), jnp.asarray(t0, dtype=float),
                                           jnp.asarray(t1, dtype=float), jnp.asarray(dq, dtype=float), n, bool(standstill))

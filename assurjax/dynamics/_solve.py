@@ -366,7 +366,9 @@ def simulate(
     m/s), ``t0``, ``t1`` (s) from ``[state]``; ``stop`` (``"standstill"`` or None; the
     default is the scene's ``[simulation] stop``, and no stop without one: the motion
     runs to t1), ``solver`` (``"tsit5"`` default, ``"dopri5"``, ``"dopri8"``, ..., or the
-    baseline ``"seed_euler"``), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
+    baseline ``"seed_euler"``: Durango et al.'s Euler in q, :func:`assurjax.simulate_seed_euler`,
+    which takes ``dt`` as its step in q, rad or m, default 1e-3, and ``max_steps``, and
+    returns t, q and omega only), ``rtol``, ``atol`` (default 1e-8: errors below 1e-6 rad
     over seconds of motion in the bundled scenes, up to ~1e-5 rad seen in stick-slip with
     joint friction; pass 1e-10 or tighter for reference-quality runs; with joint
     friction the friction is solved at each right-hand side to 1e-2 of the tighter of the
@@ -378,7 +380,9 @@ def simulate(
     span), ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
-    loaded mechanisms); ``coms`` (links whose centres of mass to save), ``velocities``,
+    loaded mechanisms; not with the tabulated reduction, which ``reduction="auto"`` picks
+    for 64 starts or more: there ``work`` and ``balance`` are None, pass
+    ``reduction="exact"`` for them); ``coms`` (links whose centres of mass to save), ``velocities``,
     ``accelerations`` (True: also the velocities / accelerations of the saved points,
     centres of mass and link angles). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
     or ``"tracked"``: the link angles travel in the ODE state (d theta/dt =
@@ -404,7 +408,7 @@ def simulate(
     ``saveat``: an array of times (s). ``save_steps``: also save the state at the end of
     every accepted solver step, merged in time order with ``saveat`` (outputs then
     follow the solver where the motion changes fast; up to ``max_steps`` extra samples;
-    single runs only, not with joint friction). ``events``: functions ``cond(t, q, omega)``;
+    single runs only, not with joint friction of the exact law). ``events``: functions ``cond(t, q, omega)``;
     the motion stops where one changes sign (with joint friction also past a rest, and
     while the friction holds the mechanism at rest). ``mechanism``, ``loads``, ``gravity``
     replace the scene's. ``throw``: raise :class:`assurjax.AssurjaxError` with the
@@ -450,7 +454,7 @@ def simulate(
             raise AssurjaxError(f"solver={settings.solver!r} (a baseline, Durango et al.'s scheme) has no joint friction; "
                                 "the scene has friction elements: use the default solver")
         return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
-                                   standstill=settings.standstill)
+                                   standstill=settings.standstill, max_steps=max_steps)
     if settings.steps is not None:
         check_steps(settings, model)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
