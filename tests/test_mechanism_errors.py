@@ -514,7 +514,9 @@ def test_more_inputs_named_where_they_are_given():
         with pytest.raises(assurjax.AssurjaxError, match=message):
             assurjax.reduce(scene, **kwargs)
     for motion, message in ((lambda t: None, "motion q\\(t\\) must return a number, it returns None"),
-                            (lambda t: "x", "motion q\\(t\\) must return a number, it returns 'x'")):
+                            (lambda t: "x", "motion q\\(t\\) must return a number, it returns 'x'"),
+                            (lambda t: np.sin(t), "motion q\\(t\\) must be written with jax.numpy"),
+                            (lambda t: 1.0 if t > 0.5 else 0.0, "motion q\\(t\\) must be written with jax.numpy")):
         with pytest.raises(assurjax.AssurjaxError, match=message):
             assurjax.inverse_dynamics(scene, motion, np.linspace(0.0, 1.0, 3))
     with pytest.raises(assurjax.AssurjaxError, match="inverse_dynamics: t must be a number"):

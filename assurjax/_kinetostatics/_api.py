@@ -460,7 +460,12 @@ def _as_float(motion):
     """``motion`` returning floats (an integer q(t), e.g. a crank held at q = 1, has no
     derivative to take), and refusing what is no number by name."""
     def q(t):
-        value = motion(t)
+        try:
+            value = motion(t)
+        except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError) as e:
+            raise AssurjaxError("inverse_dynamics: motion q(t) must be written with jax.numpy (jnp.sin, not np.sin, "
+                                "and no Python if on t): its derivatives are taken by jax.jvp, which traces it "
+                                f"({type(e).__name__})") from None
         if not hasattr(value, "dtype") and not isinstance(value, (int, float)) or isinstance(value, bool):
             raise AssurjaxError(f"inverse_dynamics: motion q(t) must return a number, it returns {value!r:.60}")
         if hasattr(value, "dtype") and not jnp.issubdtype(value.dtype, jnp.number):
