@@ -7,7 +7,7 @@ a = d2x/dq2 w^2 + dx/dq alpha. There is no second hand-written velocity code pat
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 
 import equinox as eqx
 import jax
@@ -19,9 +19,9 @@ from jaxtyping import Array
 from ._errors import AssemblyError, AssurjaxError
 from ._geometry import perp, rotation, wrap_angle
 from ._jit import jit
-from ._mechanism import Mechanism, Pose, positions
-from ._positions import stacked_positions
-from ._values import check_state_count, check_values
+from ._mechanism import Mechanism, Pose, check_mechanism, point_names, positions
+from ._positions import checked_request, stacked_positions
+from ._values import check_state_count, check_value, check_values, concrete
 
 
 class Kinematics(eqx.Module):
@@ -196,6 +196,9 @@ def coefficients(mechanism: Mechanism, q, *, order: int = 2, near=None) -> Coeff
     """Positions and first/second kinematic coefficients of every point, centre of mass
     and link angle at ``q`` (see :func:`taylor`). ``near``: link angles (rad) selecting
     the branch (see :func:`assurjax.positions`)."""
+    if order not in (0, 1, 2) or isinstance(order, bool):
+        raise AssurjaxError(f"coefficients: order must be 0, 1 or 2, got {order!r}")
+    checked_request(mechanism, q, None, near, "coefficients")
     names = {}
 
     def coords(q):
@@ -237,6 +240,13 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
     limit position: the branch ends, nothing to bridge), they are the plain ones. The
     nodes take the root nearest to the branch angles carried along the first
     coefficients."""
+    if not isinstance(near, Mapping):
+        raise AssurjaxError("bridged_coefficients: near must map the tracked links to their angles (rad), e.g. "
+                            f"assurjax.branch_angles(mechanism, pose); got {type(near).__name__}")
+    check_value(AssurjaxError, "bridged_coefficients: window", window, shape=(), positive=True)
+    if concrete(window) is not None and float(window) > 0.1:
+        raise AssurjaxError(f"bridged_coefficients: window is a half-width in q (rad or m) next to a singular point, "
+                            f"at most 0.1, got {float(window):g}")
     q = jnp.asarray(q, dtype=float)
     plain = coefficients(mechanism, q, order=2, near=near)
     distance = singular_distance(mechanism, plain)
@@ -378,23 +388,6 @@ def kinematics(
     if check:
         raise_if_not_assembled(mechanism, kin.ok, q)
     return kin
-
-
-def check_mechanism(mechanism, what: str) -> None:
-    if not isinstance(mechanism, Mechanism):
-        raise AssurjaxError(f"{what}: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
-                            f"{type(mechanism).__name__}")
-
-
-def point_names(mechanism: Mechanism, names, what: str) -> tuple[str, ...]:
-    """``names`` as a tuple of the mechanism's point names (one name may be a plain string),
-    unknown ones refused by name."""
-    check_mechanism(mechanism, what)
-    names = (names,) if isinstance(names, str) else tuple(names)
-    unknown = [n for n in names if n not in mechanism.point_names]
-    if unknown:
-        raise AssurjaxError(f"{what}: unknown point(s) {unknown}; the mechanism has {sorted(mechanism.point_names)}")
-    return names
 
 
 def broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:

@@ -177,5 +177,22 @@ def _check_values(mech: Mechanism) -> None:
             check_value(MechanismError, f"{g.describe()}: guide offset", offset)
 
 
+def check_mechanism(mechanism, what: str) -> None:
+    if not isinstance(mechanism, Mechanism):
+        raise MechanismError(f"{what}: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
+                             f"{type(mechanism).__name__}")
+
+
+def point_names(mechanism: Mechanism, names, what: str) -> tuple[str, ...]:
+    """``names`` as a tuple of the mechanism's point names (one name may be a plain string),
+    unknown ones refused by name."""
+    check_mechanism(mechanism, what)
+    names = (names,) if isinstance(names, str) else tuple(names)
+    unknown = [n for n in names if n not in mechanism.point_names]
+    if unknown:
+        raise MechanismError(f"{what}: unknown point(s) {unknown}; the mechanism has {sorted(mechanism.point_names)}")
+    return names
+
+
 # the position analysis needs Mechanism and Pose: imported last (kept importable from here)
 from ._positions import _positions as _positions, positions as positions  # noqa: E402

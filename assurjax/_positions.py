@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import MechanismError
+from ._values import check_value
 from ._geometry import V2, heading, rotate, wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose
@@ -76,8 +77,31 @@ def positions(
     >>> pose.ok.shape
     (3,)
     """
+    points = checked_request(mechanism, q, points, near, "positions")
     # q as an array: the jit below would take a Python float as static and compile per value
-    return _positions(mechanism, jnp.asarray(q, dtype=float), None if points is None else tuple(points), near, materialize)
+    return _positions(mechanism, jnp.asarray(q, dtype=float), points, near, materialize)
+
+
+def checked_request(mechanism: Mechanism, q, points, near, what: str):
+    """The mechanism, q (one number, finite where it is concrete), the point names (one may be
+    a plain string) and ``near`` (link -> one angle each). Returns the point names as a tuple
+    (None: all)."""
+    from ._mechanism import point_names
+
+    points = None if points is None else point_names(mechanism, points, what)
+    check_value(MechanismError, f"{what}: q (one driving coordinate; for many, assurjax.kinematics or jax.vmap)", q,
+                shape=())
+    if near is not None:
+        if not isinstance(near, Mapping):
+            raise MechanismError(f"{what}: near must map link names to angles (rad), e.g. a previous Pose.angles; "
+                                 f"got {type(near).__name__}")
+        links = set(mechanism.links)
+        unknown = sorted(str(k) for k in near if k not in links)
+        if unknown:
+            raise MechanismError(f"{what}: near names unknown link(s) {unknown}; the mechanism has {sorted(links)}")
+        for link, angle in near.items():
+            check_value(MechanismError, f"{what}: near['{link}']", angle, shape=())
+    return points
 
 
 # A nested jit: a simulation needs the position analysis in several places (events,

@@ -17,11 +17,14 @@ from collections.abc import Iterable, Mapping
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._geometry import wrap_angle
 from ._jit import jit
+from ._errors import MechanismError
 from ._mechanism import Mechanism, Pose, positions
-from ._positions import STEP_SLACK
+from ._positions import STEP_SLACK, checked_request
+from ._values import check_state_count, check_value
 from .groups._newton import IterativeGroup
 
 
@@ -72,8 +75,12 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
     >>> scene = assurjax.n_four_bar(3)
     >>> pose = assurjax.positions_tracked(scene.mechanism, jnp.linspace(1.6, -4.7, 600))
     """
+    check_value(MechanismError, "positions_tracked: qs", qs)
+    if np.ndim(qs) != 1 or np.shape(qs)[0] < 1:
+        raise MechanismError(f"positions_tracked: qs must be a 1-D path of driving coordinates, got shape {np.shape(qs)}")
+    check_state_count(MechanismError, "positions_tracked: qs", np.shape(qs))
+    pts = checked_request(mechanism, 0.0, points, near, "positions_tracked")
     qs = jnp.asarray(qs, dtype=float)
-    pts = None if points is None else tuple(points)
     first = positions(mechanism, qs[0], near=near)
     start = branch_angles(mechanism, first)
 

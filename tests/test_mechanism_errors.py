@@ -565,3 +565,29 @@ def test_a_batch_counts_a_member_that_cannot_assemble_at_the_start_once():
     # its event says lock-up (the check that found it); it was counted there as well
     summary = batch_summary(Ends(np.array([0, START_NOT_ASSEMBLED]), np.array([NO_EVENT, LOCKUP])))
     assert summary.status == "batch of 2: 1 reached t1, 1 cannot assemble at the start"
+
+
+def test_position_analyses_name_what_they_are_given():
+    """A point given as a string was read letter by letter (KeyError 'P'), a vector q failed
+    in a stack, near as lists reached a linear solver, positions_tracked([]) an IndexError,
+    coefficients(order=7) ran as order 2, a window of 1 rad bridged over the whole motion."""
+    mech = assurjax.load_scene("triad_mechanism").mechanism
+    assert set(assurjax.positions(mech, 0.3, points="P1").points) == {"P1"}
+    calls = [
+        (lambda: assurjax.positions(mech, 0.3, points=["Q"]), "positions: unknown point\\(s\\) \\['Q'\\]"),
+        (lambda: assurjax.positions(mech, np.zeros(3)), "positions: q .* must be a single number"),
+        (lambda: assurjax.positions(mech, 1e20), "positions: q .* must be at most 1e\\+12"),
+        (lambda: assurjax.positions(mech, 0.3, near={"T": [0.1, 0.2]}), "positions: near\\['T'\\] must be a single number"),
+        (lambda: assurjax.positions(mech, 0.3, near={"X": 0.1}), "positions: near names unknown link\\(s\\) \\['X'\\]"),
+        (lambda: assurjax.pose_at(mech, [0.1, 0.2]), "q .* must be a single number"),
+        (lambda: assurjax.positions_tracked(mech, []), "positions_tracked: qs must be a 1-D path"),
+        (lambda: assurjax.positions_tracked(mech, 0.3), "positions_tracked: qs must be a 1-D path"),
+        (lambda: assurjax.positions_tracked(mech, [0.1, 0.2], points=["Q"]), "positions_tracked: unknown point"),
+        (lambda: assurjax.coefficients(mech, 0.3, order=7), "coefficients: order must be 0, 1 or 2"),
+        (lambda: assurjax.bridged_coefficients(mech, 0.3, near=None), "bridged_coefficients: near must map"),
+        (lambda: assurjax.bridged_coefficients(mech, 0.3, near={}, window=1.0), "bridged_coefficients: window .* at most 0.1"),
+        (lambda: assurjax.bridged_coefficients(mech, 0.3, near={}, window=-1.0), "bridged_coefficients: window must be positive"),
+    ]
+    for call, message in calls:
+        with pytest.raises(assurjax.AssurjaxError, match=message):
+            call()
