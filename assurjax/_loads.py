@@ -178,11 +178,30 @@ def reads(value, argument: str) -> bool:
         program = jax.make_jaxpr(lambda q, omega, t: evaluate(value, q, omega, t))(0.0, 0.0, 0.0).jaxpr
     except Exception:  # not traceable: whatever it reads, it fails where it is evaluated
         return True
-    used = {program.invars[ARGUMENTS.index(argument)]}
-    for eqn in program.eqns:  # an equation (or a nested program, whole) uses what its inputs use
-        if any(not isinstance(v, jax.extend.core.Literal) and v in used for v in eqn.invars):
+    return any(_outputs_using(program, [v is program.invars[ARGUMENTS.index(argument)] for v in program.invars]))
+
+
+def _outputs_using(program, inputs: list[bool]) -> list[bool]:
+    """Which outputs of a jaxpr depend on the inputs flagged: an equation's outputs use what
+    its inputs use, a nested program (jit, checkpoint, custom_jvp) read inside, any other
+    (cond, scan, while) whole: each output uses every input."""
+    used = {v for v, flag in zip(program.invars, inputs) if flag}
+
+    def uses(v):
+        return not isinstance(v, jax.extend.core.Literal) and v in used
+
+    for eqn in program.eqns:
+        flags = [uses(v) for v in eqn.invars]
+        if not any(flags):
+            continue
+        inner = eqn.params.get("jaxpr", eqn.params.get("call_jaxpr"))
+        inner = getattr(inner, "jaxpr", inner)  # a ClosedJaxpr's program
+        if (isinstance(inner, jax.extend.core.Jaxpr) and len(inner.invars) == len(flags)
+                and len(inner.outvars) == len(eqn.outvars)):
+            used.update(v for v, flag in zip(eqn.outvars, _outputs_using(inner, flags)) if flag)
+        else:
             used.update(eqn.outvars)
-    return any(not isinstance(v, jax.extend.core.Literal) and v in used for v in program.outvars)
+    return [uses(v) for v in program.outvars]
 
 
 def _has_time_form(value, *, functions: bool = False) -> bool:
@@ -685,7 +704,7 @@ def check_loads(mechanism: Mechanism, loads) -> None:
 
 def _check_inputs(mechanism: Mechanism, loads, *, gravity=None) -> None:
     """The public load functions' checks: the loads (:func:`check_loads`) and the gravity."""
-    check_loads(mechanism, tuple(loads))
+    check_loads(mechanism, loads)
     if gravity is not None:
         check_value(MechanismError, "gravity", gravity, shape=(2,))
 
@@ -703,6 +722,7 @@ def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0, *, check:
     ``kin`` is a single-configuration :class:`assurjax.Kinematics` (``order >= 1``
     when a load depends on velocity). ``check``: the loads' points and links and the
     gravity checked first (:class:`assurjax.MechanismError` naming what is unknown)."""
+    loads = tuple(loads)  # read twice: a generator once
     if check:
         _check_inputs(mechanism, loads, gravity=gravity)
     g = jnp.asarray(gravity, dtype=float)
@@ -717,6 +737,7 @@ def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0, *, check:
 def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0, *, check: bool = True) -> Array:
     """Torque (N m, crank) or force (N, slider) that the driving loads put on the driver; 0 if
     none. ``check``: the loads checked first, as in :func:`applied_wrenches`."""
+    loads = tuple(loads)
     if check:
         _check_inputs(mechanism, loads)
     total = jnp.zeros(())
@@ -728,6 +749,7 @@ def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0, *, check: bool =
 def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose, *, check: bool = True) -> Array:
     """Potential energy (J) of gravity (-sum m g . r_G, zero at the origin) and springs.
     ``check``: the loads and the gravity checked first, as in :func:`applied_wrenches`."""
+    loads = tuple(loads)
     if check:
         _check_inputs(mechanism, loads, gravity=gravity)
     g = jnp.asarray(gravity, dtype=float)
@@ -742,6 +764,7 @@ def potential_energy(mechanism: Mechanism, gravity, loads, pose: Pose, *, check:
 def dissipated_power(mechanism: Mechanism, loads, kin, *, check: bool = True) -> Array:
     """Power (W, >= 0) removed by the dampers at the configuration ``kin`` (with velocities).
     ``check``: the loads checked first, as in :func:`applied_wrenches`."""
+    loads = tuple(loads)
     if check:
         _check_inputs(mechanism, loads)
     total = jnp.zeros(())

@@ -99,7 +99,9 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
         reached = jax.tree.map(lambda a, p: jnp.where(assembled, a, p), branch_angles(mechanism, pose), predicted)
         return (reached, angles, q, q - q_prev, ended), _select(pose, pts)
 
-    carry = (start, start, qs[0], jnp.zeros_like(qs[0]), jnp.zeros(len(mechanism.groups), dtype=bool))
+    # an iterative group that does not assemble at the first sample has no branch to track
+    iterative = np.array([isinstance(g, IterativeGroup) for g in mechanism.groups])
+    carry = (start, start, qs[0], jnp.zeros_like(qs[0]), ~first.ok & iterative)
     _, rest = jax.lax.scan(step, carry, qs[1:])
     return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), _select(first, pts), rest)
 
@@ -107,11 +109,12 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
 # An iterative group's root counts as the tracked branch's where it lies within TRACK_TRUST
 # times the secant's predicted move (plus STEP_SLACK rad) of the prediction. Past a limit
 # position the branch ends, and Newton's method lands on another assembly (a triad's angle
-# jumping by 0.5 rad between samples 0.3 degrees apart) where a dyad finds no root. Looser
-# than the continuation's STEP_TRUST: next to a limit position q* the angles go as
-# sqrt(q* - q), and evenly spaced samples, the last at q*, move 1 + sqrt(2) times the
-# secant's prediction (a miss of sqrt(2) times the predicted move).
-TRACK_TRUST = 1.5
+# jumping by 0.5 rad, 17 predicted moves, between samples 0.3 degrees apart) where a dyad
+# finds no root. Looser than the continuation's STEP_TRUST: next to a limit position q* the
+# angles go as sqrt(q* - q), and a step that ends at q* misses the secant's prediction by
+# sqrt(1 + b/a) predicted moves (b: the previous step, a: the distance it left to q*): 1.41
+# for even steps, 3 where the previous step was 8 times the distance left.
+TRACK_TRUST = 3.0
 
 
 def _continued(mechanism: Mechanism, pose: Pose, angles: dict, predicted: dict, secant):

@@ -172,6 +172,7 @@ def test_the_public_load_functions_check_their_loads(watt, kin):
         aj.driver_effort(m, ["drive"], 0.0, 0.0)
     with pytest.raises(aj.MechanismError, match="gravity"):
         aj.applied_wrenches(m, [0.0, 0.0, -9.81], [], kin)
+    assert float(aj.driver_effort(m, (load for load in [aj.Drive(1.0)]), 0.3, 0.0)) == 1.0  # a generator, read once
 
 
 SCENE = """

@@ -183,6 +183,13 @@ def test_time_dependent_or_non_periodic_loads_are_clear_errors(watt):
                        [aj.Drive(lambda q, w, t: 0.1 * w, velocity_dependent=False)], 16)
     with pytest.raises(aj.AssurjaxError, match=r"not 2 pi-periodic"):
         aj.build_table(watt.mechanism, watt.gravity, [aj.Drive(lambda q, w, t: 0.1 * q, velocity_dependent=False)], 16)
+    # a function of q alone inside jit or checkpoint is read inside (it was blamed on omega)
+    for wrap in (jax.jit, jax.checkpoint):
+        q_only = wrap(lambda q, w, t: 0.1 * jnp.sin(q))
+        assert aj.build_table(watt.mechanism, watt.gravity, [aj.Drive(q_only, velocity_dependent=False)], 16).data.shape == (16, 6)
+    with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time t"):
+        aj.build_table(watt.mechanism, watt.gravity,
+                       [aj.Drive(jax.jit(lambda q, w, t: q * 0.0 + jnp.where(t > 0.5, 1.0, 0.0)), velocity_dependent=False)], 16)
 
 
 def test_a_drive_switched_on_later_is_not_tabulated():

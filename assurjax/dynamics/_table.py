@@ -176,6 +176,8 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
     """
     from ._settings import setting_problem  # imports the vector field, which imports this module
 
+    if hasattr(nodes, "dtype") and np.ndim(nodes) == 0 and jnp.issubdtype(nodes.dtype, jnp.integer):
+        nodes = int(nodes)  # a NumPy or JAX integer
     if (problem := setting_problem("table_nodes", nodes)) is not None:
         raise AssurjaxError(f"build_table: nodes: {problem}")
     if gravity is not None:

@@ -40,6 +40,7 @@ then finite but meaningless.
 from __future__ import annotations
 
 import abc
+import numbers
 import dataclasses
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -74,13 +75,10 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     differentiable goes through ``args``). Differentiation is implicit.
     ``loose``: stop at 1e-8 rad (closure 1e-6), enough for an intermediate
     continuation step whose only job is to stay on the branch.
-    Returns (z, ok); z is finite even when the solve fails (then z0 is returned). ok: z
-    closes the loops (its residual below the accepted closure), whether or not Newton's
-    steps met their own tolerance: next to a limit position they cannot (the Jacobian
-    nearly singular), and a start drawn there is already a root where the first step is
-    0/0. Where the solve fails (non-finite input, a singular Jacobian at the root) its
-    derivative is 0 beside ok False (:class:`PlainLU`'s ``finite``), not an error raised
-    from inside the program."""
+    Returns (z, ok); z is finite even when the solve fails (then z0 is returned). Where
+    the solve fails (non-finite input; a singular Jacobian, as at a start drawn exactly at
+    a dead centre, where Newton's first step is 0/0) its derivative is 0 beside ok False
+    (:class:`PlainLU`'s ``finite``), not an error raised from inside the program."""
     step_tol, f_tol = _tolerances(z0.dtype)
     if loose:
         step_tol, f_tol = max(step_tol, 1e-8), max(f_tol, 1e-6)
@@ -90,7 +88,7 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     finite = jnp.all(jnp.isfinite(sol.value))
     z = jnp.where(finite, sol.value, z0)
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
-    ok = jnp.isfinite(closure) & (closure < f_tol)
+    ok = (sol.result == optx.RESULTS.successful) & finite & (closure < f_tol)
     return z, ok
 
 
@@ -175,7 +173,12 @@ class IterativeGroup(AbstractGroup):
             if not 1 <= value <= ITERATION_LIMIT:
                 raise MechanismError(f"{self.describe()}: {key} must be from 1 to {ITERATION_LIMIT}, got {value}")
         for p, v in self.guess.items():
-            check_value(MechanismError, f"{self.describe()}: guess of point '{p}'", v)
+            check_value(MechanismError, f"{self.describe()}: guess of point '{p}'", v, shape=(2,))
+        if self.guess_q is not None:  # a static field: a plain number (an array is not hashable)
+            if isinstance(self.guess_q, bool) or not isinstance(self.guess_q, numbers.Real):
+                raise MechanismError(f"{self.describe()}: guess_q must be a plain number (the driving coordinate at which "
+                                     f"the guess holds), got {type(self.guess_q).__name__}")
+            check_value(MechanismError, f"{self.describe()}: guess_q", self.guess_q)
 
 
 # Continuation substeps and Newton iterations per evaluation: every one is a solve inside
