@@ -413,3 +413,23 @@ def test_point_and_link_rates_along_a_simulation(watt):
     np.testing.assert_allclose(sol.angular_velocities["link5"][mid], diff(np.unwrap(sol.angles["link5"])), atol=1e-4)
     np.testing.assert_allclose(sol.com_velocities["link3"][mid], diff(sol.coms["link3"]), atol=1e-4 * np.abs(sol.com_velocities["link3"]).max())
     np.testing.assert_allclose(sol.angular_accelerations["link5"][mid], diff(sol.angular_velocities["link5"]), atol=1e-2)
+
+
+def test_options_that_a_path_cannot_honour_are_refused(watt):
+    """steps= ignored saveat and dt, and called its blow-up a lock-up of group 'None'; the
+    baseline ignored events and saveat and ended at a standstill without saying why; bridge=
+    without a tracked branch did nothing; an event of two arguments was a raw TypeError."""
+    slider = aj.load_scene("slider_crank")
+    for kwargs, message in ((dict(steps=200, saveat=[0.1, 0.5]), "steps= .* takes no saveat"),
+                            (dict(steps=200, dt=1e-3), "steps= .* takes no dt"),
+                            (dict(solver="seed_euler", events=[lambda t, q, w: q - 0.2]), "seed_euler.* takes no events"),
+                            (dict(solver="seed_euler", saveat=[0.1, 0.2]), "seed_euler.* takes no saveat"),
+                            (dict(bridge=5e-3), "'bridge' .* needs branch='tracked'"),
+                            (dict(events=[lambda t, q: q]), "events: each cond\\(t, q, omega\\) takes")):
+        with pytest.raises(aj.AssurjaxError, match=message):
+            aj.simulate(slider, t1=1.0, stop=None, **kwargs)
+    blown = aj.simulate(slider, t1=1.0, steps=10, stop=None)  # 0.1 s steps: the slider-crank assembles at every q
+    assert not blown.successful and blown.event < 0 and "not resolved" in blown.status and "no longer assemble" not in blown.status
+    assert aj.simulate(slider, t1=1.0, steps=400, stop=None).successful
+    euler = aj.simulate(slider, solver="seed_euler", stop=None, t1=2.0)
+    assert "omega reached 0, which Euler in q cannot pass" in euler.status and float(euler.t[-1]) < 2.0

@@ -256,3 +256,23 @@ def test_table_built_inside_the_core_is_differentiable(watt, watt_runs):
     kw = dict(q0=0.6, stop=None, t1=2.0, saveat=TS, energies=True, **TIGHT)  # the settings of watt_runs: no new compile
     hi, lo = (aj.simulate(watt, mechanism=with_mass(m3 + s), **kw).q[-1] for s in (eps, -eps))
     assert float(dq_dm) == pytest.approx((hi - lo) / (2 * eps), rel=1e-5)
+
+
+def test_a_table_given_to_simulate_must_be_the_scenes(watt, tables):
+    """simulate(..., table=T) took any table as the whole reduced model: one built without
+    gravity left the falling six-bar at rest ('reached t1', q = 0), one of the slider-crank
+    moved it to -0.84 rad (-3.08 exact), a gravity override and reduction='exact' were
+    ignored, and a scene's motor and friction dropped. Now each is refused by name."""
+    table = tables[aj.SimulationSettings().table_nodes]
+    run = dict(t1=0.2, stop=None, samples=2, energies=False, points=(), angles=())
+    np.testing.assert_allclose(aj.simulate(watt, table=table, **run).q_final, aj.simulate(watt, **run).q_final, rtol=1e-7)
+    slider = aj.load_scene("slider_crank")
+    for given, kwargs in ((aj.build_table(watt.mechanism, nodes=64), {}),
+                          (aj.build_table(slider.mechanism, slider.gravity, nodes=64), {}),
+                          (table, dict(gravity=[0.0, 0.0]))):
+        with pytest.raises(aj.AssurjaxError, match="table: it does not tabulate this scene's mechanism, gravity and loads"):
+            aj.simulate(watt, table=given, **run, **kwargs)
+    with pytest.raises(aj.AssurjaxError, match="give reduction='exact' or a table, not both"):
+        aj.simulate(watt, table=table, reduction="exact", **run)
+    with pytest.raises(aj.AssurjaxError, match="depend on the driving velocity"):
+        aj.simulate(aj.load_scene("press_with_friction"), table=table, **run)

@@ -87,5 +87,13 @@ def simulate_seed_euler(mechanism, gravity, loads, q0, omega0, *, t0=0.0, t1=1.0
     w = jnp.concatenate([jnp.asarray(omega0, dtype=float)[None], w[:k]])
     t = jnp.concatenate([jnp.asarray(t0, dtype=float)[None], t[:k]])
     ts = float(t_stop) if np.isfinite(float(t_stop)) else None
-    status = f"standstill at t = {ts:.9g} s" if ts is not None else f"stopped at t = {float(t[-1]):.9g} s after {k} steps"
+    if ts is not None:
+        status = f"standstill at t = {ts:.9g} s"
+    elif k < n and float(w[-1]) == 0.0:
+        status = (f"stopped at t = {float(t[-1]):.9g} s after {k} steps: omega reached 0, which Euler in q cannot "
+                  "pass (a standstill; the scheme steps q in one direction)")
+    elif k < n:
+        status = f"reached t1 = {float(t1):g} s after {k} steps"
+    else:
+        status = f"stopped at t = {float(t[-1]):.9g} s after {k} steps: max_steps = {n} used up before t1"
     return SeedEulerSolution(t=t, q=q, omega=w, valid=jnp.ones(k + 1, dtype=bool), t_stop=ts, status=status)

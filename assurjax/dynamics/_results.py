@@ -50,7 +50,7 @@ def result_text(code: int, *, max_steps: int | None = None) -> str:
     if code == DT_MIN:  # from the lock-up controllers (dynamics._settings.lockup_controller)
         return ("the right-hand side turned NaN ahead and the steps closing in on it got no further, yet every group "
                 "assembles just past where they stopped: a load or the joint friction (a jam) gave NaN there, or, with "
-                "dt= constant steps near a limit position, the motion was not resolved (use adaptive steps or a smaller dt)")
+                "dt= or steps= constant steps, the motion was not resolved (use adaptive steps, a smaller dt or more steps)")
     try:
         message = RESULTS[_item(code)]
     except Exception:  # a code this version does not know

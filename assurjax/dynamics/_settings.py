@@ -308,6 +308,9 @@ def check(settings: Settings) -> None:
             raise AssurjaxError(f"setting '{key}': expected True or False, got {getattr(settings, key)!r}")
     if settings.reduction not in ("exact", "table", "auto"):
         raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
+    if settings.bridge and settings.branch != "tracked":
+        raise AssurjaxError(f"setting 'bridge' ({settings.bridge:g}) bridges singular windows of a tracked branch: it "
+                            "needs branch='tracked'")
     if settings.adjoint not in ADJOINTS:
         raise AssurjaxError(f"unknown adjoint {settings.adjoint!r}; choose one of {sorted(ADJOINTS)}")
     if settings.steps is not None and (problem := setting_problem("steps", settings.steps)) is not None:
@@ -323,7 +326,11 @@ def check(settings: Settings) -> None:
     for i, cond in enumerate(settings.events):
         if not callable(cond):
             raise AssurjaxError(f"events must be functions cond(t, q, omega), got {type(cond).__name__}")
-        found = jax.eval_shape(cond, scalar, scalar, scalar).shape  # traced for its shape only
+        try:
+            found = jax.eval_shape(cond, scalar, scalar, scalar).shape  # traced for its shape only
+        except TypeError as e:  # not a function of (t, q, omega)
+            raise AssurjaxError(f"events: each cond(t, q, omega) takes the time, the driving coordinate and its "
+                                f"velocity; event #{i + 1}: {e}") from None
         if found != ():
             raise AssurjaxError(f"events: each cond(t, q, omega) must return a single number; event #{i + 1} returns {found_words(found)}")
 

@@ -36,7 +36,7 @@ from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
                         saved_rows, to_host, trim)
 from ._stick import batch_settings, jammed_members, stick_slip, with_jam_status
-from ._table import ReducedTable, build_table, build_table_core
+from ._table import ReducedTable, build_table, build_table_core, check_table_matches
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
 
@@ -226,21 +226,25 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     q, w = jnp.concatenate([q0[None], ys.q]), jnp.concatenate([omega0[None], ys.omega])
     n = settings.steps
     mechanism = model.mechanism
-    if tabulated or not settings.check_assembly:  # nothing can fail (the table checked a full turn)
-        valid, last, locked, failed = jnp.ones(n + 1, dtype=bool), n, jnp.asarray(False), jnp.asarray(-1)
-    else:  # a NaN marks a step that met a configuration that cannot assemble
-        finite = jnp.isfinite(q) & jnp.isfinite(w)
-        locked = ~jnp.all(finite)
-        last = jnp.where(locked, jnp.argmin(finite) - 1, n)  # the last sample before it
-        valid = jnp.arange(n + 1) <= last
-        t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
+    # a NaN or inf marks a step that met a configuration that cannot assemble, or steps too
+    # long for the motion (they blew up: no group fails one step on, with a table none can)
+    finite = jnp.isfinite(q) & jnp.isfinite(w)
+    stopped = ~jnp.all(finite)
+    last = jnp.where(stopped, jnp.argmin(finite) - 1, n)  # the last sample before it
+    valid = jnp.arange(n + 1) <= last
+    t, q, w = (jnp.where(valid, x, x[last]) for x in (t, q, w))
+    if tabulated or not settings.check_assembly:
+        failed = jnp.asarray(-1)
+    else:
         ahead = assembled(mechanism, q[last] + h * w[last])  # the group failing one step on
-        failed = jnp.where(locked & ~jnp.all(ahead), jnp.argmin(ahead), -1)
+        failed = jnp.where(stopped & ~jnp.all(ahead), jnp.argmin(ahead), -1)
+    locked, unresolved = stopped & (failed >= 0), stopped & (failed < 0)
     return Solution(
         t=t, q=q, omega=w, **no_outputs(), dissipated=None, valid=valid,
         t_final=t[last], q_final=q[last], omega_final=w[last],
         t_stop=jnp.where(locked, t[last], jnp.inf), event=jnp.where(locked, LOCKUP, NO_EVENT),
-        failed_group_index=failed, result=RESULTS.successful, num_steps=jnp.asarray(n),
+        failed_group_index=failed, result=RESULTS.where(unresolved, RESULTS.dt_min_reached, RESULTS.successful),
+        num_steps=jnp.asarray(n),
     )
 
 
@@ -453,10 +457,18 @@ def simulate(
         if frictions_of(model.loads):
             raise AssurjaxError(f"solver={settings.solver!r} (a baseline, Durango et al.'s scheme) has no joint friction; "
                                 "the scene has friction elements: use the default solver")
+        for given, name in ((settings.events, "events"), (saveat, "saveat")):
+            if given:
+                raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q, samples every dq of travel) "
+                                    f"takes no {name}: use the default solver")
         return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
                                    standstill=settings.standstill, max_steps=max_steps)
     if settings.steps is not None:
         check_steps(settings, model)
+        for given, name in ((saveat, "saveat"), (step, "dt")):
+            if given is not None:
+                raise AssurjaxError(f"steps= saves the state at each of its equal steps and takes no {name}: give one of "
+                                    f"them (steps, or the adaptive solver with {name})")
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
@@ -618,6 +630,9 @@ def _resolve_reduction(settings: Settings, table, model: Model, batch):
     if table is not None:
         if not isinstance(table, ReducedTable):
             raise AssurjaxError(f"table must be an assurjax.ReducedTable (from assurjax.build_table), got {type(table).__name__}")
+        if settings.reduction == "exact":
+            raise AssurjaxError("table= replaces the exact reduction: give reduction='exact' or a table, not both")
+        check_table_matches(table, model.mechanism, model.gravity, model.loads)
         return settings._replace(reduction="table"), table
     if settings.reduction == "auto":
         wanted = batch is not None and batch[0] >= AUTO_TABLE_BATCH and settings.branch == "fixed"

@@ -114,6 +114,41 @@ def _node_row(mechanism, gravity, loads, q):
     return jnp.concatenate([f, df]), ok
 
 
+@jit
+def _node_mismatch(mechanism, gravity, loads, table: ReducedTable, rows):
+    """Largest difference between the table's rows ``rows`` and the exact reduction there,
+    relative to the table's largest values."""
+    n = table.data.shape[0]
+    exact, _ = jax.vmap(lambda k: _node_row(mechanism, gravity, loads, k * (TWO_PI / n)))(rows)
+    scale = 1.0 + jnp.max(jnp.abs(table.data), axis=0)
+    return jnp.max(jnp.abs(exact - table.data[rows]) / scale)
+
+
+TABLE_MATCH = 1e-9  # a prebuilt table's rows against the exact reduction: the same model to round-off
+_MATCHED: dict = {}  # (table, model) identities already checked, each with the objects (kept: ids stay theirs)
+
+
+def check_table_matches(table: ReducedTable, mechanism: Mechanism, gravity, loads) -> None:
+    """Raise where a table given to ``simulate`` does not tabulate this mechanism, gravity and
+    loads: it replaces the whole reduced model, and one built for another (without gravity,
+    for another mechanism) integrated another motion, silently. Compared with the exact
+    reduction at three of its nodes, once per table and model objects."""
+    key = (id(table), id(mechanism), id(gravity), tuple(id(load) for load in loads))
+    if key in _MATCHED:
+        return
+    check_tabulable(mechanism, loads)
+    n = table.data.shape[0]
+    rows = np.array([0, n // 3, (2 * n) // 3])
+    miss = float(_node_mismatch(mechanism, jnp.asarray(gravity, dtype=float), tuple(loads), table, rows))
+    if not miss <= TABLE_MATCH:
+        raise AssurjaxError(f"table: it does not tabulate this scene's mechanism, gravity and loads (at its nodes the "
+                            f"exact reduction differs from it by {miss:.3g} times its largest values): build it with "
+                            "assurjax.build_table(scene.mechanism, scene.gravity, scene.loads)")
+    if len(_MATCHED) > 64:
+        _MATCHED.clear()
+    _MATCHED[key] = (table, mechanism, gravity, tuple(loads))
+
+
 def check_tabulable(mechanism: Mechanism, loads) -> None:
     """Static checks: a crank driver and loads independent of velocity and (for the forms) of time."""
     driver = mechanism.driver
