@@ -63,9 +63,13 @@ def _tolerances(dtype) -> tuple[float, float]:
     """(Newton step tolerance, accepted closure residual) for a float dtype.
 
     The residuals are dimensionless (relative length errors), so the same
-    numbers serve every mechanism scale."""
+    numbers serve every mechanism scale. The step tolerance (rad) is not the round-off of
+    the angles: a mechanism drawn 1000 times its size from the origin carries angles to
+    ~1e-13 only, and Newton's steps never got below 100 eps there (ok False at every q but
+    the drawn one); where Newton converges quadratically a last step of 1e-10 leaves an
+    error of ~1e-20."""
     eps = float(jnp.finfo(dtype).eps)
-    return 100.0 * eps, max(1e-9, 1e3 * eps)
+    return max(1e-10, 100.0 * eps), max(1e-9, 1e3 * eps)
 
 
 def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, loose: bool = False) -> tuple[Array, Array]:
@@ -86,10 +90,18 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     adjoint = optx.ImplicitAdjoint(linear_solver=PlainLU(finite=True))
     sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
     finite = jnp.all(jnp.isfinite(sol.value))
-    z = jnp.where(finite, sol.value, z0)
+    # a start that is a root already (a pose drawn at a singular configuration) from which
+    # Newton's steps leave: they crossed the singular Jacobian onto another assembly (0.76 m
+    # off a triad's drawing, said ok). The start stays, not ok: the pose has no velocity
+    start_root = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(args)))) <= 10.0 * float(jnp.finfo(z0.dtype).eps)
+    left = start_root & (~finite | (jnp.max(jnp.abs(sol.value - z0)) > LEFT_START))
+    z = jnp.where(finite & ~left, sol.value, z0)
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
-    ok = (sol.result == optx.RESULTS.successful) & finite & (closure < f_tol)
+    ok = (sol.result == optx.RESULTS.successful) & finite & ~left & (closure < f_tol)
     return z, ok
+
+
+LEFT_START = 1e-6  # rad: Newton's root this far from a start that was a root already left it
 
 
 def _stop(tree):
