@@ -72,13 +72,15 @@ def _tolerances(dtype) -> tuple[float, float]:
     return max(1e-10, 100.0 * eps), max(1e-9, 1e3 * eps)
 
 
-def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, loose: bool = False) -> tuple[Array, Array]:
+def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, loose: bool = False,
+                 from_drawing: bool = False) -> tuple[Array, Array]:
     """Root of ``residual(z, args)`` by optimistix's Newton from ``z0``.
 
     ``residual`` must be a global function (no closed-over arrays: everything
     differentiable goes through ``args``). Differentiation is implicit.
     ``loose``: stop at 1e-8 rad (closure 1e-6), enough for an intermediate
-    continuation step whose only job is to stay on the branch.
+    continuation step whose only job is to stay on the branch. ``from_drawing``: z0 is the
+    drawing (the guess), tested for a root that Newton's steps leave (see below).
     Returns (z, ok); z is finite even when the solve fails (then z0 is returned). Where
     the solve fails (non-finite input; a singular Jacobian, as at a start drawn exactly at
     a dead centre, where Newton's first step is 0/0) its derivative is 0 beside ok False
@@ -90,11 +92,14 @@ def newton_solve(residual: Callable, z0: Array, args: Any, *, max_steps: int, lo
     adjoint = optx.ImplicitAdjoint(linear_solver=PlainLU(finite=True))
     sol = optx.root_find(residual, solver, z0, args=args, max_steps=max_steps, adjoint=adjoint, throw=False)
     finite = jnp.all(jnp.isfinite(sol.value))
-    # a start that is a root already (a pose drawn at a singular configuration) from which
-    # Newton's steps leave: they crossed the singular Jacobian onto another assembly (0.76 m
-    # off a triad's drawing, said ok). The start stays, not ok: the pose has no velocity
-    start_root = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(args)))) <= 10.0 * float(jnp.finfo(z0.dtype).eps)
-    left = start_root & (~finite | (jnp.max(jnp.abs(sol.value - z0)) > LEFT_START))
+    left = jnp.asarray(False)
+    if from_drawing:
+        # a drawing that is a root already (a pose drawn at a singular configuration) from which
+        # Newton's steps leave: they crossed the singular Jacobian onto another assembly (0.76 m
+        # off a triad's drawing, said ok). The start stays, not ok: the pose has no velocity.
+        # Tested on solves from the drawing only (at every solve: 5-15 % more on kinematics)
+        start = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(args))))
+        left = (start <= 10.0 * float(jnp.finfo(z0.dtype).eps)) & (~finite | (jnp.max(jnp.abs(sol.value - z0)) > LEFT_START))
     z = jnp.where(finite & ~left, sol.value, z0)
     closure = jnp.max(jnp.abs(residual(jax.lax.stop_gradient(z), jax.lax.stop_gradient(args))))
     ok = (sol.result == optx.RESULTS.successful) & finite & ~left & (closure < f_tol)
@@ -154,8 +159,13 @@ class IterativeGroup(AbstractGroup):
         ext = tuple(placed.point(p) for p in self.external_points())
         z0 = self.predictor(placed, ext, geo)
         z, ok = newton_solve(type(self).residual, jax.lax.stop_gradient(z0), (ext, geo), max_steps=self.max_steps,
-                             loose=getattr(placed, "loose", False))
+                             loose=getattr(placed, "loose", False), from_drawing=self.starts_from_guess(placed))
         return self.frames(z, ext, geo), ok
+
+    def starts_from_guess(self, placed: Placement) -> bool:
+        """Whether the solve starts from the guess (the drawing), not from a predictor."""
+        near = placed.near
+        return not (near is not None and all(k in near for k in self.unknown_links())) and getattr(placed, "from_guess", False)
 
     def predictor(self, placed: Placement, ext, geo) -> Array:
         """Starting angles for the solve (no gradient flows through them): the
