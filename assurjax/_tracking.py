@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._errors import MechanismError
 from ._geometry import wrap_angle
 from ._jit import jit
-from ._errors import MechanismError
 from ._mechanism import Mechanism, Pose, positions
 from ._positions import STEP_SLACK, checked_request
 from ._values import check_state_count, check_value

@@ -40,8 +40,8 @@ then finite but meaningless.
 from __future__ import annotations
 
 import abc
-import numbers
 import dataclasses
+import numbers
 from collections.abc import Callable, Iterable
 from typing import Any
 
