@@ -108,14 +108,6 @@ class AbstractFriction(AbstractLoad):
     def wrenches(self, mechanism, kin, t):
         return []  # needs the reactions: see friction_wrenches
 
-    def rate_coefficient(self, mechanism: Mechanism, x, dx) -> Array:
-        """The relative rate per unit driving velocity (rad or m per unit of q), from the
-        positions ``x`` and first kinematic coefficients ``dx`` (points, coms, angles and
-        rotations by name, ``Coefficients.named``); exactly 0 where it is round-off (see
-        :func:`without_roundoff`)."""
-        rate, terms = self.rate_terms(mechanism, x, dx)
-        return without_roundoff(rate, jnp.sum(jnp.abs(terms)))
-
     @abc.abstractmethod
     def rate_terms(self, mechanism: Mechanism, x, dx) -> tuple[Array, Array]:
         """(the relative rate per unit driving velocity, the terms it is made of: their

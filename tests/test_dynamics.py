@@ -338,11 +338,12 @@ def test_seed_euler_baseline_checks_its_inputs(watt):
     simulate(..., solver='seed_euler') dropped its max_steps."""
     m, g = watt.mechanism, watt.gravity
     for kw, message in ((dict(dq=-1e-3), "dq must be positive"), (dict(dq=0.0), "dq must be positive"),
-                        (dict(dq=2.0), "dq is a step in q"), (dict(max_steps=3_000_000), "max_steps: expected"),
-                        (dict(t1=-1.0), "t1 must be after t0")):
+                        (dict(dq=2.0), "dq is a step in q"), (dict(max_steps=3_000_000), "max_steps: expected")):
         with pytest.raises(aj.AssurjaxError, match=f"simulate_seed_euler: {message}"):
             aj.simulate_seed_euler(m, g, (), 0.0, 0.0, **kw)
-    with pytest.raises(aj.AssurjaxError, match="simulate_seed_euler: q0 must be finite"):
+    with pytest.raises(aj.AssurjaxError, match="setting 't1': must be later than t0"):
+        aj.simulate_seed_euler(m, g, (), 0.0, 0.0, t1=-1.0)
+    with pytest.raises(aj.AssurjaxError, match="setting 'q0': must be finite"):
         aj.simulate_seed_euler(m, g, (), float("nan"), 0.0)
     with pytest.raises(aj.MechanismError, match="unknown link 'foo'"):
         aj.simulate_seed_euler(m, g, (aj.Couple("foo", 1.0),), 0.0, 0.0)

@@ -713,7 +713,7 @@ def test_a_pin_whose_links_turn_together_has_no_coulomb_sign(slider):
     whose sliders turn together, tests/test_friction_random.py) has relative rate exactly 0,
     so no Coulomb sign and no friction couple, while its slope is still the difference's;
     a real relative rate is the difference."""
-    from assurjax._friction import pairs_by_name
+    from assurjax._friction import pairs_by_name, without_roundoff
     from assurjax._kinematics import coefficients
 
     mechanism = slider.mechanism
@@ -721,8 +721,9 @@ def test_a_pin_whose_links_turn_together_has_no_coulomb_sign(slider):
     element = aj.JointFriction("A", MU, RADIUS)
     c = coefficients(mechanism, jnp.asarray(0.5))
 
-    def rate(on, by):
-        return element.rate_coefficient(mechanism, c.x, (c.dx[0], c.dx[1], {**c.dx[2], pin.on: on, pin.by: by}))
+    def rate(on, by):  # as rates_and_slopes reads an element: its terms, and the round-off rule on them
+        rate, terms = element.rate_terms(mechanism, c.x, (c.dx[0], c.dx[1], {**c.dx[2], pin.on: on, pin.by: by}))
+        return without_roundoff(rate, jnp.sum(jnp.abs(terms)))
 
     turning = 0.8581982075567952
     assert float(rate(turning, np.nextafter(turning, 1.0))) == 0.0

@@ -14,7 +14,7 @@ from .._jit import jit
 from .._loads import check_loads
 from .._reduction import reduce_single
 from .._values import check_value
-from ._settings import setting_problem
+from ._settings import check_single_start, setting_problem
 
 
 class SeedEulerSolution(NamedTuple):
@@ -67,13 +67,10 @@ def simulate_seed_euler(mechanism, gravity, loads, q0, omega0, *, t0=0.0, t1=1.0
     labelled baseline for benchmarks, first order in ``dq``. Integrates until ``t1``,
     the first standstill (``standstill=True``) or ``max_steps`` steps of ``dq``
     (default: 20 000; at most 1 000 000)."""
-    for name, value in (("q0", q0), ("omega0", omega0), ("t0", t0), ("t1", t1)):
-        check_value(AssurjaxError, f"simulate_seed_euler: {name}", value, shape=())
+    check_single_start(q0, omega0, t0, t1)
     check_value(AssurjaxError, "simulate_seed_euler: dq", dq, shape=(), positive=True)
     if float(dq) > 1.0:
         raise AssurjaxError(f"simulate_seed_euler: dq is a step in q (rad or m), at most 1, got {float(dq):g}")
-    if not float(t1) > float(t0):
-        raise AssurjaxError(f"simulate_seed_euler: t1 must be after t0, got t0 = {float(t0):g}, t1 = {float(t1):g}")
     if max_steps is not None and (problem := setting_problem("steps", max_steps)) is not None:
         raise AssurjaxError(f"simulate_seed_euler: max_steps: {problem}")
     n = int(max_steps or 20000)

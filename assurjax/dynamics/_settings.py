@@ -20,6 +20,7 @@ from jaxtyping import Array
 from .._errors import AssurjaxError
 from .._values import MAGNITUDE_LIMIT, all_finite, concrete, found_words, value_problem
 from ._packed import UNPACKED, Packing
+from ._table import DEFAULT_TABLE_NODES
 
 SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "tsit5": diffrax.Tsit5,
@@ -45,7 +46,6 @@ CONTROLLER_SAFETY = 0.8
 LOCKUP_RESOLUTION = 5e-10  # the steps closing in on a lock-up stop once they move q by less than this (1 + |q|)
 DEFAULT_SAMPLES = 201
 DEFAULT_MAX_STEPS = 4096
-DEFAULT_TABLE_NODES = 4096
 
 # Gradients through diffeqsolve: "recursive" (RecursiveCheckpointAdjoint, reverse mode,
 # discretize-then-optimize: exact gradients of the computed solution), "forward"

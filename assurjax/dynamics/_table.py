@@ -57,7 +57,7 @@ from .._mechanism import Mechanism
 from .._reduction import reduce_single, reduced_acceleration
 from .._values import check_value
 
-DEFAULT_TABLE_NODES = 4096  # as _settings' (which imports the field, and it this module)
+DEFAULT_TABLE_NODES = 4096  # grid size of a table, unless asked otherwise (simulate's table_nodes too)
 TWO_PI = 2.0 * math.pi
 _PERIODIC_RTOL = 1e-9  # relative mismatch of tau at q and q + 2 pi taken as non-periodic
 
@@ -178,7 +178,8 @@ def build_table_core(mechanism: Mechanism, gravity, loads, nodes: int = DEFAULT_
 @jit
 def _build_and_probe(mechanism, gravity, loads, nodes: int):
     """The table, per-group assembly flags at the nodes, and probes of time dependence
-    (d tau/dt) and periodicity (tau at q + 2 pi)."""
+    (d tau/dt) and periodicity (tau at q + 2 pi). The probe in t is for a load class's own
+    ``effort`` or ``wrenches`` reading t; value functions are read whole (``check_tabulable``)."""
     table = build_table_core(mechanism, gravity, loads, nodes)
     q = jnp.arange(nodes) * (TWO_PI / nodes)
 
@@ -209,7 +210,7 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
     >>> table = assurjax.build_table(scene.mechanism, scene.gravity, scene.loads)
     >>> j, dj, tau = table(0.3)
     """
-    from ._settings import setting_problem  # imports the vector field, which imports this module
+    from ._settings import setting_problem  # _settings imports this module
 
     if hasattr(nodes, "dtype") and np.ndim(nodes) == 0 and jnp.issubdtype(nodes.dtype, jnp.integer):
         nodes = int(nodes)  # a NumPy or JAX integer
