@@ -329,6 +329,29 @@ def test_a_drawing_moved_far_from_the_origin_keeps_its_modes():
         assert built.mechanism.groups[1].mode == -1 and not built.notes, offset
 
 
+def test_a_far_joint_elsewhere_leaves_a_groups_mode_as_drawn():
+    # a 10 cm dyad drawn 10 um (2e-4 rad of its arms) from its singular configuration, in its
+    # negative mode, beside a pointer 50 m long on the crank: the band that leaves a mode
+    # ambiguous is the group's own, not the drawing's (it was, and mode +1 was taken)
+    B, D = np.array([0.02, 0.04]), np.array([0.08, 0.0])
+    normal = np.array([(D - B)[1], -(D - B)[0]]) / np.hypot(*(D - B))  # to the right of B -> D
+    for pointer in (None, (50.0, 0.0)):
+        joints = {"A": (0.0, 0.0), "B": tuple(B), "C": tuple((B + D) / 2 + 1e-5 * normal), "D": tuple(D)}
+        links = {"crank": ["A", "B"], "coupler": ["B", "C"], "rocker": ["D", "C"]}
+        if pointer:
+            joints["P"], links["crank"] = pointer, ["A", "B", "P"]
+        built = build(Sketch(joints, links, ground=["A", "D"], driver="crank"), check=True)  # reproduces the drawing
+        assert built.mechanism.groups[1].mode == -1 and not built.notes, pointer
+    # a slider whose rod is drawn 10 um from perpendicular to its guide, beside the same pointer
+    joints = {"A": (0.0, 0.0), "B": (0.02, 0.04), "C": (0.02 - 1e-5, -0.1), "P": (50.0, 0.0)}
+    sk = Sketch(joints, {"crank": ["A", "B", "P"], "rod": ["B", "C"], "block": ["C"]}, ground=["A"],
+                slides=[Slide("block", "ground", (1, 0))], driver="crank")
+    built = build(sk, check=True)
+    assert not built.notes
+    flipped = build(Sketch({**joints, "C": (0.02 + 1e-5, -0.1)}, sk.links, ground=["A"], slides=sk.slides, driver="crank"), check=True)
+    assert built.mechanism.groups[1].mode == -flipped.mechanism.groups[1].mode and not flipped.notes
+
+
 SCENE_SETTINGS = {
     "t1 before t0": (dict(t1=-1.0), "setting 't1': must be later than t0"),
     "omega0 a word": (dict(omega0="fast"), "setting 'omega0': must be a number"),

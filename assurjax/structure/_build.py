@@ -203,12 +203,15 @@ def build(sk: Sketch, *, check: bool = False) -> Built:
     for g in dec.groups:
         where = f"group '{g.name}' ({g.kind}: links {', '.join(g.links)})"
 
-        def mode(value: float, what: str, size: float) -> int:
-            size = max(size, scale)
-            if abs(value) <= SINGULAR * size ** 2 + roundoff * size:
+        def mode(offset: float, what: str, size: float, amplified: float = 1.0) -> int:
+            """The sign of ``offset`` (m), the drawn distance from the group's singular
+            configuration; ambiguous within SINGULAR of the group's own ``size`` (m; not the
+            drawing's: a far joint elsewhere widened the band) or the coordinates' round-off
+            (``amplified`` by how offset is computed)."""
+            if abs(offset) <= SINGULAR * size + amplified * roundoff:
                 notes.append(f"{where}: drawn at a singular configuration ({what}); mode +1 taken")
                 return 1
-            return 1 if value > 0 else -1
+            return 1 if offset > 0 else -1
 
         cls = KINDS[g.kind]
         if g.kind == "crank":
@@ -223,18 +226,19 @@ def build(sk: Sketch, *, check: bool = False) -> Built:
             d = e2 - e1
             if np.hypot(*d) <= SINGULAR * scale + roundoff:
                 raise MechanismError(f"{where}: its external joints '{g.joints[0]}' and '{g.joints[1]}' coincide in the drawing, so the loop through it cannot close")
-            groups.append(cls(g.name, g.links, g.joints, mode(_cross(d, j - e1), "internal joint on the line of the external ones", np.hypot(*d))))
+            base, arms = np.hypot(*d), max(np.hypot(*(j - e1)), np.hypot(*(j - e2)))
+            groups.append(cls(g.name, g.links, g.joints, mode(_cross(d, j - e1) / base, "internal joint on the line of the external ones", arms, 1 + arms / base)))
         elif g.kind == "RRP":
             (slider, guide, u), (e, j) = g.guides[0], g.joints
             gp = guide_points[slider, guide]
-            groups.append(cls(g.name, g.links, g.joints, gp, mode(float(np.dot(J[j] - J[e], _unit(u))) * scale, "rod perpendicular to the guide", scale),
+            groups.append(cls(g.name, g.links, g.joints, gp, mode(float(np.dot(J[j] - J[e], _unit(u))), "rod perpendicular to the guide", float(np.hypot(*(J[j] - J[e])))),
                               jnp.asarray(direction_in(guide, u)), jnp.asarray(offset_of(j, gp, u))))
         elif g.kind == "RPR":
             (block, guide, u), (e1, e2) = g.guides[0], g.joints
             d = J[e1] - J[e2]
             if np.hypot(*d) <= SINGULAR * scale + roundoff:
                 raise MechanismError(f"{where}: joints '{e1}' and '{e2}' coincide in the drawing, so the loop through it cannot close")
-            groups.append(cls(g.name, g.links, g.joints, mode(float(np.dot(d, _unit(u))) * scale, "block at the foot of the guide", scale),
+            groups.append(cls(g.name, g.links, g.joints, mode(float(np.dot(d, _unit(u))), "block at the foot of the guide", float(np.hypot(*d))),
                               jnp.asarray(direction_in(guide, u)), jnp.asarray(offset_of(e1, e2, u))))
         elif g.kind == "PRP":
             (s1, g1, u1), (s2, g2, u2) = g.guides
