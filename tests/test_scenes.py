@@ -168,3 +168,32 @@ def test_integer_modes_and_misspelt_required_fields():
     raw["loads"] = [{"type": "spring", "points": ["O", "B"], "stifness": 1.0}]
     with pytest.raises(assurjax.SceneError, match="missing field 'stiffness' \\(the table has 'stifness': misspelt\\?\\)"):
         assurjax.scene_from_dict(raw)
+
+
+def test_a_scene_built_in_python_takes_numpy_numbers_tuples_and_arrays():
+    # the Watt six-bar's tables with its numbers as NumPy scalars and its lists as tuples
+    # and arrays give the scene its TOML file gives (they were refused: "expected a number,
+    # got np.int64(1)"); a word where a number goes is still named
+    plain = tomllib.loads((resources.files("assurjax.scenes") / "watt_sixbar.toml").read_text())
+
+    def numpy_typed(value):
+        if isinstance(value, dict):
+            return {k: numpy_typed(v) for k, v in value.items()}
+        if isinstance(value, list):
+            numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            return np.asarray(value, dtype=float) if numbers and value else tuple(numpy_typed(v) for v in value)
+        if isinstance(value, float) and float(np.float32(value)) == value:  # np.float64 is a float already
+            return np.float32(value)
+        if isinstance(value, int) and not isinstance(value, bool):
+            return np.int64(value)
+        return value
+
+    typed = assurjax.scene_from_dict(numpy_typed(plain))
+    reference = assurjax.scene_from_dict(plain)
+    assert jax.tree.structure(typed.mechanism) == jax.tree.structure(reference.mechanism)
+    for a, b in zip(jax.tree.leaves(typed.mechanism), jax.tree.leaves(reference.mechanism)):
+        np.testing.assert_array_equal(a, b)
+    assert typed.state == reference.state and typed.gravity.tolist() == reference.gravity.tolist()
+    plain["state"]["q0"] = "fast"
+    with pytest.raises(assurjax.SceneError, match="q0.*expected a number"):
+        assurjax.scene_from_dict(plain)

@@ -217,6 +217,22 @@ def _prp_group(f, name):
     return _prp.PRP(name, f.names("links", 2), f.string("joint"), f.names("guide_points", 2), jnp.asarray(arr), jnp.asarray(offsets, dtype=float))
 
 
+def _as_toml(value):
+    """``value`` with what Python, NumPy and JAX write for TOML's numbers and lists made
+    those (np.int64, np.float32, tuples, arrays); anything else as it is, for the checks to name."""
+    if isinstance(value, dict):
+        return {k: _as_toml(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_as_toml(v) for v in value]
+    if hasattr(value, "shape") and hasattr(value, "dtype") and np.dtype(value.dtype).kind in "biuf":  # NumPy, JAX
+        try:
+            value = np.asarray(value)
+        except Exception:  # a traced value: left for the checks to name
+            return value
+        return value.item() if value.ndim == 0 else [_as_toml(v) for v in value]
+    return value
+
+
 def _numbers(v, size: int) -> bool:
     return isinstance(v, list) and len(v) == size and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
 
@@ -253,8 +269,9 @@ def _group(index: int, table, source: str):
 
 
 def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
-    """Build a Scene from the parsed TOML tables (see docs/scene-format.md)."""
-    top = Fields(data, "the top level", source)
+    """Build a Scene from the parsed TOML tables (see docs/scene-format.md); built in
+    Python, NumPy numbers, tuples and arrays are taken as TOML's numbers and lists."""
+    top = Fields(_as_toml(data), "the top level", source)
     top.reject_unknown({"scene", "ground", "links", "formation", "state", "simulation", "outputs", "loads", "sketch"})
     head = Fields(top.raw("scene", {}), "[scene]", source)
     name = head.string("name", Path(source).stem)
