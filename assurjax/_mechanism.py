@@ -57,6 +57,7 @@ class Mechanism(eqx.Module):
         self.ground = {k: jnp.asarray(v, dtype=float) for k, v in ground.items()}
         self.links = dict(links)
         self.groups = tuple(groups)
+        _check_kinds(self.links, self.groups)
         self.name = name
         self.owner = tuple(_check_structure(self.ground, self.links, self.groups).items())
         _check_values(self)
@@ -154,17 +155,26 @@ def gruebler(ground, links, groups) -> tuple[int, int, int]:
     return 3 * len(links) - 2 * pairs, len(links), pairs
 
 
+def _check_kinds(links: dict, groups: tuple) -> None:
+    for name, link in links.items():
+        if not isinstance(link, Link):
+            raise MechanismError(f"link '{name}': expected an assurjax.Link, got {type(link).__name__}")
+    for g in groups:
+        if not isinstance(g, AbstractGroup):
+            raise MechanismError(f"groups: expected Assur groups (assurjax.groups.RRR, ...), got {type(g).__name__}")
+
+
 def _check_values(mech: Mechanism) -> None:
     """Finite values of sane magnitude (the scene loader's words), non-negative masses and
     inertias, non-zero lengths and guide directions; tracers are checked where they are concrete."""
     for p, xy in mech.ground.items():
-        check_value(MechanismError, f"ground point '{p}'", xy)
+        check_value(MechanismError, f"ground point '{p}'", xy, shape=(2,))
     for name, link in mech.links.items():
         for p, xy in link.points.items():
-            check_value(MechanismError, f"link '{name}': point '{p}'", xy)
-        check_value(MechanismError, f"link '{name}': com", link.com)
-        check_value(MechanismError, f"link '{name}': mass", link.mass, nonnegative=True)
-        check_value(MechanismError, f"link '{name}': inertia", link.inertia, nonnegative=True)
+            check_value(MechanismError, f"link '{name}': point '{p}'", xy, shape=(2,))
+        check_value(MechanismError, f"link '{name}': com", link.com, shape=(2,))
+        check_value(MechanismError, f"link '{name}': mass", link.mass, shape=(), nonnegative=True)
+        check_value(MechanismError, f"link '{name}': inertia", link.inertia, shape=(), nonnegative=True)
     links = mech.all_links()
     for g in mech.groups:
         for link, needed in g.required_points().items():
@@ -175,6 +185,22 @@ def _check_values(mech: Mechanism) -> None:
         for _, direction, offset in g.guides():
             check_value(MechanismError, f"{g.describe()}: guide direction", direction, nonzero_vector=True)
             check_value(MechanismError, f"{g.describe()}: guide offset", offset)
+    _check_crank_arms(mech)
+
+
+def _check_crank_arms(mech: Mechanism) -> None:
+    """A crank's joint that a later group hangs on must not sit on the crank's pivot: the
+    rest of the mechanism would not follow the driver (a zero-length crank)."""
+    crank = mech.groups[0]
+    if crank.kind != "crank":
+        return
+    points = mech.links[crank.links[0]].points
+    used = {p for g in mech.groups[1:] for p in g.external_points()} & set(points) - {crank.pivot}
+    for p in sorted(used):
+        d = _concrete(points[p] - points[crank.pivot])
+        if d is not None and np.any(np.hypot(d[..., 0], d[..., 1]) <= 0):
+            raise MechanismError(f"{crank.describe()}: link '{crank.links[0]}' has zero length between its pivot "
+                                 f"'{crank.pivot}' and '{p}', where the mechanism hangs on it")
 
 
 def check_mechanism(mechanism, what: str) -> None:

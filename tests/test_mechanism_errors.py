@@ -145,6 +145,9 @@ def test_wrong_dof_count():
 def test_zero_length():
     with raises(SceneError, "'dyad'", "link 'rocker'", "zero length", "'O4'", "'B'"):
         scene(lambda d: d["links"]["rocker"].update(points={"O4": [0.5, 0.5], "B": [0.5, 0.5]}))
+    # a crank whose joint A lies on its pivot: the dyad hangs on a point that does not move
+    with raises(SceneError, "'drive'", "link 'crank'", "zero length", "'O2'", "'A'"):
+        scene(lambda d: d["links"]["crank"].update(points={"O2": [0.0, 0.0], "A": [0.0, 0.0]}))
 
 
 @pytest.mark.parametrize("field", ["mass", "inertia"])
@@ -591,3 +594,31 @@ def test_position_analyses_name_what_they_are_given():
     for call, message in calls:
         with pytest.raises(assurjax.AssurjaxError, match=message):
             call()
+
+
+def python_four_bar(ground=None, crank=None, mass=1.0, joints=("A", "O4", "B"), links=None):
+    """The four-bar above built in Python, with one part replaced."""
+    links = links or {"crank": Link(crank or {"O2": [0.0, 0.0], "A": [0.3, 0.0]}, mass=mass, inertia=0.01),
+                      "coupler": Link({"A": [0.0, 0.0], "B": [1.0, 0.0]}, mass=1.0, inertia=0.1),
+                      "rocker": Link({"O4": [0.0, 0.0], "B": [0.8, 0.0]}, mass=1.0, inertia=0.05)}
+    return Mechanism(ground or {"O2": [0.0, 0.0], "O4": [1.0, 0.0]}, links,
+                     [groups.Crank("drive", ("crank",), "O2"), groups.RRR("dyad", ("coupler", "rocker"), joints, "left")])
+
+
+PYTHON_MISTAKES = {
+    # each was taken (a third coordinate dropped, "0.3" read as 0.3) or failed in JAX's words
+    "a ground point in 3-D": (lambda: python_four_bar(ground={"O2": [0.0, 0.0], "O4": [1.0, 0.0, 7.0]}), "ground point 'O4' must be a 2-vector"),
+    "a ground point a number": (lambda: python_four_bar(ground={"O2": [0.0, 0.0], "O4": 1.0}), "ground point 'O4' must be a 2-vector"),
+    "a link point in 3-D": (lambda: python_four_bar(crank={"O2": [0.0, 0.0], "A": [0.3, 0.0, 0.0]}), "each point must be \\[x, y\\].*'A': \\(3,\\)"),
+    "a coordinate as a word": (lambda: python_four_bar(crank={"O2": [0.0, 0.0], "A": ["0.3", 0.0]}), "numbers only, got \\['0.3', 0.0\\]"),
+    "two masses": (lambda: python_four_bar(mass=[1.0, 2.0]), "link 'crank': mass must be a single number"),
+    "an RRR with two joints": (lambda: python_four_bar(joints=("A", "O4")), "group 'dyad' \\(RRR\\): joints must be a tuple of 3 names"),
+    "a dict for a link": (lambda: python_four_bar(links={"crank": {"O2": [0.0, 0.0], "A": [0.3, 0.0]}}), "link 'crank': expected an assurjax.Link, got dict"),
+}
+
+
+@pytest.mark.parametrize("case", list(PYTHON_MISTAKES))
+def test_python_constructors_name_the_part_at_fault(case):
+    build, message = PYTHON_MISTAKES[case]
+    with pytest.raises(MechanismError, match=message):
+        build()

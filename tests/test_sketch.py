@@ -228,6 +228,26 @@ def test_mass_properties_from_densities():
     assert float(mech.links["rocker"].mass) == 0.3
 
 
+def test_a_rectangular_plate_in_any_order_around_it_and_a_crossed_outline_refused():
+    # a 0.4 x 0.1 m coupler plate B, C, Q, P: mass rho w h, polar moment m (w^2 + h^2) / 12,
+    # whichever corner and sense the outline starts from; listed across (B, Q, C, P: a bow
+    # tie) its signed shoelace area was 0 or another quad's (mass 12x too small), unflagged
+    joints = {"A": (0.0, 0.0), "B": (0.1, 0.2), "C": (0.5, 0.2), "Q": (0.5, 0.3), "P": (0.1, 0.3), "D": (0.6, -0.1)}
+
+    def coupler(order):
+        links = {"crank": {"joints": ["A", "B"]}, "coupler": {"joints": order, "density": 5.0}, "rocker": {"joints": ["D", "C"]}}
+        return Sketch(joints, links, ground=["A", "D"], driver="crank").mechanism().links["coupler"]
+
+    m = 5.0 * 0.4 * 0.1
+    for order in (["B", "C", "Q", "P"], ["Q", "C", "B", "P"], ["P", "B", "C", "Q"]):
+        plate = coupler(order)
+        assert float(plate.mass) == pytest.approx(m, rel=1e-13)
+        assert float(plate.inertia) == pytest.approx(m * (0.4**2 + 0.1**2) / 12, rel=1e-12)
+    for order, edges in ((["B", "Q", "C", "P"], "edge B-Q meets edge C-P"), (["B", "C", "P", "Q"], "edge C-P meets edge Q-B")):
+        with pytest.raises(MechanismError, match=f"link 'coupler': its joints .* cross themselves \\({edges}\\)"):
+            coupler(order)
+
+
 def test_sketch_scene_simulates_and_gives_reactions(write_scene):
     scene = assurjax.load_scene(write_scene(FOUR_BAR))
     sol = assurjax.simulate(scene, stop=None)

@@ -53,12 +53,18 @@ class Link(eqx.Module):
     def __init__(self, points, com=None, mass=0.0, inertia=0.0):
         # Python numbers become arrays: a float leaf would be static under filter_jit
         self.points = {k: _as_array(v) for k, v in points.items()}
+        if com is None:
+            shapes = {k: np.shape(v) for k, v in self.points.items()}
+            if any(shape != (2,) for shape in shapes.values()):  # else the mean below fails in JAX's words
+                raise MechanismError(f"Link: each point must be [x, y] (m), got shapes {shapes}")
         self.com = jnp.mean(jnp.stack(list(self.points.values())), axis=0) if com is None else _as_array(com)
         self.mass = _as_array(mass)
         self.inertia = _as_array(inertia)
 
 
 def _as_array(x):
+    if isinstance(x, (list, tuple)) and any(isinstance(v, (str, bool, list, tuple, dict)) for v in x):  # JAX reads "0.1" as 0.1
+        raise MechanismError(f"Link: a point or value must hold numbers only, got {x!r}")
     return jnp.asarray(x, dtype=float) if isinstance(x, (int, float, list, tuple)) else x
 
 
@@ -169,6 +175,19 @@ class AbstractGroup(eqx.Module):
     n_prismatic: ClassVar[int] = 0
     is_driver: ClassVar[bool] = False
     two_modes: ClassVar[bool] = False  # a closed form with two assembly modes, its field ``mode`` = +1 / -1
+    # the fields naming links and points: how many names each holds (0: one name, a string)
+    name_fields: ClassVar[dict[str, int]] = {}
+
+    def __check_init__(self):
+        for field, count in self.name_fields.items():
+            names = getattr(self, field)
+            if count == 0:
+                good = isinstance(names, str)
+            else:
+                good = isinstance(names, tuple) and len(names) == count and all(isinstance(n, str) for n in names)
+            if not good:
+                wanted = "a name (a string)" if count == 0 else f"a tuple of {count} names (strings)"
+                raise MechanismError(f"{self.describe()}: {field} must be {wanted}, got {names!r}")
 
     @abc.abstractmethod
     def external_points(self) -> tuple[str, ...]:

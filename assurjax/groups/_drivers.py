@@ -43,6 +43,7 @@ class Crank(AbstractGroup):
     links: tuple[str, ...] = eqx.field(static=True)
     pivot: str = eqx.field(static=True)
     kind = "crank"
+    name_fields = {"links": 1, "pivot": 0}
     is_driver = True
 
     def external_points(self):
@@ -72,6 +73,7 @@ class Slider(AbstractGroup):
     guide_point: str = eqx.field(static=True)
     direction: Array
     kind = "slider"
+    name_fields = {"links": 1, "point": 0, "guide_point": 0}
     n_prismatic = 1
     is_driver = True
 

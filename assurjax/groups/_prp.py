@@ -23,6 +23,7 @@ class PRP(AbstractGroup):
     directions: Array  # (2, 2)
     offsets: Array  # (2,)
     kind = "PRP"
+    name_fields = {"links": 2, "joint": 0, "guide_points": 2}
     n_prismatic = 2
 
     def external_points(self):

@@ -24,6 +24,7 @@ class RPR(AbstractGroup):
     direction: Array
     offset: Array
     kind = "RPR"
+    name_fields = {"links": 2, "joints": 2}
     two_modes = True
     n_prismatic = 1  # block on the guide link
 

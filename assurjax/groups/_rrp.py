@@ -26,6 +26,7 @@ class RRP(AbstractGroup):
     direction: Array
     offset: Array
     kind = "RRP"
+    name_fields = {"links": 2, "joints": 2, "guide_point": 0}
     two_modes = True
     n_prismatic = 1
 

@@ -34,6 +34,7 @@ class RRR(AbstractGroup):
     joints: tuple[str, str, str] = eqx.field(static=True)  # (E1, E2, J)
     mode: int = eqx.field(static=True, converter=as_mode)  # +1/-1, or a name: 'left', 'forward'...
     kind = "RRR"
+    name_fields = {"links": 2, "joints": 3}
     two_modes = True
 
     def __check_init__(self):

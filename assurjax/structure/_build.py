@@ -96,7 +96,7 @@ def _mass_properties(name: str, spec, drawn: np.ndarray) -> tuple[float, float, 
             length = float(np.hypot(*(drawn[1] - drawn[0])))
             mass, inertia, com = rho * length, rho * length**3 / 12.0, drawn.mean(axis=0)
         elif len(drawn) >= 3:
-            mass, inertia, com = _plate(name, rho, drawn)
+            mass, inertia, com = _plate(name, rho, drawn, spec.joints)
         else:
             raise MechanismError(f"link '{name}': a density needs a bar (2 joints) or a plate (3 or more joints); give mass and inertia instead")
     if spec.mass is not None:
@@ -110,8 +110,30 @@ def _mass_properties(name: str, spec, drawn: np.ndarray) -> tuple[float, float, 
     return mass, inertia, com
 
 
-def _plate(name: str, rho: float, drawn: np.ndarray):
+def _crossing_edges(p: np.ndarray) -> tuple[int, int] | None:
+    """The first two edges (indices of their first vertices) of the closed outline ``p``
+    that are not neighbours and cross or touch, or None: a simple polygon."""
+    n = len(p)
+    cross = lambda o, a, b: (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])  # noqa: E731
+    for i in range(n):
+        a, b = p[i], p[(i + 1) % n]
+        for j in range(i + 2, n - (i == 0)):
+            c, d = p[j], p[(j + 1) % n]
+            if (cross(a, b, c) * cross(a, b, d) <= 0 and cross(c, d, a) * cross(c, d, b) <= 0
+                    and min(a[0], b[0]) <= max(c[0], d[0]) and min(c[0], d[0]) <= max(a[0], b[0])
+                    and min(a[1], b[1]) <= max(c[1], d[1]) and min(c[1], d[1]) <= max(a[1], b[1])):
+                return i, j
+    return None
+
+
+def _plate(name: str, rho: float, drawn: np.ndarray, joints=None):
     """Mass, centroidal polar inertia and centroid of a uniform polygon (outline in listed order)."""
+    if (edges := _crossing_edges(drawn)) is not None:
+        names = list(joints) if joints is not None else list(range(len(drawn)))
+        (i, j), n = edges, len(drawn)
+        raise MechanismError(f"link '{name}': its joints {names} listed as a plate's outline cross themselves (edge "
+                             f"{names[i]}-{names[(i + 1) % n]} meets edge {names[j]}-{names[(j + 1) % n]}): list them "
+                             "in order around the plate, or give mass and inertia instead")
     p = drawn - drawn[0]  # about the first vertex, for accuracy
     x, y = p[:, 0], p[:, 1]
     xn, yn = np.roll(x, -1), np.roll(y, -1)
