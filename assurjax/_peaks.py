@@ -59,7 +59,9 @@ def _largest_within(t: np.ndarray, values: np.ndarray, lo: float, hi: float):
     """(the largest value among the samples in [lo, hi], its time, the bracket around it:
     its neighbours among the distinct sample times there; a time saved twice, a save time
     at a solver step's end, counts once)."""
-    inside = (t >= lo) & (t <= hi)
+    inside = (t >= lo) & (t <= hi) & ~np.isnan(values)
+    if not np.any(inside):  # nothing counted there: the bracket closes
+        return -np.inf, lo, (lo, lo)
     times, first = np.unique(t[inside], return_index=True)
     values = values[inside][first]
     j = int(np.nanargmax(values))
@@ -77,7 +79,7 @@ def _refinement_times(template: np.ndarray, reached: int, fine: np.ndarray) -> l
 
 
 def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points: int = 33, rounds: int = 4,
-                   saveat=None, **simulate_options) -> dict[str, Peak]:
+                   saveat=None, before: float | None = None, **simulate_options) -> dict[str, Peak]:
     """Peak |F| of every joint (``joints``: default all), the peak |driving effort|
     (key ``"driving"``) and with joint friction the peak |friction| of every element (key
     ``"friction <pair>"``) along the motion ``sol`` of ``scene``, each refined on the dense
@@ -89,7 +91,9 @@ def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points:
     (points - 1) / 2). ``saveat``: that run's save times (default: the times of ``sol``,
     which are those where it saved no solver steps), so that the refinements run its
     compiled programs. ``grid``: the magnitudes at the samples of ``sol`` when already
-    computed (as :func:`magnitudes` returns them).
+    computed (as :func:`magnitudes` returns them). ``before``: only samples earlier than this
+    time count (the end of a run stopped at a lock-up or a jam, where the state's dw/dt is
+    not the motion's: its reactions are not the motion's either).
 
     **Example:**
     >>> sol = assurjax.simulate(scene, saveat=np.linspace(0.0, 2.0, 201))
@@ -101,9 +105,10 @@ def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points:
     template = t if saveat is None else np.asarray(saveat, dtype=float)
     reached = int(np.count_nonzero((template - template[0]) * (t[-1] - template) >= 0)) if len(t) else 0
     best, brackets = {}, {}
+    counted = np.ones(len(t), dtype=bool) if before is None else t < before
     for name, values in (magnitudes(scene, sol, joints) if grid is None else grid).items():
-        values = np.asarray(values, dtype=float)
-        i = int(np.nanargmax(values))
+        values = np.where(counted, np.asarray(values, dtype=float), np.nan)
+        i = int(np.nanargmax(values)) if np.any(counted) else 0
         best[name], brackets[name] = (float(values[i]), float(t[i])), _bracket(t, i)
     for _ in range(rounds if len(t) > 1 else 0):
         brackets = {name: (lo, hi) for name, (lo, hi) in brackets.items() if hi > lo}
@@ -115,7 +120,8 @@ def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points:
         fine_t = np.concatenate([np.asarray(run.t, dtype=float) for run in runs])
         found = [magnitudes(scene, run, joints) for run in runs]
         for name, (lo, hi) in brackets.items():
-            value, at, brackets[name] = _largest_within(fine_t, np.concatenate([f[name] for f in found]), lo, hi)
+            value, at, brackets[name] = _largest_within(fine_t, np.concatenate([f[name] for f in found]), lo,
+                                                        hi if before is None else min(hi, np.nextafter(before, -np.inf)))
             if value > best[name][0]:
                 best[name] = (value, at)
     return {name: Peak(name, *value) for name, value in best.items()}

@@ -346,9 +346,16 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
     from ._peaks import magnitudes_of, peak_reactions
 
+    import numpy as np
+
+    from .dynamics._results import LOCKUP
+
     grid = magnitudes_of(along.forces, along.driving, along.friction)
+    # a lock-up's or a jam's final state has no dw/dt of the motion: its reactions do not count
+    stopped = int(np.asarray(sol.event)) == LOCKUP or not sol.successful
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
-                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
+                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene),
+                          before=float(sol.t_final) if stopped else None)
 
 
 def _force_peaks(peaks: dict) -> list:
@@ -419,6 +426,8 @@ def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) 
 
 
 def _history_figure(scene, sol, forces, units):
+    import textwrap
+
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -444,7 +453,8 @@ def _history_figure(scene, sol, forces, units):
     else:
         axes[1, 1].text(0.5, 0.5, "no reactions requested ([outputs] reactions)", ha="center", transform=axes[1, 1].transAxes)
         axes[1, 1].axis("off")
-    fig.suptitle(f"{scene.name}: {sol.status}")
+    # a jam's or a failure's status is a paragraph: wrapped to the figure, not cut at its edges
+    fig.suptitle("\n".join(textwrap.wrap(f"{scene.name}: {sol.status}", width=110)), fontsize="medium")
     return fig
 
 
@@ -476,14 +486,17 @@ def _reduced_figure(scene):
     red = assurjax.reduce(scene, q)
     ok = np.asarray(red.ok).all(axis=-1)
     j = np.where(ok, np.asarray(red.inertia), np.nan)
-    tau = np.where(ok, np.asarray(red.torque), np.nan)
+    tau = np.where(ok, np.asarray(red.force), np.nan)  # the drive (a motor's torque, a drive law) with the loads
     kind = _driver_kind(scene.mechanism)
     axes = viz.plot_reduced(q, j, tau, driver_kind=kind)
     period = "the slider's stroke" if kind == "slider" else "one crank turn"
-    left_out = [what for what, present in (("at omega = 0", any(load.velocity_dependent for load in scene.loads)),
-                                           ("without joint friction", bool(frictions_of(scene.loads)))) if present]
+    loads = scene.loads
+    notes = [what for what, present in (("the drive included", bool(np.any(np.asarray(red.effort) != 0))),
+                                        ("at omega = 0", any(load.velocity_dependent for load in loads)),
+                                        ("at t = 0", any(getattr(load, "reads", lambda _: False)("t") for load in loads)),
+                                        ("without joint friction", bool(frictions_of(loads)))) if present]
     axes[0].figure.suptitle(f"{scene.name}: inertia and load reduced to the driver over {period}"
-                            + (f"\n(loads {', '.join(left_out)})" if left_out else ""))
+                            + (f"\n({'; '.join(notes)})" if notes else ""))
     return axes[0].figure
 
 

@@ -197,3 +197,14 @@ def test_a_scene_built_in_python_takes_numpy_numbers_tuples_and_arrays():
     plain["state"]["q0"] = "fast"
     with pytest.raises(assurjax.SceneError, match="q0.*expected a number"):
         assurjax.scene_from_dict(plain)
+
+
+def test_a_bundled_scene_is_found_beside_a_folder_of_its_name(tmp_path, monkeypatch):
+    # `assurjax run roberts --out roberts` leaves a folder 'roberts' here; the name still
+    # means the bundled scene (it said "roberts: a directory, not a scene file")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "roberts").mkdir()
+    assert assurjax.load_scene("roberts").name == "roberts"
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(assurjax.SceneError, match="mine: a directory, not a scene file"):
+        assurjax.load_scene("mine")

@@ -314,3 +314,27 @@ def test_standstill_objective_gradient_matches_finite_differences(standstill_run
     h = 1e-4
     fd = np.array([(4 * d(h / 2, i) - d(h, i)) / 3 for i in range(2)])
     np.testing.assert_allclose(grad, fd, rtol=1e-6)
+
+
+STRAIGHT_LINE_MISTAKES = {
+    # a zero stroke or one sample fitted a line to one point: NaN beside ok True
+    "zero stroke": (dict(stroke=0.0), "stroke must be positive"),
+    "one sample": (dict(samples=1), "samples must be from 2 to 100,000, got 1"),
+    "samples past the bound": (dict(samples=10**8), "samples must be from 2 to 100,000"),
+    "a search of one point": (dict(search=(1.5, 1)), "search points must be from 2"),
+    "a NaN sharpness": (dict(p=float("nan")), "p must be finite"),
+}
+
+
+@pytest.mark.parametrize("case", list(STRAIGHT_LINE_MISTAKES))
+def test_straight_line_deviation_names_a_setting_out_of_range(case):
+    changes, message = STRAIGHT_LINE_MISTAKES[case]
+    mech = syn.roberts_like(syn.roberts_lengths())
+    with pytest.raises(AssurjaxError, match=message):
+        syn.straight_line_deviation(mech, "P", **({"stroke": 0.2, "q0": 1.0} | changes))
+
+
+def test_a_point_mass_that_would_cancel_the_links_is_refused():
+    mech = syn.roberts_like(syn.roberts_lengths())
+    with pytest.raises(AssurjaxError, match="add_point_mass: mass must be non-negative"):
+        syn.add_point_mass(mech, "link2", -0.5, (0.1, 0.0))

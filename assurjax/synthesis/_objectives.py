@@ -18,6 +18,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
+from .._values import check_value
 from .._geometry import cross, dot
 from .._mechanism import Mechanism, positions
 from ..groups import RRR
@@ -124,6 +125,7 @@ def straight_line_deviation(
     >>> line = straight_line_deviation(mech, "P", stroke=0.2, q0=1.23, line=0.0)
     >>> line.deviation   # m, the largest |y| of P over 200 mm of x
     """
+    _check_stroke_request(stroke, q0, samples, p, search)
     q0 = jnp.asarray(q0, dtype=float)
     if drive == "x":
         q, pts, ok = _stroke_by_x(mechanism, point, stroke, q0, samples, search, center)
@@ -148,6 +150,31 @@ def straight_line_deviation(
     smooth = jnp.mean(jax.vmap(lambda e: smooth_max(e, sharpness))(extremes))
     deviation = jnp.mean(highest)
     return StraightLine(deviation=deviation, smooth=smooth, x=x, y=y, q=q, residuals=r, ok=ok)
+
+
+SAMPLES_LIMIT = 100_000  # of a stroke, and of its search scan: each is a position analysis
+
+
+def _count_problem(n, least: int) -> str | None:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        return f"must be a whole number, got {n!r}"
+    return None if least <= n <= SAMPLES_LIMIT else f"must be from {least} to {SAMPLES_LIMIT:,}, got {n}"
+
+
+def _check_stroke_request(stroke, q0, samples, p, search) -> None:
+    """Raise naming a setting of :func:`straight_line_deviation` that is out of range (a zero
+    stroke or one sample fitted a line to one point: NaN beside ok True)."""
+    where = "straight_line_deviation"
+    check_value(AssurjaxError, f"{where}: stroke", stroke, shape=(), positive=True)
+    check_value(AssurjaxError, f"{where}: q0", q0, shape=())
+    check_value(AssurjaxError, f"{where}: p", p, shape=(), positive=True)
+    if (problem := _count_problem(samples, 2)) is not None:
+        raise AssurjaxError(f"{where}: samples {problem}")
+    if not (isinstance(search, (tuple, list)) and len(search) == 2):
+        raise AssurjaxError(f"{where}: search must be (half-width, points), got {search!r}")
+    check_value(AssurjaxError, f"{where}: search half-width", search[0], shape=(), positive=True)
+    if (problem := _count_problem(search[1], 2)) is not None:
+        raise AssurjaxError(f"{where}: search points {problem}")
 
 
 def _stroke_by_x(mechanism, point, stroke, q0, samples, search, center):

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssemblyError, AssurjaxError
-from .._values import check_values
+from .._values import check_value, check_values
 from ._design import Design
 from ._dynamic import standstill_time
 from ._linkages import roberts_like
@@ -163,6 +163,8 @@ def add_point_mass(mechanism, link: str, mass, position):
     """
     if link not in mechanism.links:
         raise AssurjaxError(f"add_point_mass: unknown link {link!r} (known: {sorted(mechanism.links)})")
+    check_value(AssurjaxError, "add_point_mass: mass", mass, shape=(), nonnegative=True)  # a negative one may cancel the link's
+    check_value(AssurjaxError, "add_point_mass: position", position, shape=(2,))
     body = mechanism.links[link]
     position = jnp.asarray(position, dtype=float)
     total = body.mass + mass
