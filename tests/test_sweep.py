@@ -6,6 +6,7 @@ import sys
 import textwrap
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -181,3 +182,22 @@ def test_batch_simulate_with_friction_matches_single_simulations():
     short = assurjax.simulate(scene, q0=np.array([0.0, 1.0]), stop=None, max_steps=100, throw=False, **kw)
     assert not short.successful and "step budget" in short.status
     assert np.all(np.asarray(short.num_steps) <= 100 + BATCH_SEGMENT_STEPS)
+
+
+def test_a_member_that_locks_up_beside_one_that_stops_keeps_its_final_state():
+    # crank 0.32 m, rod 0.3 m: from q0 = 0.5 at 5 rad/s the in-line slider-crank locks up at
+    # q = asin(0.3 / 0.32); from -0.5 it comes to a standstill. Batched, diffrax re-evaluated
+    # the lock-up member's end where the other's event fired: its final state was NaN
+    import equinox as eqx
+
+    scene = assurjax.load_scene("slider_crank")
+    long_crank = eqx.tree_at(lambda m: m.links["crank"].points["A"], scene.mechanism, jnp.array([0.32, 0.0]))
+    kw = dict(mechanism=long_crank, omega0=5.0, t1=2.0, stop="standstill", points=("B",))
+    batch = assurjax.simulate(scene, q0=np.array([0.5, -0.5]), **kw)
+    single = assurjax.simulate(scene, q0=0.5, **kw)
+    assert list(np.asarray(batch.event)) == [1, 0]  # lock-up, standstill
+    assert abs(float(batch.q_final[0]) - np.arcsin(0.3 / 0.32)) < 1e-8
+    assert abs(float(single.q_final) - np.arcsin(0.3 / 0.32)) < 1e-8
+    # the steps closing in on it differ by round-off between a batch and a single run
+    assert abs(float(batch.t_final[0]) - float(single.t_final)) < 1e-6
+    assert np.all(np.isfinite(np.asarray(batch.points["B"])[0][np.asarray(batch.valid)[0]]))

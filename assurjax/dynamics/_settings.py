@@ -392,6 +392,20 @@ def _located(t0, t1, y0, met, shortest=0.0):
     return diffrax.RESULTS.where(met & small, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
 
 
+class LastAccepted(NamedTuple):
+    """The end (``t``, ``y``) of a run's last accepted step, carried in the lock-up
+    controllers' state (``SaveAt(controller_state=True)`` hands it back). Where a batch
+    member's loop ended on a rejected step while another member's event fired, diffrax's
+    final state of it is its dense output at the end of that rejected attempt: NaN where
+    the attempt met NaN (a lock-up), and a time past the last accepted step."""
+
+    t: Array
+    y: object
+
+    def after(self, kept, t1, y1):
+        return LastAccepted(jnp.where(kept, t1, self.t), jax.tree.map(lambda new, old: jnp.where(kept, new, old), y1, self.y))
+
+
 class LockupController(diffrax.PIDController):
     """A step whose stages met a configuration where some group cannot assemble (NaN) has
     an infinite error: it is rejected and the next one shrunk (diffrax's ``factormin``), so
@@ -404,14 +418,22 @@ class LockupController(diffrax.PIDController):
 
     packing: Packing = UNPACKED
 
+    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
+        next_t1, state = super().init(terms, t0, t1, y0, dt0, args, func, error_order)
+        return next_t1, (state, LastAccepted(jnp.asarray(t0, dtype=jnp.result_type(next_t1)), y0))
+
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
+        controller_state, last = controller_state
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
         held = _held_at_rest(y0, y1_candidate)
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
-        return keep & ~held, next_t0, next_t1, jump, state, diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result)
+        kept = keep & ~held
+        return (kept, next_t0, next_t1, jump, (state, last.after(kept, t1, packed_y1)),
+                diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result))
 
 
 def _held_at_rest(y0, y1_candidate):
@@ -430,9 +452,15 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
 
     packing: Packing = UNPACKED
 
+    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
+        next_t1, state = super().init(terms, t0, t1, y0, dt0, args, func, error_order)
+        return next_t1, (state, LastAccepted(jnp.asarray(t0, dtype=jnp.result_type(next_t1)), y0))
+
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state):
+        controller_state, last = controller_state
         _, _, grid_next, jump, grid_state, _ = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
+        packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         met = _met_unassembled(y1_candidate, y_error)
         completed, count, start, end = controller_state
@@ -444,7 +472,8 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         shortest = 2.0**-30 * (end - start) / count
         held = _held_at_rest(y0, y1_candidate)  # as LockupController
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, _located(t0, t1, y0, met, shortest))
-        return ~met & ~held, jnp.where(met, t0, t1), next_t1, jump, state, located
+        kept = ~met & ~held
+        return kept, jnp.where(met, t0, t1), next_t1, jump, (state, last.after(kept, t1, packed_y1)), located
 
 
 class FiniteNorm(eqx.Module):

@@ -170,15 +170,28 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         dt0=_initial_step(settings, dt),
         y0=packing.pack(y0),
         args=leaves,
-        saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps),
+        saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps, controller_state=True),
         stepsize_controller=lockup_controller(settings, packing),
         event=packed_event(packing, stop_event(settings), rebuild),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),
         throw=False,
     )
-    sol = unpacked(packing, sol)
+    sol = _last_accepted_unless_event(unpacked(packing, sol), packing)
     return _package(model, sol, ts, args, settings, y0)
+
+
+def _last_accepted_unless_event(sol, packing):
+    """``sol`` with its final row the last accepted step's end, where no event of its own
+    stopped the run (:class:`~assurjax.dynamics._settings.LastAccepted`: in a batch, diffrax
+    gave a member that locked up beside one whose event fired NaN there); the same values
+    elsewhere."""
+    last = jnp.sum(jnp.isfinite(sol.ts)) - 1
+    kept = sol.controller_state[1]
+    own_event = jnp.asarray(False) if sol.event_mask is None else jnp.any(jnp.stack(jax.tree.leaves(sol.event_mask)))
+    ts = sol.ts.at[last].set(jnp.where(own_event, sol.ts[last], kept.t))
+    ys = jax.tree.map(lambda z, k: z.at[last].set(jnp.where(own_event, z[last], k)), sol.ys, packing.unpack(kept.y))
+    return eqx.tree_at(lambda s: (s.ts, s.ys), sol, (ts, ys))
 
 
 def _initial_state(model: Model, q0, omega0, settings: Settings, table) -> State:
