@@ -296,8 +296,14 @@ def batch_kinematics(
     if q_per_mechanism and (q.ndim == 0 or q.shape[0] != n):
         raise AssurjaxError(f"q_per_mechanism=True needs q with a leading axis of {n} (the batch size), got shape {q.shape}")
     q_items = q if q_per_mechanism else np.broadcast_to(q, (n,) + q.shape)
-    omega = np.broadcast_to(np.asarray(omega, dtype=float), q_items.shape)
-    alpha = np.broadcast_to(np.asarray(alpha, dtype=float), q_items.shape)
+    rates = {}
+    for name, value in (("omega", omega), ("alpha", alpha)):
+        try:
+            rates[name] = np.broadcast_to(np.asarray(value, dtype=float), q_items.shape)
+        except ValueError:
+            raise AssurjaxError(f"batch_kinematics: {name} of shape {np.shape(value)} does not fit q's "
+                                f"{q_items.shape} (a number, or one value per configuration)") from None
+    omega, alpha = rates["omega"], rates["alpha"]
     fn = _kinematics_item(pts, order)
     return sweep(fn, (mechanisms, q_items, omega, alpha), chunk_size=chunk_size, mesh=mesh, progress=progress, desc="kinematics")
 

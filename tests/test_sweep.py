@@ -201,3 +201,13 @@ def test_a_member_that_locks_up_beside_one_that_stops_keeps_its_final_state():
     # the steps closing in on it differ by round-off between a batch and a single run
     assert abs(float(batch.t_final[0]) - float(single.t_final)) < 1e-6
     assert np.all(np.isfinite(np.asarray(batch.points["B"])[0][np.asarray(batch.valid)[0]]))
+
+
+def test_batch_requests_that_do_not_fit_are_named(batch):
+    # omega of another length than q: numpy's broadcast error, naming neither
+    with pytest.raises(AssurjaxError, match="batch_kinematics: omega of shape \\(4,\\) does not fit q's \\(10, 3\\)"):
+        assurjax.batch_kinematics(batch, np.zeros(3), omega=np.zeros(4))
+    # the Euler baseline is simulate()'s for one start ("unknown solver 'seed_euler'; choose one of [..., 'seed_euler']")
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(AssurjaxError, match="'seed_euler' is a baseline that simulate\\(\\) runs for one start"):
+        assurjax.batch_simulate(scene, assurjax.stack_mechanisms([scene.mechanism, scene.mechanism]), solver="seed_euler", progress=False)

@@ -336,6 +336,9 @@ def check(settings: Settings) -> None:
 
 
 def solver_for(settings: Settings) -> diffrax.AbstractSolver:
+    if settings.solver in BASELINES:  # a single run's labelled baseline (simulate), not a diffrax solver
+        raise AssurjaxError(f"solver {settings.solver!r} is a baseline that simulate() runs for one start; here "
+                            f"choose one of {sorted(SOLVERS)}")
     if settings.solver not in SOLVERS:
         raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
     return SOLVERS[settings.solver]()
