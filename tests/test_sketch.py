@@ -467,3 +467,41 @@ def test_assembly_report_names_the_group_interval_and_condition():
     assert np.array_equal(covered, expected_bad)
     assert f"|B D| = {bd[0]:.4g} m > 0.12 + 0.18 m" in failure.condition
     assert "group 'dyad43' (RRR) cannot assemble for q in" in str(report)
+
+
+LIMIT_FOUR_BAR = """
+[scene]
+gravity = [0.0, -9.81]
+[sketch]
+driver = "crank"
+ground = ["O2", "O4"]
+joints = { O2 = [0.0, 0.0], O4 = [1.0, 0.0], A = [AX, AY], B = [BX, BY] }
+[sketch.links]
+crank = { joints = ["O2", "A"], density = 2.0 }
+coupler = { joints = ["A", "B"], density = 2.0 }
+rocker = { joints = ["O4", "B"], density = 2.0 }
+[state]
+t1 = 0.3
+"""
+
+
+def test_a_drawing_at_the_cranks_limit_is_no_start_and_a_start_beside_it_locks_up():
+    # crank 0.8, coupler 0.5, rocker 0.6, ground 1 (not Grashof): the crank's limit is where
+    # coupler and rocker are in line, |O4 A| = 1.1: cos q = (0.64 + 1 - 1.21) / 1.6. Drawn
+    # there, the run swung off gaining 2 % of its energy ("reached t1"); from rest 1e-6 rad
+    # inside, gravity takes it into the limit (it said a load gave NaN at t = 0)
+    q_limit = np.arccos((0.64 + 1.0 - 1.21) / 1.6)
+    a = 0.8 * np.array([np.cos(q_limit), np.sin(q_limit)])
+    b = np.array([1.0, 0.0]) + 0.6 / 1.1 * (a - np.array([1.0, 0.0]))
+    text = LIMIT_FOUR_BAR
+    for key, value in (("AX", a[0]), ("AY", a[1]), ("BX", b[0]), ("BY", b[1])):
+        text = text.replace(key, repr(float(value)))
+    scene = assurjax.scene_from_dict(tomllib.loads(text))
+    assert abs(scene.state["q0"] - q_limit) < 1e-12
+    with pytest.raises(assurjax.AssemblyError, match="group 'RRR1' \\(RRR\\) is exactly at a singular configuration at the start"):
+        assurjax.simulate(scene, stop=None)
+    inside = assurjax.simulate(scene, stop=None, q0=q_limit - 1e-6)
+    assert int(inside.event) == 1 and inside.failed_group == "RRR1" and 0 < float(inside.t_final) < 0.3
+    assert abs(float(inside.q_final) - q_limit) < 1e-8  # it reached the limit
+    batch = assurjax.simulate(scene, stop=None, q0=np.array([q_limit, q_limit - 1e-6]))
+    assert batch.status == "batch of 2: 1 lock-up, 1 start exactly at a singular configuration"

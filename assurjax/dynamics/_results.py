@@ -16,6 +16,8 @@ class RESULTS(diffrax.RESULTS):
     is the message."""
 
     start_not_assembled = "The mechanism cannot assemble at the starting state."
+    start_singular = ("The mechanism starts exactly at a singular configuration of a group (a limit position, or where "
+                      "two branches cross), where the driving coordinate does not carry the motion.")
     max_segments_reached = ("The motion with joint friction needed more segments (rests, break-aways and changes of a "
                             "joint's Coulomb sign) than a run allows before t1: shorten the time span.")
 
@@ -35,6 +37,7 @@ _SUCCESS = int(RESULTS.successful._value)
 _EVENT = int(RESULTS.event_occurred._value)
 FINISHED = (_SUCCESS, _EVENT)  # host-side codes of runs that ended as asked
 START_NOT_ASSEMBLED = int(RESULTS.start_not_assembled._value)
+START_SINGULAR = int(RESULTS.start_singular._value)
 _MAX_STEPS = int(RESULTS.max_steps_reached._value)
 DT_MIN = int(RESULTS.dt_min_reached._value)  # host-side code of a run that could not get on (NaN ahead)
 

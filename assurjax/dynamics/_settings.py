@@ -384,6 +384,9 @@ def _met_unassembled(y1_candidate, y_error):
     return ~all_finite((y1_candidate, y_error))
 
 
+REST_RESOLUTION = 1e-10  # s per s of t: the shortest step from rest (w = 0) that closes in on a lock-up
+
+
 def _located(t0, t1, y0, met, shortest=0.0):
     """diffrax's ``dt_min_reached`` where a step that met a configuration that cannot
     assemble moves q by less than ``LOCKUP_RESOLUTION`` (1 + |q|) or is no longer than
@@ -391,7 +394,10 @@ def _located(t0, t1, y0, met, shortest=0.0):
     could not get on). Not in an augmented backward solve (no q, w there): its NaN steps are only rejected."""
     if not hasattr(y0, "omega"):
         return diffrax.RESULTS.successful
-    small = (jnp.abs(y0.omega) * (t1 - t0) <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))) | (t1 - t0 <= shortest)
+    # from rest (w = 0) the steps close in on the lock-up in time: q moves by ~dw/dt h^2 / 2 there
+    moving = y0.omega != 0
+    small = ((moving & (jnp.abs(y0.omega) * (t1 - t0) <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))))
+             | (~moving & (t1 - t0 <= REST_RESOLUTION * (1.0 + jnp.abs(t0)))) | (t1 - t0 <= shortest))
     return diffrax.RESULTS.where(met & small, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
 
 

@@ -20,7 +20,7 @@ from .._model import Model
 from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
-from ._results import FINISHED, JAM_REMEDY, LOCKUP, START_NOT_ASSEMBLED, STANDSTILL, USER, result_code, result_text, status_text
+from ._results import FINISHED, JAM_REMEDY, LOCKUP, START_NOT_ASSEMBLED, START_SINGULAR, STANDSTILL, USER, result_code, result_text, status_text
 from ._settings import Settings
 
 
@@ -231,6 +231,11 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
         raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(sol.q[0]):.6g}: "
                             "choose a starting driving coordinate where the mechanism closes (or, for a triad or class-IV "
                             "group, a better 'guess' of its inner joints)", group=group)
+    if code == START_SINGULAR:
+        raise AssemblyError(f"{mechanism.groups[failed].describe()} is exactly at a singular configuration at the start "
+                            f"q0 = {float(sol.q[0]):.6g} (stretched or folded: a limit position of the driver, or where two "
+                            "branches cross), where the driving coordinate does not carry the motion: give a q0 inside "
+                            "the driver's range (a drawing made there gives this q0)", group=group)
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
     status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
@@ -294,11 +299,14 @@ def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
     codes = result_code(sols.result)
     events, results = np.asarray(sols.event), np.where(np.isin(codes, FINISHED), 0, codes)
     unassembled = codes == START_NOT_ASSEMBLED  # its event says lock-up too: counted once, below
+    singular = codes == START_SINGULAR
+    unassembled = unassembled | singular  # counted apart, below
     parts = [f"{np.sum((events == code) & ~unassembled)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
              if np.any((events == code) & ~unassembled)]
     parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
     parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
-    parts += [f"{np.sum(unassembled)} cannot assemble at the start"] if np.any(unassembled) else []
+    parts += [f"{np.sum(unassembled & ~singular)} cannot assemble at the start"] if np.any(unassembled & ~singular) else []
+    parts += [f"{np.sum(singular)} start exactly at a singular configuration"] if np.any(singular) else []
     jammed = np.zeros(codes.shape, dtype=bool) if jammed is None else jammed
     parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []
     failures = (events < 0) & (results != 0) & ~unassembled & ~jammed

@@ -20,6 +20,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of, smoothed_only, states_per_call
+from ..groups._base import AbstractGroup
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
 from .._mechanism import Mechanism, positions
@@ -101,6 +102,8 @@ def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, tab
     the EndChecks still to make or None): the motion and its stop. :func:`_finished` does the rest."""
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     sol, branch, checks = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
+    if settings.check_assembly and not _tabulated(settings) and settings.branch == "fixed":
+        sol = _checked_regular_start(sol, model.mechanism, q0)
     if checks is None and settings.check_assembly and not _tabulated(settings):
         sol = _checked_start(sol, assembled(model.mechanism, q0))
     # no weakly typed values: the outputs' program is compiled ahead for these types (compile_side_by_side)
@@ -138,6 +141,29 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(bad, RESULTS.start_not_assembled, sol.result),
                         jnp.where(bad, jnp.argmin(ok_start), sol.failed_group_index)))
+
+
+START_SINGULAR_SINE = 1e-9  # |sin| of a closed form's singular angle below which it sits on its square root's clamp
+
+
+def _checked_regular_start(sol: Solution, mechanism, q0) -> Solution:
+    """A start exactly at a singular configuration of a closed form (the sine of the
+    group's ``singularity`` measure below START_SINGULAR_SINE: the square root of its
+    height is clamped there, which keeps its derivatives finite, and they are not the
+    motion's: a four-bar drawn at its crank's limit swung off it gaining 2 % of its energy)
+    is no motion: say so. Within ~1e-14 rad of such a point; 1e-12 rad away the measure is
+    ~1e-6 and the coefficients are the motion's."""
+    declared = [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
+    if not declared:
+        return sol
+    points = positions(mechanism, q0).points
+    zeros = {name: jnp.zeros(2) for name in points}
+    sines = jnp.stack([jnp.abs(mechanism.groups[i].singularity(points, zeros)[0]) for i in declared])
+    at = sines <= START_SINGULAR_SINE
+    first = jnp.asarray(declared)[jnp.argmax(at)]
+    return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
+                       (RESULTS.where(jnp.any(at), RESULTS.start_singular, sol.result),
+                        jnp.where(jnp.any(at), first, sol.failed_group_index)))
 
 
 def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table):
@@ -488,6 +514,7 @@ def simulate(
     saveat = None if saveat is None else checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
+    _check_saved_total(batch, saveat, settings)
     max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
     if settings.save_steps:  # every step is a saved row (with its outputs): the budget is the request for memory
         if prepared.budget_per_span:
@@ -635,6 +662,18 @@ def _batch_shape(q0, omega0):
 
 
 MAX_STARTS = 1_000_000  # starting states per simulate call: each saves its samples
+SAVED_STATES_LIMIT = 100_000_000  # saved states of a batch's call, all starts together (24 bytes each at least)
+
+
+def _check_saved_total(batch, saveat, settings: Settings) -> None:
+    """Each bound on its own, a batch's starts times its saved states may still not fit in
+    memory (a million starts of 100 000 samples: 745 GiB, a raw MemoryError): bounded too."""
+    if batch is None:
+        return
+    rows = saveat.size if saveat is not None else settings.steps + 1 if settings.steps is not None else settings.samples
+    if batch[0] * rows > SAVED_STATES_LIMIT:
+        raise AssurjaxError(f"{batch[0]:,} starts x {rows:,} saved states each would hold {batch[0] * rows:,} states "
+                            f"(at most {SAVED_STATES_LIMIT:,} per call): fewer samples, or split the starts over calls")
 
 
 def _resolve_reduction(settings: Settings, table, model: Model, batch):
