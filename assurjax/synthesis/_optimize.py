@@ -22,7 +22,7 @@ import optax
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
 from .._structure import by_structure
-from .._values import all_finite, check_values
+from .._values import all_finite, check_value, check_values
 from ._design import Design, check_inside
 
 MAX_STEPS = 1_000_000  # optimizer steps per call: the history is allocated for them up front
@@ -139,6 +139,9 @@ class _Problem(eqx.Module):
         tree = self.design.build(z)
         out = self.objective(tree, params) if self.takes_params else self.objective(tree)
         loss, aux = out if self.has_aux else (out, None)
+        if jnp.shape(loss) != ():  # else JAX's "Gradient only defined for scalar-output functions"
+            raise AssurjaxError(f"optimize: the objective must return one number (the loss"
+                                f"{', then aux' if self.has_aux else ''}), got an array of shape {jnp.shape(loss)}")
         ok = jnp.all(aux["ok"]) if isinstance(aux, dict) and "ok" in aux else jnp.array(True)
         if self.feasible is not None:
             ok = ok & jnp.all(self.feasible(tree))
@@ -451,6 +454,7 @@ def optimize(
                        restarts=jnp.asarray(restarts), max_backtracks=jnp.asarray(max_backtracks))
     stages = _stages(schedule)
     initial = _starting_values(design, starts, seed)
+    _check_history_size(initial, stages, problem.capacity, steps)
     line_search = _has_line_search(problem, numeric, initial)
     if batch == "auto":
         batch = "sequential" if line_search else "vmap"
@@ -462,6 +466,20 @@ def optimize(
     elapsed = time.perf_counter() - started
     return _result(design, initial, best_z, final_values, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed,
                    callback)
+
+
+HISTORY_BYTES_LIMIT = 2**32  # a run's history (each start's z and gradient at every step of every stage) is allocated whole
+
+
+def _check_history_size(initial, stages: dict, capacity: int, steps: int) -> None:
+    starts = _count(initial)
+    per_start = sum(int(np.prod(x.shape[1:])) for x in jax.tree.leaves(initial))
+    stage_count = next(iter(stages.values())).shape[0]
+    needed = starts * stage_count * capacity * (2 * per_start + 4) * 8
+    if needed > HISTORY_BYTES_LIMIT:
+        raise AssurjaxError(f"optimize: {starts} starts x {stage_count} stages x {steps:,} steps of {per_start} "
+                            f"parameters would need a history of {needed / 2**30:.3g} GiB (at most "
+                            f"{HISTORY_BYTES_LIMIT / 2**30:g}): fewer steps, starts or stages")
 
 
 def _has_line_search(problem: _Problem, numeric: dict, initial) -> bool:
@@ -486,6 +504,8 @@ def _split_options(optimizer, options):
         raise AssurjaxError("optimize: optimizer must be an optax GradientTransformation or a factory of one, "
                             f"got {type(optimizer).__name__}")
     numeric = {k: jnp.asarray(v, dtype=float) for k, v in options.items() if isinstance(v, float) or eqx.is_inexact_array(v)}
+    for name, value in numeric.items():  # a NaN learning rate ran to "infeasible", blaming the design
+        check_value(AssurjaxError, f"optimize: option '{name}'", value, positive=name == "learning_rate")
     static = tuple(sorted((k, v) for k, v in options.items() if k not in numeric))
     try:
         built = optimizer(**dict(static), **numeric)
@@ -503,6 +523,8 @@ def _stages(schedule):
     if not isinstance(schedule, dict) or not schedule:
         raise AssurjaxError("optimize: schedule must be a non-empty dict {parameter name: one value per stage}")
     stages = {k: jnp.atleast_1d(jnp.asarray(v, dtype=float)) for k, v in schedule.items()}
+    for name, values in stages.items():  # a NaN stage ended as "the starting design cannot assemble"
+        check_value(AssurjaxError, f"optimize: schedule '{name}'", values)
     lengths = {k: v.shape[0] for k, v in stages.items()}
     if len(set(lengths.values())) != 1 or any(v.ndim != 1 for v in stages.values()):
         raise AssurjaxError(f"optimize: every schedule entry must be one value per stage, same count; got lengths {lengths}")
