@@ -40,7 +40,7 @@ from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
 from ._model import Model, check_has_inertia
-from ._values import check_values
+from ._values import check_value, check_values
 
 BATCH_AXIS = "batch"
 MAX_COPIES = 10_000_000  # perturb: a batch of the Watt six-bar this large holds ~2.4 GB of arrays
@@ -81,6 +81,20 @@ def batch_size(batch: Any) -> int:
     if len(sizes) != 1 or None in sizes:
         raise AssurjaxError(f"not a batch: every array needs the same leading batch axis, found leading sizes {sorted(map(str, sizes))}")
     return sizes.pop()
+
+
+def check_batch_values(mechanisms: Mechanism, where: str) -> None:
+    """Finite points, and finite non-negative masses and inertias, in every member of a batch
+    of mechanisms (a stacked one is built past the Mechanism's own checks: a NaN mass set by
+    ``eqx.tree_at`` ran as a solver failure, a negative one until the step budget ran out)."""
+    for p, xy in mechanisms.ground.items():
+        check_value(AssurjaxError, f"{where}: ground point '{p}'", xy)
+    for name, link in mechanisms.links.items():
+        for p, xy in link.points.items():
+            check_value(AssurjaxError, f"{where}: link '{name}': point '{p}'", xy)
+        check_value(AssurjaxError, f"{where}: link '{name}': com", link.com)
+        check_value(AssurjaxError, f"{where}: link '{name}': mass", link.mass, nonnegative=True)
+        check_value(AssurjaxError, f"{where}: link '{name}': inertia", link.inertia, nonnegative=True)
 
 
 def take(batch: Any, index) -> Any:
@@ -205,6 +219,9 @@ def sweep(
       (``chunk_size`` is rounded up to a multiple of the device count).
     - ``progress``: tqdm bar (default: only when stderr is a terminal).
     """
+    if isinstance(batch, (bool, float, complex, np.floating)):
+        raise AssurjaxError(f"sweep: batch must be a pytree of arrays with a leading batch axis or a whole number of "
+                            f"items, got {batch!r}")
     n = int(batch) if isinstance(batch, (int, np.integer)) else batch_size(batch)
     if n <= 0:
         raise AssurjaxError(f"sweep: empty batch (size {n})")
@@ -232,10 +249,22 @@ def sweep(
                 carry = reduce(carry, result)
             else:
                 if out is None:
+                    _check_results_size(n, result)
                     out = jax.tree.map(lambda x: np.empty((n,) + x.shape[1:], x.dtype), result)
                 jax.tree.map(lambda o, r: o.__setitem__(slice(start, stop), r), out, result)
             bar.update(stop - start)
     return carry if reduce is not None else out
+
+
+RESULTS_BYTES_LIMIT = 2**34  # a sweep's results, kept whole on the host (without reduce)
+
+
+def _check_results_size(n: int, chunk_result) -> None:
+    per_item = sum(x[:1].nbytes for x in jax.tree.leaves(chunk_result) if np.ndim(x))
+    if n * per_item > RESULTS_BYTES_LIMIT:
+        raise AssurjaxError(f"sweep: {n:,} items of {per_item:,} bytes of results each would need "
+                            f"{n * per_item / 2**30:.3g} GiB on the host (at most {RESULTS_BYTES_LIMIT / 2**30:g}): "
+                            "fold them with reduce=, or sweep fewer items a call")
 
 
 _COMPILED: dict = {}
@@ -363,10 +392,15 @@ def batch_simulate(
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
     check_single_start(q0, omega0, t0, t1)
+    batch_size(mechanisms)  # a ragged batch is named before its values are read
+    check_batch_values(mechanisms, "batch_simulate")
     check_has_inertia(mechanisms)
     options = settings_from(scene, **settings)
     options = options._replace(reduction="exact") if options.reduction == "auto" else options
     options = batch_settings(options, scene.loads)
+    if options.save_steps:  # as simulate's batches
+        raise AssurjaxError("batch_simulate: save_steps saves up to max_steps states per run: it is for single runs, "
+                            "not batches (use samples or saveat)")
     step = fixed_step_from(scene, settings.get("dt"))
     gravity, loads = scene.gravity, scene.loads
     if saveat is not None:  # as simulate's

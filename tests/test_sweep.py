@@ -211,3 +211,41 @@ def test_batch_requests_that_do_not_fit_are_named(batch):
     scene = assurjax.load_scene("slider_crank")
     with pytest.raises(AssurjaxError, match="'seed_euler' is a baseline that simulate\\(\\) runs for one start"):
         assurjax.batch_simulate(scene, assurjax.stack_mechanisms([scene.mechanism, scene.mechanism]), solver="seed_euler", progress=False)
+    # save_steps, refused for simulate's batches, saved max_steps rows per member here
+    with pytest.raises(AssurjaxError, match="batch_simulate: save_steps .* not batches"):
+        assurjax.batch_simulate(scene, assurjax.stack_mechanisms([scene.mechanism, scene.mechanism]), save_steps=True, progress=False)
+
+
+def test_a_batch_of_mechanisms_is_checked_before_it_runs():
+    import equinox as eqx
+
+    scene = assurjax.load_scene("slider_crank")
+    pair = assurjax.stack_mechanisms([scene.mechanism, scene.mechanism])
+    # a rod mass for three members beside two of everything else: numpy's broadcast error
+    ragged = eqx.tree_at(lambda m: m.links["rod"].mass, pair, jnp.ones(3))
+    with pytest.raises(AssurjaxError, match="not a batch: every array needs the same leading batch axis"):
+        assurjax.batch_simulate(scene, ragged, progress=False)
+    # a NaN or negative mass set past the Mechanism's checks ran as a solver failure or to the step budget
+    for bad, word in ((np.nan, "finite"), (-1.0, "non-negative")):
+        member = eqx.tree_at(lambda m: m.links["rod"].mass, pair, jnp.asarray([1.0, bad]))
+        with pytest.raises(AssurjaxError, match=f"batch_simulate: link 'rod': mass must be {word}"):
+            assurjax.batch_simulate(scene, member, progress=False)
+
+
+def test_a_batch_of_starts_is_bounded_by_all_it_saves():
+    # a million starts and 100 000 samples, each within its own bound: a raw MemoryError (745 GiB)
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(AssurjaxError, match="1,000,000 starts x 100,000 saved states each .*at most 100,000,000 per call"):
+        assurjax.simulate(scene, q0=np.zeros(1_000_000), samples=100_000)
+
+
+def test_a_sweep_names_a_count_that_is_no_count_and_results_that_would_not_fit():
+    import jax.numpy as jnp
+
+    with pytest.raises(AssurjaxError, match="sweep: batch must be .* or a whole number of items, got 5.0"):
+        assurjax.sweep(lambda i: jnp.zeros(2) + i, 5.0)
+    # 10**12 items in chunks of 1000: the first chunk ran, then 14.9 TiB of results were asked for at once
+    with pytest.raises(AssurjaxError, match="sweep: 1,000,000,000,000 items of 16 bytes of results each .* reduce="):
+        assurjax.sweep(lambda i: jnp.zeros(2) + i, 10**12, chunk_size=1000)
+    # folded, the results are not kept whole: only each chunk's in turn
+    assert assurjax.sweep(lambda i: jnp.zeros(2) + i, 3000, chunk_size=1000, reduce=lambda c, r: (c or 0) + len(r)) == 3000
