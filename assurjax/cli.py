@@ -250,14 +250,43 @@ def _output_times(scene, samples: int):
     return np.linspace(float(scene.state.get("t0", 0.0)), float(scene.state.get("t1", 1.0)), samples)
 
 
+def _covered(spans) -> float:
+    """The time (s) the union of the intervals ``spans`` covers."""
+    total, reach = 0.0, -math.inf
+    for start, end in sorted(spans):
+        total += max(0.0, end - max(start, reach))
+        reach = max(reach, end)
+    return total
+
+
+RERUN_LIMIT = 10.0  # s: a first call that ran longer than this beside its compilation is not run again to time it
+
+
 def _simulate(scene, samples: int):
-    """Simulate twice: the first call includes compilation, the second is the run time."""
+    """Simulate twice: the first call includes compilation, the second is the run time
+    (None where the first call's own run, beside compiling, took longer than RERUN_LIMIT:
+    a long motion is not integrated twice for a timing line)."""
+    import jax
+
     import assurjax
 
     ts = _output_times(scene, samples)
-    t0 = time.perf_counter()
-    sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
-    first = time.perf_counter() - t0
+    spans = []  # (start, end) of each trace and compilation: they nest and run side by side
+
+    def listen(event, duration, **kwargs):
+        if event.startswith("/jax/core/compile/"):
+            end = time.perf_counter()
+            spans.append((end - duration, end))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        t0 = time.perf_counter()
+        sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
+        first = time.perf_counter() - t0
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    if first - _covered(spans) > RERUN_LIMIT:
+        return sol, first, None
     t0 = time.perf_counter()
     sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
     return sol, first, time.perf_counter() - t0
@@ -325,7 +354,7 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     integrated = float(sol.dissipated[-1]) if only_friction and sol.dissipated is not None else None
     if integrated is not None and abs(total - integrated) > 1e-3 * abs(integrated):
         lines = [f"  friction: {integrated:.5g} J lost over the motion (integrated); shares from the friction power at the "
-                 f"{len(sol.t)} samples, which resolve {total:.5g} J of it (more --samples for finer shares)"
+                 f"{len(sol.t)} samples, whose trapezoidal sum is {total:.5g} J (more --samples for finer shares)"
                  + (f": {shares}" if shares else "")]
     else:
         lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
@@ -372,7 +401,8 @@ def _print_peaks(peaks: dict, units: dict, scene, moves: bool = True):
     drive = peaks["driving"]
     if _driving_is_round_off(peaks, scene, units):
         why = "the loads alone drive this motion" if moves else "it stays at rest"
-        print(f"  driving effort: none needed ({why}; largest value {drive.value:.1e} {units['driving']} is round-off)")
+        size = "exactly 0" if drive.value == 0 else f"largest value {drive.value:.1e} {units['driving']} is round-off"
+        print(f"  driving effort: none needed ({why}; {size})")
     else:
         print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
 
@@ -700,7 +730,9 @@ def cmd_run(args) -> int:
     if static := _static_pairs(scene):
         print(f"  friction at rest: static coefficients in {', '.join(static)} (mu_s against mu): they decide where it "
               "sticks and when it breaks away, the kinetic mu the motion")
-    print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {second * 1e3:.1f} ms (compiled)"
+    compiled = (f"{second * 1e3:.1f} ms (compiled)" if second is not None
+                else f"not run again to time it compiled (the run itself took over {RERUN_LIMIT:g} s)")
+    print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {compiled}"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)
     return 0

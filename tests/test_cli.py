@@ -464,3 +464,16 @@ def test_summary_names_samples_held_where_the_friction_self_locks():
     assert lines[0].startswith("  friction: 1 J lost over the motion")
     assert "self-locks the mechanism at 2 of 5 samples" in lines[-1]
     assert not any("self-locks" in line for line in _friction_lines(scene, sol, along(np.ones(5, bool)), peaks))
+
+
+def test_a_long_first_run_is_not_integrated_again_to_time_it(monkeypatch):
+    # the timing line's compiled run integrated a 1e6 s motion twice (53 s, then 59 s)
+    from assurjax import cli
+
+    scene = assurjax.load_scene("roberts")
+    monkeypatch.setattr(cli, "RERUN_LIMIT", -1.0)  # every run counts as long
+    sol, first, second = cli._simulate(scene, 11)
+    assert second is None and first > 0 and len(sol.t) >= 2
+    monkeypatch.setattr(cli, "RERUN_LIMIT", 1e9)
+    assert cli._simulate(scene, 11)[2] > 0
+    assert cli._covered([(0.0, 2.0), (1.0, 3.0), (5.0, 6.0), (1.5, 1.75)]) == 4.0  # nested and side by side spans once

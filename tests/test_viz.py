@@ -161,6 +161,8 @@ def test_velocity_polygon_closes(roberts_scene):
     np.testing.assert_allclose(rel.xyann, v["B"] * 1e3, atol=1e-9)
     np.testing.assert_allclose(rel.xy, v["C"] * 1e3, atol=1e-9)
     assert "mm/s" in ax.get_xlabel()
+    with pytest.raises(assurjax.AssurjaxError, match="relative pair \\('C', 'Z'\\) names point\\(s\\) \\['Z'\\]"):
+        viz.plot_velocity_polygon(v, relative=[("C", "Z")])  # a bare KeyError: 'Z'
 
 
 def test_animation_gif_and_html(tmp_path, watt):

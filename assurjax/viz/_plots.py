@@ -117,7 +117,9 @@ def plot_energies(t, kinetic, potential, *, ax=None, work=None, dissipated=None)
     series["E = T + V" if work is None else "T + V - W"] = total
     if dissipated is not None:
         series["dissipated (friction, dampers)"] = np.asarray(dissipated)
-    return plot_time_histories(t, series, ylabel="energy (J)", ax=ax, title="energies")
+    # the balance dashed: where V = 0 it lies on T, which stays visible under it
+    balance = {"E = T + V" if work is None else "T + V - W": "--"}
+    return plot_against(t, series, xlabel="time t (s)", ylabel="energy (J)", ax=ax, title="energies", styles=balance)
 
 
 def plot_energy_drift(t, total, *, ax=None):
@@ -158,6 +160,8 @@ def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank
         axes[0].set_yscale("log")
     if tau_red is not None:
         plot_against(q, {"tau_red": tau_red}, xlabel=driving_label(driver_kind), ylabel="reduced load (N)" if slider else "reduced torque (N m)", ax=axes[1], title="reduced load")
+    for ax in axes:  # a stroke's many-digit ticks ran into each other at matplotlib's default count
+        ax.locator_params(axis="x", nbins=6)
     return axes
 
 
@@ -176,6 +180,10 @@ def plot_velocity_polygon(velocities: Mapping[str, np.ndarray], *, ax=None, unit
         ax.plot([], [], color=f"C{i}", lw=2, label=f"v_{name}: {np.hypot(*v):.1f} {unit}/s")
         ax.annotate(f"v_{name}", tuple(v), xytext=(4, 4), textcoords="offset points", fontsize=9)
     for a, b in relative:
+        unknown = [p for p in (a, b) if p not in tips]
+        if unknown:
+            raise AssurjaxError(f"plot_velocity_polygon: relative pair ({a!r}, {b!r}) names point(s) {unknown} without a "
+                             f"velocity; velocities has {sorted(tips)}")
         d = tips[a] - tips[b]
         ax.annotate("", xy=tuple(tips[a]), xytext=tuple(tips[b]), arrowprops=dict(arrowstyle="->", lw=1.2, ls="--", color="gray"))
         ax.plot([], [], color="gray", ls="--", label=f"v_{a}{b}: {np.hypot(*d):.1f} {unit}/s")
