@@ -18,9 +18,9 @@ the adjoint named by ``adjoint``:
   batched reverse pass of the reduced acceleration at Gauss-Legendre nodes and a 2x2
   transition-matrix solve; no derivative through the solver. Its accuracy is that of the
   panel quadrature, not the solver's tolerance: on the Watt six-bar's standstill it is
-  within the tolerance at the defaults, but on a slider-crank's half turn (0.7 s) the
-  Jacobian erred by 2e-5 relative at 16 panels (0.2 at 4; 2e-8 at 64, 1e-9 at 256)
-  where "sensitivity" gave 2.5e-9. Settings: ``solver``, ``rtol``, ``atol``, ``dt``,
+  within the tolerance at the defaults, but on a slider-crank's half turn (0.7 s, rtol =
+  atol = 1e-10, against central differences) the Jacobian erred by 2e-5 relative at 16
+  panels (0.2 at 4, 2e-8 at 64, 3e-9 at 256) where "sensitivity" gave 2.5e-9. Settings: ``solver``, ``rtol``, ``atol``, ``dt``,
   ``max_steps``, ``panels`` (default 16), ``nodes`` (default 6 per panel): raise
   ``panels`` where the motion changes fast (compare two panel counts, or with
   "sensitivity", when it matters).
