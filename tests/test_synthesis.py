@@ -338,3 +338,17 @@ def test_a_point_mass_that_would_cancel_the_links_is_refused():
     mech = syn.roberts_like(syn.roberts_lengths())
     with pytest.raises(AssurjaxError, match="add_point_mass: mass must be non-negative"):
         syn.add_point_mass(mech, "link2", -0.5, (0.1, 0.0))
+
+
+@pytest.mark.parametrize("changes, message", [
+    (dict(mass=(-0.5, -1.0, 3.0)), "the counterweight's mass is at least 0 kg: lower bound -1.0"),
+    (dict(mass=(0.5, 0.05)), "mass must be \\(start, lower, upper\\)"),
+    (dict(adjoint="nope"), "unknown adjoint 'nope'"),
+    (dict(rtol=-1.0), "setting 'rtol'"),
+    (dict(adjoint="forward", rtol=-1.0), "setting 'rtol'"),
+    (dict(panels=0), "quadrature needs integers panels >= 1"),
+])
+def test_standstill_time_problem_checks_its_request_before_any_run(changes, message):
+    # each was taken, then failed inside optimize's first evaluation (or, a negative mass, never)
+    with pytest.raises(AssurjaxError, match=message):
+        syn.standstill_time_problem(assurjax.load_scene("watt_sixbar"), 1.6, **changes)

@@ -13,7 +13,8 @@ import numpy as np
 from .._errors import AssemblyError, AssurjaxError
 from .._values import check_value, check_values
 from ._design import Design
-from ._dynamic import standstill_time
+from ._dynamic import SENSITIVITY_ROUTES, _check_start, _route, _settings, standstill_time
+from ._sensitivity import _options
 from ._linkages import roberts_like
 from ._objectives import coupler_curve, line_pose, straight_line_deviation
 
@@ -207,6 +208,17 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
     horizon = max(1.5 * target, float(scene.state.get("t1", 0.0))) if t1 is None else t1
     if not horizon > target:  # the standstill at the target would lie past the horizon: no design could reach it
         raise AssurjaxError(f"standstill_time_problem: t1 = {horizon} s must lie past the target {target} s")
+    for name, triple in (("mass", mass), ("position", position)):
+        if not (isinstance(triple, (tuple, list)) and len(triple) == 3):
+            raise AssurjaxError(f"standstill_time_problem: {name} must be (start, lower, upper), got {triple!r}")
+        check_values(AssurjaxError, f"standstill_time_problem: {name}", start=triple[0], lower=triple[1], upper=triple[2])
+    if not mass[1] >= 0:  # a negative counterweight may cancel the link's mass (add_point_mass)
+        raise AssurjaxError(f"standstill_time_problem: the counterweight's mass is at least 0 kg: lower bound {mass[1]}")
+    _check_start(scene, None, None, horizon, adjoint)  # the adjoint's name and the scene's start, before any run
+    if adjoint in SENSITIVITY_ROUTES:  # a misspelt or out-of-range setting, before any run
+        _options(scene, _route(adjoint, settings))
+    else:
+        _settings(scene, settings, standstill=True, adjoint=adjoint)
     base = (jnp.asarray(mass[0], dtype=float), jnp.asarray(position[0], dtype=float))
     design = Design(base, lambda v: v, lower=(mass[1], position[1]), upper=(mass[2], position[2]))
 
