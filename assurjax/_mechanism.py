@@ -189,13 +189,15 @@ def _check_values(mech: Mechanism) -> None:
 
 
 def _check_crank_arms(mech: Mechanism) -> None:
-    """A crank's joint that a later group hangs on must not sit on the crank's pivot: the
-    rest of the mechanism would not follow the driver (a zero-length crank)."""
+    """A crank's joint that a later group hangs on (a revolute: not a guide's point, whose
+    line still turns with the crank) must not sit on the crank's pivot: the rest of the
+    mechanism would not follow the driver (a zero-length crank)."""
     crank = mech.groups[0]
     if crank.kind != "crank":
         return
     points = mech.links[crank.links[0]].points
-    used = {p for g in mech.groups[1:] for p in g.external_points()} & set(points) - {crank.pivot}
+    guides = {p for g in mech.groups[1:] for p in (getattr(g, "guide_point", None), *getattr(g, "guide_points", ())) if p}
+    used = {p for g in mech.groups[1:] for p in g.external_points()} & set(points) - {crank.pivot} - guides
     for p in sorted(used):
         d = _concrete(points[p] - points[crank.pivot])
         if d is not None and np.any(np.hypot(d[..., 0], d[..., 1]) <= 0):

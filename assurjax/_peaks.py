@@ -105,10 +105,10 @@ def peak_reactions(scene, sol, *, joints=None, grid: dict | None = None, points:
     template = t if saveat is None else np.asarray(saveat, dtype=float)
     reached = int(np.count_nonzero((template - template[0]) * (t[-1] - template) >= 0)) if len(t) else 0
     best, brackets = {}, {}
-    counted = np.ones(len(t), dtype=bool) if before is None else t < before
+    counted = np.ones(len(t), dtype=bool) if before is None or not np.any(t < before) else t < before
     for name, values in (magnitudes(scene, sol, joints) if grid is None else grid).items():
         values = np.where(counted, np.asarray(values, dtype=float), np.nan)
-        i = int(np.nanargmax(values)) if np.any(counted) else 0
+        i = int(np.nanargmax(values))
         best[name], brackets[name] = (float(values[i]), float(t[i])), _bracket(t, i)
     for _ in range(rounds if len(t) > 1 else 0):
         brackets = {name: (lo, hi) for name, (lo, hi) in brackets.items() if hi > lo}

@@ -40,7 +40,7 @@ from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism
 from ._model import Model, check_has_inertia
-from ._values import check_value, check_values
+from ._values import check_values, value_problem
 
 BATCH_AXIS = "batch"
 MAX_COPIES = 10_000_000  # perturb: a batch of the Watt six-bar this large holds ~2.4 GB of arrays
@@ -87,14 +87,20 @@ def check_batch_values(mechanisms: Mechanism, where: str) -> None:
     """Finite points, and finite non-negative masses and inertias, in every member of a batch
     of mechanisms (a stacked one is built past the Mechanism's own checks: a NaN mass set by
     ``eqx.tree_at`` ran as a solver failure, a negative one until the step budget ran out)."""
+    def check(what: str, x, **ranges):
+        if value_problem(x, **ranges) is None:
+            return
+        member = next(i for i in range(np.shape(x)[0]) if value_problem(np.asarray(x)[i], **ranges) is not None)
+        raise AssurjaxError(f"{where}: batch member {member}: {what} {value_problem(np.asarray(x)[member], **ranges)}")
+
     for p, xy in mechanisms.ground.items():
-        check_value(AssurjaxError, f"{where}: ground point '{p}'", xy)
+        check(f"ground point '{p}'", xy)
     for name, link in mechanisms.links.items():
         for p, xy in link.points.items():
-            check_value(AssurjaxError, f"{where}: link '{name}': point '{p}'", xy)
-        check_value(AssurjaxError, f"{where}: link '{name}': com", link.com)
-        check_value(AssurjaxError, f"{where}: link '{name}': mass", link.mass, nonnegative=True)
-        check_value(AssurjaxError, f"{where}: link '{name}': inertia", link.inertia, nonnegative=True)
+            check(f"link '{name}': point '{p}'", xy)
+        check(f"link '{name}': com", link.com)
+        check(f"link '{name}': mass", link.mass, nonnegative=True)
+        check(f"link '{name}': inertia", link.inertia, nonnegative=True)
 
 
 def take(batch: Any, index) -> Any:

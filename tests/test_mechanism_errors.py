@@ -622,3 +622,19 @@ def test_python_constructors_name_the_part_at_fault(case):
     build, message = PYTHON_MISTAKES[case]
     with pytest.raises(MechanismError, match=message):
         build()
+
+
+def test_a_slot_through_the_cranks_pivot_is_a_mechanism():
+    # a rotating slotted crank: its guide's point G sits on the pivot O, and the slot's line still
+    # turns with the crank (the zero-length test of a crank's arms refused it): the block in it
+    # lies where the rod's circle about H meets the slot's line
+    links = {"slot": Link({"O": [0.0, 0.0], "G": [0.0, 0.0]}, com=[0.05, 0.0], mass=1.0, inertia=0.01),
+             "rod": Link({"H": [0.0, 0.0], "J": [0.15, 0.0]}, mass=0.5, inertia=0.005),
+             "block": Link({"J": [0.0, 0.0]}, mass=0.2, inertia=0.001)}
+    mech = Mechanism({"O": [0.0, 0.0], "H": [0.0, 0.1]}, links,
+                     [groups.Crank("c", ("slot",), "O"), groups.RRP("d", ("rod", "block"), ("H", "J"), "G", 1, jnp.array([1.0, 0.0]), 0.0)])
+    q = 0.3
+    u, h = np.array([np.cos(q), np.sin(q)]), np.array([0.0, 0.1])
+    pose = assurjax.positions(mech, q)
+    j = np.asarray(pose.points["J"])
+    assert abs(np.hypot(*(j - h)) - 0.15) < 1e-12 and abs(u[0] * j[1] - u[1] * j[0]) < 1e-12  # on the circle and the slot

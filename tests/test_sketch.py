@@ -246,6 +246,10 @@ def test_a_rectangular_plate_in_any_order_around_it_and_a_crossed_outline_refuse
     for order, edges in ((["B", "Q", "C", "P"], "edge B-Q meets edge C-P"), (["B", "C", "P", "Q"], "edge C-P meets edge Q-B")):
         with pytest.raises(MechanismError, match=f"link 'coupler': its joints .* cross themselves \\({edges}\\)"):
             coupler(order)
+    # four joints on one line: no order makes a plate of them (said so, not that they cross)
+    joints.update(Q=(0.3, 0.2), P=(0.4, 0.2))
+    with pytest.raises(MechanismError, match="link 'coupler': the plate outline .* has zero area \\(collinear joints\\)"):
+        coupler(["B", "C", "Q", "P"])
 
 
 def test_sketch_scene_simulates_and_gives_reactions(write_scene):
@@ -500,6 +504,8 @@ def test_a_drawing_at_the_cranks_limit_is_no_start_and_a_start_beside_it_locks_u
     assert abs(scene.state["q0"] - q_limit) < 1e-12
     with pytest.raises(assurjax.AssemblyError, match="group 'RRR1' \\(RRR\\) is exactly at a singular configuration at the start"):
         assurjax.simulate(scene, stop=None)
+    with pytest.raises(assurjax.AssemblyError, match="exactly at a singular configuration"):
+        assurjax.simulate(scene, stop=None, branch="tracked")  # it drifted by 0.33 J of 0.71
     inside = assurjax.simulate(scene, stop=None, q0=q_limit - 1e-6)
     assert int(inside.event) == 1 and inside.failed_group == "RRR1" and 0 < float(inside.t_final) < 0.3
     assert abs(float(inside.q_final) - q_limit) < 1e-8  # it reached the limit

@@ -228,7 +228,7 @@ def test_a_batch_of_mechanisms_is_checked_before_it_runs():
     # a NaN or negative mass set past the Mechanism's checks ran as a solver failure or to the step budget
     for bad, word in ((np.nan, "finite"), (-1.0, "non-negative")):
         member = eqx.tree_at(lambda m: m.links["rod"].mass, pair, jnp.asarray([1.0, bad]))
-        with pytest.raises(AssurjaxError, match=f"batch_simulate: link 'rod': mass must be {word}"):
+        with pytest.raises(AssurjaxError, match=f"batch_simulate: batch member 1: link 'rod': mass must be {word}"):
             assurjax.batch_simulate(scene, member, progress=False)
 
 

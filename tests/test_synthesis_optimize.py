@@ -315,7 +315,7 @@ def test_optimize_requests_and_starts_are_checked_by_name():
     with pytest.raises(AssurjaxError, match="optimize: starts must be from 1 to 10,000"):
         syn.optimize(design, objective, optax.adam, 10, starts=10**8, has_aux=True, options={"learning_rate": 1e-3})
     # each within its bound, together a history of 781 GiB allocated up front (a raw out-of-memory error)
-    with pytest.raises(AssurjaxError, match="optimize: 10000 starts x 1 stages x 1,000,000 steps of .* GiB"):
+    with pytest.raises(AssurjaxError, match="optimize: 10000 starts x 1 stages x 1,000,000 steps \\(1,048,576 history rows a stage\\) of .* GiB"):
         syn.optimize(design, objective, optax.adam, 10**6, starts=10**4, has_aux=True, options={"learning_rate": 1e-3})
     # a NaN learning rate or schedule stage ran to 'infeasible' or 'cannot assemble'; a vector loss failed in JAX's words
     with pytest.raises(AssurjaxError, match="optimize: option 'learning_rate' must be finite"):

@@ -63,7 +63,8 @@ class Link(eqx.Module):
 
 
 def _as_array(x):
-    if isinstance(x, (list, tuple)) and any(isinstance(v, (str, bool, list, tuple, dict)) for v in x):  # JAX reads "0.1" as 0.1
+    words = isinstance(x, (str, bool)) or (isinstance(x, (list, tuple)) and any(isinstance(v, (str, bool, list, tuple, dict)) for v in x))
+    if words:  # JAX reads "0.1" as 0.1 and True as 1.0
         raise MechanismError(f"Link: a point or value must hold numbers only, got {x!r}")
     return jnp.asarray(x, dtype=float) if isinstance(x, (int, float, list, tuple)) else x
 
@@ -186,7 +187,7 @@ class AbstractGroup(eqx.Module):
             else:
                 good = isinstance(names, tuple) and len(names) == count and all(isinstance(n, str) for n in names)
             if not good:
-                wanted = "a name (a string)" if count == 0 else f"a tuple of {count} names (strings)"
+                wanted = "a name (a string)" if count == 0 else f"a tuple of {count} name{'s' if count > 1 else ''} (strings)"
                 raise MechanismError(f"{self.describe()}: {field} must be {wanted}, got {names!r}")
 
     @abc.abstractmethod

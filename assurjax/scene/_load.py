@@ -34,7 +34,8 @@ def scene_path(path_or_name: str | Path) -> Path:
     """A scene file's path: an existing file, or the name of a bundled scene (also where a
     folder of that name is here: the command's output folder is named after the scene)."""
     path = Path(path_or_name)
-    bundled_too = path.is_dir() and (resources.files(BUNDLED) / f"{path_or_name}.toml").is_file()
+    bare = path.parts == (str(path_or_name),)  # a name, not a path ("roberts", not "./roberts")
+    bundled_too = bare and path.is_dir() and (resources.files(BUNDLED) / f"{path_or_name}.toml").is_file()
     if path.suffix == ".toml" or (path.exists() and not bundled_too):
         if not path.is_file():
             raise SceneError(f"{path}: " + ("a directory, not a scene file" if path.is_dir() else "no such scene file"))

@@ -128,6 +128,10 @@ def _crossing_edges(p: np.ndarray) -> tuple[int, int] | None:
 
 def _plate(name: str, rho: float, drawn: np.ndarray, joints=None):
     """Mass, centroidal polar inertia and centroid of a uniform polygon (outline in listed order)."""
+    p = drawn - drawn[0]
+    far = p[np.argmax(np.hypot(p[:, 0], p[:, 1]))]
+    if np.all(np.abs(p[:, 0] * far[1] - p[:, 1] * far[0]) <= SINGULAR * float(far @ far)):  # all on one line
+        raise MechanismError(f"link '{name}': the plate outline {list(map(str, drawn.round(6).tolist()))} has zero area (collinear joints): give mass and inertia instead")
     if (edges := _crossing_edges(drawn)) is not None:
         names = list(joints) if joints is not None else list(range(len(drawn)))
         (i, j), n = edges, len(drawn)

@@ -477,9 +477,9 @@ def _check_history_size(initial, stages: dict, capacity: int, steps: int) -> Non
     stage_count = next(iter(stages.values())).shape[0]
     needed = starts * stage_count * capacity * (2 * per_start + 4) * 8
     if needed > HISTORY_BYTES_LIMIT:
-        raise AssurjaxError(f"optimize: {starts} starts x {stage_count} stages x {steps:,} steps of {per_start} "
-                            f"parameters would need a history of {needed / 2**30:.3g} GiB (at most "
-                            f"{HISTORY_BYTES_LIMIT / 2**30:g}): fewer steps, starts or stages")
+        raise AssurjaxError(f"optimize: {starts} starts x {stage_count} stages x {steps:,} steps ({capacity:,} history "
+                            f"rows a stage) of {per_start} parameters would need a history of {needed / 2**30:.3g} GiB "
+                            f"(at most {HISTORY_BYTES_LIMIT / 2**30:g}): fewer steps, starts or stages")
 
 
 def _has_line_search(problem: _Problem, numeric: dict, initial) -> bool:

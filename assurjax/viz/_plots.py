@@ -113,13 +113,12 @@ def plot_energies(t, kinetic, potential, *, ax=None, work=None, dissipated=None)
     what friction and dampers took since t0) that too."""
     kinetic, potential = np.asarray(kinetic), np.asarray(potential)
     series = {"T (kinetic)": kinetic, "V (potential)": potential}
-    total = kinetic + potential - (0 if work is None else np.asarray(work))
-    series["E = T + V" if work is None else "T + V - W"] = total
+    balance = "E = T + V" if work is None else "T + V - W"
+    series[balance] = kinetic + potential - (0 if work is None else np.asarray(work))
     if dissipated is not None:
         series["dissipated (friction, dampers)"] = np.asarray(dissipated)
     # the balance dashed: where V = 0 it lies on T, which stays visible under it
-    balance = {"E = T + V" if work is None else "T + V - W": "--"}
-    return plot_against(t, series, xlabel="time t (s)", ylabel="energy (J)", ax=ax, title="energies", styles=balance)
+    return plot_against(t, series, xlabel="time t (s)", ylabel="energy (J)", ax=ax, title="energies", styles={balance: "--"})
 
 
 def plot_energy_drift(t, total, *, ax=None):
