@@ -762,12 +762,14 @@ def iterate_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sig
     ``tolerance``: the iteration's, see :func:`iteration_tolerance`."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     u0 = law(jnp.zeros(len(frictions)))
+    size = friction_size(u0)
     # up to SUMMED_TERMS elements the iterate as K scalars, not one (K,) array: XLA's loop
     # writes the array's entries one by one and copies it whole at the next step, a load the
     # CPU cannot take from those stores while they are in flight (the press's step 8.5-8.8 ->
     # 8.1-8.5 us, same results, though 3.2k instructions more: see docs/design-notes.md)
     split, join = (tuple, jnp.stack) if len(frictions) <= SUMMED_TERMS else (jnp.asarray, jnp.asarray)
-    fixed = optx.fixed_point(lambda u, _: split(law(join(u))), optx.FixedPointIteration(rtol=tolerance, atol=tolerance),
+    # atol in the friction's size (in N or N m, it let a press scaled to 1e-12 kg err by 2e-3 rad at any rtol)
+    fixed = optx.fixed_point(lambda u, _: split(law(join(u))), optx.FixedPointIteration(rtol=tolerance, atol=tolerance * size),
                              split(u0), max_steps=FIXED_POINT_STEPS, throw=False)
     value = join(fixed.value)
     converged = fixed.result == optx.RESULTS.successful
@@ -804,6 +806,13 @@ def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, sig
     return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
 
 
+def friction_size(u0):
+    """The scale (N or N m) the friction solves measure their tolerance by: the largest
+    friction value with no friction in the statics (law(0)); 1 where all are 0 (then u = 0)."""
+    size = jnp.max(jnp.abs(u0))
+    return jnp.where(size > 0, size, 1.0)
+
+
 def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
     """The friction law u -> law(u) of :func:`solve_friction` (``scale``: of its Coulomb terms)."""
     coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
@@ -830,6 +839,7 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     the program holds one Newton's method (two: first calls 35 % longer). Returns (u, ok)."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     viscous = _viscous(frictions, rates, omega)
+    size = friction_size(law(jnp.zeros(len(frictions))))
 
     def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
         moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], per_unit_acceleration(inertial[0]))
@@ -839,17 +849,19 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         def residual(u, _):
             return u - law(u, scale)
 
-        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=small_solver()), start,
+        # atol in the friction's size, as the iteration's
+        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12 * size, linear_solver=small_solver()), start,
                              max_steps=64, throw=False)
+        value = sol.value
         # Painleve's paradox: where the effective inertia is not positive the friction feeds the
         # reactions faster than inertia resists: no consistent motion has the assumed signs, the
         # mechanism jams (K x K Jacobians: a few forward passes of the linear law)
-        factors = plain_lu_factor(jax.jacfwd(residual)(sol.value, None))
+        factors = plain_lu_factor(jax.jacfwd(residual)(value, None))
         consistent = lu_determinant(factors) > 0
         if inertial is not None:  # and the statics alone not self-locked (see solve_friction)
-            along = jax.jvp(lambda s: law_along(sol.value, s, scale), (0.0,), (1.0,))[1]
+            along = jax.jvp(lambda s: law_along(value, s, scale), (0.0,), (1.0,))[1]
             consistent &= 1.0 + jnp.sum(inertial[1] * plain_lu_solve(factors, along)) > 0
-        return sol.value, (sol.result == optx.RESULTS.successful) & consistent
+        return value, (sol.result == optx.RESULTS.successful) & consistent
 
     n = CONTINUATION_STEPS
 

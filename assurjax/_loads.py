@@ -98,7 +98,10 @@ class Table(eqx.Module):
             if np.any(np.diff(points) < 0):
                 raise MechanismError(f"Table: x must be increasing (a repeated x is a jump; the interval search reads x "
                                      f"sorted), got {points.tolist()}")
-            if period is not None and points[-1] - points[0] > float(period):
+            # in x's own precision (float32: 2 pi rounds up past the period 2 pi given in float64)
+            own = np.dtype(self.x.dtype)
+            if period is not None and points[-1] - points[0] > (float(np.asarray(period, dtype=own))
+                                                                 + 4 * float(np.spacing(own.type(points[-1])))):
                 raise MechanismError(f"Table: the period {float(period):g} is shorter than the x range {points[-1] - points[0]:g}: "
                                      "a periodic table wraps x into [x[0], x[0] + period), so the values past it would never be read")
         self.variable, self.period = variable, period

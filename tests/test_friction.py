@@ -1379,3 +1379,64 @@ def test_the_break_away_band_at_a_dead_point_is_that_of_the_starts():
         assert np.sign(sol.q[-1]) == moves, (drive, sol.q)
         if not moves:
             assert np.all(sol.domega == 0.0) and np.all(sol.omega == 0.0)
+
+
+def _press_weighing(factor: float):
+    """The press with every mass, inertia and applied force times ``factor`` (the friction
+    radii as they are): by dynamic similarity its motion is the same."""
+    import copy
+    import pathlib
+    import tomllib
+
+    raw = tomllib.loads(pathlib.Path(aj.__file__).with_name("scenes").joinpath("press_with_friction.toml").read_text())
+    raw = copy.deepcopy(raw)
+    raw.pop("simulation", None)
+    for link in raw["links"].values():
+        link["mass"] *= factor
+        link["inertia"] *= factor
+    for load in raw["loads"]:
+        if load["type"] == "motor":
+            load["stall"] *= factor
+        if load["type"] == "force":
+            load["force"][0]["values"] = [factor * v for v in load["force"][0]["values"]]
+    return aj.scene_from_dict(raw)
+
+
+def test_a_press_a_trillion_times_lighter_moves_the_same():
+    # the friction solve's tolerance was absolute (N, N m): at 1e-12 of the masses and forces the
+    # press's angle erred by 1.9e-3 rad after 1 s, and no tolerance of the run brought it down
+    ts = np.linspace(0.0, 1.0, 41)
+    heavy = aj.simulate(_press_weighing(1.0), stop=None, t1=1.0, saveat=ts)
+    light = aj.simulate(_press_weighing(1e-12), stop=None, t1=1.0, saveat=ts)
+    assert heavy.successful and light.successful
+    np.testing.assert_allclose(light.q, heavy.q, rtol=0, atol=1e-5)  # the runs' own error: ~2e-7
+
+
+@pytest.mark.slow  # ~30 s: two programs at rtol 1e-13 and in float32
+def test_a_coulomb_switch_is_located_at_tight_tolerances_and_in_float32(tmp_path):
+    # the switch's bisection asked for 1e-16 s at t ~ 1 s (finer than the float spacing), and for
+    # 1e-12 s in float32: the runs stopped there, 'maximum number of steps ... nonlinear solver'
+    watt = aj.load_scene("watt_sixbar")
+    rough = tuple(aj.JointFriction(j, 0.15, radius=0.01) for j in ("O2", "A", "B", "O4", "C", "D", "E"))
+    tight = aj.simulate(watt, loads=rough, stop=None, t1=1.5, rtol=1e-13, atol=1e-13)
+    loose = aj.simulate(watt, loads=rough, stop=None, t1=1.5, rtol=1e-11, atol=1e-11)
+    assert tight.successful and abs(float(tight.q_final) - float(loose.q_final)) < 1e-8
+    script = tmp_path / "f32.py"
+    script.write_text(
+        "import assurjax as aj\n"
+        "sc = aj.load_scene('slider_crank')\n"
+        "rough = tuple(aj.JointFriction(j, 0.15, radius=0.01) for j in ('O', 'A', 'B'))\n"
+        "sol = aj.simulate(sc, loads=sc.loads + rough + (aj.Drive(5.0),), q0=0.0, t1=0.3, stop=None, rtol=1e-5, atol=1e-5)\n"
+        "print(sol.successful, float(sol.q_final))\n")
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "ASSURJAX_FLOAT32": "1", "JAX_ENABLE_X64": "0"}
+    out = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    ok, q32 = out.stdout.split()
+    sc = aj.load_scene("slider_crank")
+    rough3 = tuple(aj.JointFriction(j, 0.15, radius=0.01) for j in ("O", "A", "B"))
+    q64 = float(aj.simulate(sc, loads=sc.loads + rough3 + (aj.Drive(5.0),), q0=0.0, t1=0.3, stop=None, rtol=1e-10, atol=1e-10).q_final)
+    assert ok == "True" and abs(float(q32) - q64) < 1e-3  # float32 at 1e-5 against float64

@@ -79,8 +79,11 @@ def located_event(margin, settings: Settings) -> diffrax.Event:
     whichever side of the crossing it ends on, and the located time keeps its derivative
     (diffrax differentiates it implicitly, through the margin's slopes)."""
     tol = min(1e-3 * settings.rtol, 1e-12)
+    # relative to t no finer than a few of its float spacings: finer, the bisection could not end
+    # (at rtol 1e-13, or in float32, a run stopped where a pin's relative rate changed sign)
+    spacing = 4.0 * float(jnp.finfo(jnp.result_type(float)).eps)
     return diffrax.Event(lambda t, y, args, **kwargs: _SCALE * margin(t, y, args),
-                         optx.Bisection(rtol=tol, atol=tol, flip=True), direction=False)
+                         optx.Bisection(rtol=max(tol, spacing), atol=tol, flip=True), direction=False)
 
 
 def which_event(sol, settings: Settings, args: FieldArgs, last):

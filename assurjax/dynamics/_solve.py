@@ -20,14 +20,14 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._friction import frictions_of, smoothed_only, states_per_call
-from .._values import all_finite
-from ..groups._base import AbstractGroup
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
 from .._mechanism import Mechanism, positions
 from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
+from .._values import all_finite
+from ..groups._base import AbstractGroup
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
