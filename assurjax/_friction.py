@@ -807,10 +807,12 @@ def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, sig
 
 
 def friction_size(u0):
-    """The scale (N or N m) the friction solves measure their tolerance by: the largest
-    friction value with no friction in the statics (law(0)); 1 where all are 0 (then u = 0)."""
+    """The scale (N or N m) of the friction solves' absolute tolerance: the largest friction
+    value with no friction in the statics (law(0)) where it is below 1, else 1 (their
+    relative tolerance rules larger values, and results there stay as they were; 1 where
+    all are 0, then u = 0)."""
     size = jnp.max(jnp.abs(u0))
-    return jnp.where(size > 0, size, 1.0)
+    return jnp.where((size > 0) & (size < 1.0), size, 1.0)
 
 
 def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
