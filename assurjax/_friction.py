@@ -699,9 +699,8 @@ def _iterated_root(inputs):
 
 def _newton_root(inputs):
     mechanism, frictions, reactions, kin, rates, signs, omega, inertial, _ = inputs
-    law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
-    return _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
-                          law(jnp.zeros(len(frictions))))
+    u0 = _law(mechanism, frictions, reactions, kin, rates, signs, omega)(jnp.zeros(len(frictions)))
+    return _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, friction_size(u0))
 
 
 def _finished_root(inputs):
@@ -802,7 +801,7 @@ def finish_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sign
 @region
 def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, fixed: FixedPoint, inertial):
     u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
-                           jnp.where(fixed.converged, fixed.value, fixed.u0))
+                           jnp.where(fixed.converged, fixed.value, fixed.u0), friction_size(fixed.u0))
     return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
 
 
@@ -830,7 +829,7 @@ def _viscous(frictions, rates, omega):
     return jnp.stack([f.viscous for f in frictions]) * rates * omega
 
 
-def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0):
+def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, size):
     """Newton's method from u0 on the law of :func:`solve_friction`; where its root is not
     consistent, Newton's method again, continued in mu from 0 (where u = -viscous) in
     CONTINUATION_STEPS steps, each from the last root: the root on the branch of moderate
@@ -838,10 +837,10 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     land on one that is not consistent while this one is (a slider-crank, mu = 5 on a 5 mm
     block: a consistent root at dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with
     det(I - dlaw/du) < 0, which stopped the run as a jam). The attempts are one scan, so that
-    the program holds one Newton's method (two: first calls 35 % longer). Returns (u, ok)."""
+    the program holds one Newton's method (two: first calls 35 % longer). ``size``: the
+    tolerance's scale, :func:`friction_size`. Returns (u, ok)."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     viscous = _viscous(frictions, rates, omega)
-    size = friction_size(law(jnp.zeros(len(frictions))))
 
     def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
         moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], per_unit_acceleration(inertial[0]))

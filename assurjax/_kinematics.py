@@ -220,7 +220,8 @@ BRIDGE_WINDOW = 5e-3  # d0 (rad or m of q): rounding noise ~eps/d0^3 at the node
 def singular_distance(mechanism: Mechanism, coeffs: Coefficients) -> Array | None:
     """Distance in q (rad or m) to the nearest singular configuration of a group that
     declares one (``singularity``): |m| / |dm/dq| of its measure m; None if none does."""
-    measures = [g.singularity(coeffs.x[0], coeffs.dx[0]) for g in mechanism.groups]
+    (x, _, _, turn), (dx, _, _, dturn) = coeffs.x, coeffs.dx
+    measures = [g.singularity(x, dx, turn, dturn) for g in mechanism.groups]
     distances = [jnp.abs(m) / jnp.maximum(jnp.abs(dm), 1e-300) for m, dm in filter(None, measures)]
     return jnp.min(jnp.stack(distances)) if distances else None
 

@@ -164,17 +164,25 @@ def _check_kinds(links: dict, groups: tuple) -> None:
             raise MechanismError(f"groups: expected Assur groups (assurjax.groups.RRR, ...), got {type(g).__name__}")
 
 
+def value_fields(mech: Mechanism):
+    """(what, value, its shape, its ranges) of each number a mechanism's user gives: its points,
+    and its links' centres of mass, masses and inertias (read by :func:`_check_values`, and
+    member by member for a batch by ``_sweep.check_batch_values``)."""
+    for p, xy in mech.ground.items():
+        yield f"ground point '{p}'", xy, (2,), {}
+    for name, link in mech.links.items():
+        for p, xy in link.points.items():
+            yield f"link '{name}': point '{p}'", xy, (2,), {}
+        yield f"link '{name}': com", link.com, (2,), {}
+        yield f"link '{name}': mass", link.mass, (), {"nonnegative": True}
+        yield f"link '{name}': inertia", link.inertia, (), {"nonnegative": True}
+
+
 def _check_values(mech: Mechanism) -> None:
     """Finite values of sane magnitude (the scene loader's words), non-negative masses and
     inertias, non-zero lengths and guide directions; tracers are checked where they are concrete."""
-    for p, xy in mech.ground.items():
-        check_value(MechanismError, f"ground point '{p}'", xy, shape=(2,))
-    for name, link in mech.links.items():
-        for p, xy in link.points.items():
-            check_value(MechanismError, f"link '{name}': point '{p}'", xy, shape=(2,))
-        check_value(MechanismError, f"link '{name}': com", link.com, shape=(2,))
-        check_value(MechanismError, f"link '{name}': mass", link.mass, shape=(), nonnegative=True)
-        check_value(MechanismError, f"link '{name}': inertia", link.inertia, shape=(), nonnegative=True)
+    for what, value, shape, ranges in value_fields(mech):
+        check_value(MechanismError, what, value, shape=shape, **ranges)
     links = mech.all_links()
     for g in mech.groups:
         for link, needed in g.required_points().items():

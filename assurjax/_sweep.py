@@ -38,7 +38,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ._errors import AssurjaxError
 from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
-from ._mechanism import Mechanism
+from ._mechanism import Mechanism, value_fields
 from ._model import Model, check_has_inertia
 from ._values import check_values, value_problem
 
@@ -93,14 +93,8 @@ def check_batch_values(mechanisms: Mechanism, where: str) -> None:
         member = next(i for i in range(np.shape(x)[0]) if value_problem(np.asarray(x)[i], **ranges) is not None)
         raise AssurjaxError(f"{where}: batch member {member}: {what} {value_problem(np.asarray(x)[member], **ranges)}")
 
-    for p, xy in mechanisms.ground.items():
-        check(f"ground point '{p}'", xy)
-    for name, link in mechanisms.links.items():
-        for p, xy in link.points.items():
-            check(f"link '{name}': point '{p}'", xy)
-        check(f"link '{name}': com", link.com)
-        check(f"link '{name}': mass", link.mass, nonnegative=True)
-        check(f"link '{name}': inertia", link.inertia, nonnegative=True)
+    for what, value, _, ranges in value_fields(mechanisms):  # the shapes carry the batch's axis
+        check(what, value, **ranges)
 
 
 def take(batch: Any, index) -> Any:

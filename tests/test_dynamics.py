@@ -213,6 +213,69 @@ def test_lockup_is_located_by_rejected_steps(dt):
     assert np.all(sol.q >= -LIMIT) and np.all(np.diff(sol.q) <= 0.0)
 
 
+def long_crank_slider(kind: str):
+    """The bundled slider-crank with a 0.32 m crank on its 0.3 m rod: the crank cannot turn
+    past sin q = 0.3 / 0.32, where the rod stands square to the guide. ``kind``: its dyad
+    listed as RRP or PRR."""
+    import tomllib
+    from importlib import resources
+
+    d = tomllib.loads(resources.files("assurjax.scenes").joinpath("slider_crank.toml").read_text()
+                      .replace("A = [0.1, 0.0] }", "A = [0.32, 0.0] }"))
+    if kind == "PRR":
+        dyad = d["formation"][1]
+        dyad.update(group="PRR", links=dyad["links"][::-1], joints=dyad["joints"][::-1])
+    return aj.scene_from_dict(d)
+
+
+def inverted_slider_crank(mode: int):
+    """An RPR dyad on a 0.2 m crank about O: its block pinned at the crank's A slides on a
+    guide link pinned at C = (0.3, 0), the guide passing 0.15 m from A. It closes while
+    |A C| >= 0.15: |A C|^2 = 0.13 - 0.12 cos q, so q >= acos(0.1075 / 0.12)."""
+    bar = _bar("C", "D", 0.4, 1.0)
+    return aj.scene_from_dict(dict(
+        scene=dict(name="inverted", gravity=[0.0, -9.81]),
+        ground=dict(O=[0.0, 0.0], C=[0.3, 0.0]),
+        links=dict(crank=_bar("O", "A", 0.2, 0.5), block=dict(points=dict(A=[0.0, 0.0]), com=[0.0, 0.0], mass=0.3,
+                                                               inertia=1e-4), guide=bar),
+        formation=[dict(group="crank", name="crank", link="crank", pivot="O"),
+                   dict(group="RPR", name="inverted", links=["block", "guide"], joints=["A", "C"],
+                        direction=[1.0, 0.0], offset=0.15, mode=mode)],
+        state=dict(q0=1.0)))
+
+
+SLIDER_LIMITS = [(lambda: long_crank_slider("RRP"), np.arcsin(0.3 / 0.32), -1.0, "RRP"),
+                 (lambda: long_crank_slider("PRR"), np.arcsin(0.3 / 0.32), -1.0, "PRR"),
+                 (lambda: inverted_slider_crank(1), np.arccos(0.1075 / 0.12), 1.0, "RPR"),
+                 (lambda: inverted_slider_crank(-1), np.arccos(0.1075 / 0.12), 1.0, "RPR")]
+
+
+@pytest.mark.parametrize("build, q_limit, inside, kind", SLIDER_LIMITS)
+def test_a_start_exactly_at_a_slider_dyads_limit_is_refused(build, q_limit, inside, kind):
+    """The slider dyads' limits (closed forms above) declare a singularity measure: a start
+    exactly there is refused, naming the group (the slider-crank started there from rest ran
+    on with its energy balance off by half its kinetic energy); 1e-6 inside it is a motion.
+    The measure crosses zero at the closed-form limit and its derivative is its own
+    q-derivative (central differences)."""
+    scene = build()
+    group = scene.mechanism.groups[1]
+    with pytest.raises(aj.AssemblyError, match=f"group '{group.name}' \\({kind}\\) is exactly at a singular configuration"):
+        aj.simulate(scene, q0=q_limit, stop=None, t1=0.1)
+    sol = aj.simulate(scene, q0=q_limit + inside * 1e-6, stop=None, t1=0.1)
+    assert np.isfinite(sol.q_final)
+
+    def measure(q):
+        c = aj.coefficients(scene.mechanism, q, order=1)
+        (x, _, _, turn), (dx, _, _, dturn) = c.x, c.dx
+        return (float(v) for v in group.singularity(x, dx, turn, dturn))
+
+    m, dm = measure(q_limit + inside * 1e-3)
+    h = 1e-6
+    fd = (next(measure(q_limit + inside * 1e-3 + h)) - next(measure(q_limit + inside * 1e-3 - h))) / (2 * h)
+    assert abs(dm - fd) < 1e-6 * abs(dm) and abs(m) > 1e-3
+    assert abs(next(measure(q_limit))) < 1e-9
+
+
 def test_lockup_in_a_batch_stops_each_member_at_its_limit():
     """Vmapped runs, each closing in on a lock-up of its own (both limits), as run alone (the
     time of arrival is ill-conditioned: q approaches the limit quadratically in t)."""

@@ -233,8 +233,8 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
                             "group, a better 'guess' of its inner joints)", group=group)
     if code == START_SINGULAR:
         raise AssemblyError(f"{mechanism.groups[failed].describe()} is exactly at a singular configuration at the start "
-                            f"q0 = {float(sol.q[0]):.6g} (stretched or folded: a limit position of the driver, or where two "
-                            "branches cross), where the driving coordinate does not carry the motion: give a q0 inside "
+                            f"q0 = {float(sol.q[0]):.6g} ({mechanism.groups[failed].singular_configuration}: a limit position "
+                            "of the driver, or where two branches cross), where the driving coordinate does not carry the motion: give a q0 inside "
                             "the driver's range (a drawing made there gives this q0)", group=group)
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None

@@ -104,9 +104,7 @@ def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, tab
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     sol, branch, checks = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
     if settings.check_assembly and not _tabulated(settings):
-        sol = _checked_regular_start(sol, model.mechanism, q0)
-    if checks is None and settings.check_assembly and not _tabulated(settings):
-        sol = _checked_start(sol, assembled(model.mechanism, q0))
+        sol = _checked_starts(sol, model.mechanism, q0, assembly=checks is None)
     # no weakly typed values: the outputs' program is compiled ahead for these types (compile_side_by_side)
     return jax.tree.map(lambda x: jnp.asarray(x, dtype=x.dtype), (sol, branch, checks))
 
@@ -135,6 +133,19 @@ def _finished(model: Model, sol: Solution, branch, checks: EndChecks | None, set
     return _checked_start(ended, ok[2])
 
 
+def _checked_starts(sol: Solution, mechanism, q0, *, assembly: bool) -> Solution:
+    """The start checked to be regular (:func:`_checked_regular_start`) and, with ``assembly``
+    (where no end check covers the start, see :func:`_finished`), assembled: one position
+    analysis for both."""
+    singular = _singular_groups(mechanism)
+    if not (singular or assembly):
+        return sol
+    start = positions(mechanism, q0)
+    if singular:
+        sol = _checked_regular_start(sol, mechanism, singular, start)
+    return _checked_start(sol, start.ok) if assembly else sol
+
+
 def _checked_start(sol: Solution, ok_start) -> Solution:
     """A start where some group cannot assemble (``ok_start``: per group) is no motion at
     all: say so, whatever the solver did."""
@@ -147,20 +158,23 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
 START_SINGULAR_SINE = 1e-9  # |sin| of a closed form's singular angle below which it sits on its square root's clamp
 
 
-def _checked_regular_start(sol: Solution, mechanism, q0) -> Solution:
+def _singular_groups(mechanism) -> list[int]:
+    """The groups that declare a singularity measure (see :func:`_checked_regular_start`)."""
+    return [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
+
+
+def _checked_regular_start(sol: Solution, mechanism, declared, pose) -> Solution:
     """A start exactly at a singular configuration of a group that declares one (the sine
-    of its ``singularity`` measure below START_SINGULAR_SINE; so far the RRR dyad: the
-    square root of its height is clamped there, which keeps its derivatives finite, and
-    they are not the motion's: a four-bar drawn at its crank's limit swung off it gaining
-    2 % of its energy) is no motion: say so. Within ~1e-14 rad of such a point; 1e-12 rad
-    away the measure is ~1e-6 and the coefficients are the motion's. The other closed forms
-    declare no measure yet (their exact limits are not caught: design notes)."""
-    declared = [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
-    if not declared:
-        return sol
-    points = positions(mechanism, q0).points
-    zeros = {name: jnp.zeros(2) for name in points}
-    sines = jnp.stack([jnp.abs(mechanism.groups[i].singularity(points, zeros)[0]) for i in declared])
+    of its ``singularity`` measure below START_SINGULAR_SINE; the RRR, RRP/PRR and RPR dyads:
+    the square root of their closed form is clamped there, which keeps its derivatives
+    finite, and they are not the motion's: a four-bar drawn at its crank's limit swung off
+    it gaining 2 % of its energy) is no motion: say so. ``declared``: the groups that declare
+    a measure (:func:`_singular_groups`); ``pose``: the start's. Within ~1e-14 rad of such a
+    point; 1e-12 rad away the measure is ~1e-6 and the coefficients are the motion's."""
+    turn = {name: jnp.stack([jnp.cos(a), jnp.sin(a)]) for name, a in pose.angles.items()}
+    zeros = lambda named: {name: jnp.zeros(2) for name in named}  # noqa: E731 (no rates needed)
+    sines = jnp.stack([jnp.abs(mechanism.groups[i].singularity(pose.points, zeros(pose.points), turn, zeros(turn))[0])
+                       for i in declared])
     at = sines <= START_SINGULAR_SINE
     first = jnp.asarray(declared)[jnp.argmax(at)]
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,

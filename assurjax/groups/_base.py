@@ -212,11 +212,14 @@ class AbstractGroup(eqx.Module):
         of the pair; direction in its link's frame; offset to the left, m) of each guide."""
         return ()
 
-    def singularity(self, x: dict, dx: dict) -> tuple[Array, Array] | None:
+    singular_configuration = ""  # where ``singularity`` is zero, in words (e.g. "stretched or folded")
+
+    def singularity(self, x: dict, dx: dict, turn: dict, dturn: dict) -> tuple[Array, Array] | None:
         """A scale-free measure that crosses zero at this group's singular configurations
         and its q-derivative, from the global points ``x`` and their coefficients ``dx``
-        (dx/dq); None when the kind declares none (then it is never bridged; see
-        :func:`assurjax.bridged_coefficients`)."""
+        (dx/dq), and the links' rotations ``turn`` ((cos, sin) by link name) and theirs
+        ``dturn``; None when the kind declares none (then it is never bridged, see
+        :func:`assurjax.bridged_coefficients`, nor its exact limit refused as a start)."""
         return None
 
     def describe(self) -> str:

@@ -27,6 +27,7 @@ class RPR(AbstractGroup):
     name_fields = {"links": 2, "joints": 2}
     two_modes = True
     n_prismatic = 1  # block on the guide link
+    singular_configuration = "the guide square to the line through its two pins"
 
     def __check_init__(self):
         check_mode(self)
@@ -43,6 +44,16 @@ class RPR(AbstractGroup):
     def required_points(self):
         e1, e2 = self.joints
         return {self.links[0]: (e1,), self.links[1]: (e2,)}
+
+    def singularity(self, x: dict, dx: dict, turn: dict, dturn: dict):
+        """The cosine of the angle between E2 -> E1 and the guide (signed, along it): zero
+        where E1 is at the foot of the guide's normal through it, |E1 E2| = |offset|, a
+        limit position."""
+        (e1, e2), block = self.joints, self.links[0]
+        d, dd, u, du = x[e1] - x[e2], dx[e1] - dx[e2], turn[block], dturn[block]  # u: along the guide
+        scale = 1.0 / jnp.sqrt(d.dot(d))
+        along = d.dot(u) * scale
+        return along, (dd.dot(u) + d.dot(du)) * scale - along * d.dot(dd) * scale**2
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (block, guide), (e1, e2) = self.links, self.joints

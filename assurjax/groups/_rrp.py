@@ -4,6 +4,7 @@ carried by an earlier link. RRP lists the revolute end first, PRR the prismatic
 end first; the geometry is the same."""
 
 import equinox as eqx
+import jax.numpy as jnp
 from jaxtyping import Array
 
 from ._base import AbstractGroup, as_mode, check_mode, Link, Placement, distance, frame_from_rotation_xy, frame_through_xy
@@ -29,6 +30,7 @@ class RRP(AbstractGroup):
     name_fields = {"links": 2, "joints": 2, "guide_point": 0}
     two_modes = True
     n_prismatic = 1
+    singular_configuration = "the rod square to the guide"
 
     def __check_init__(self):
         check_mode(self)
@@ -45,6 +47,18 @@ class RRP(AbstractGroup):
     def required_points(self):
         e, j = self.joints
         return {self.links[0]: (e, j), self.links[1]: (j,)}
+
+    def _rod_and_slider(self):
+        """(E, J, the slider link)."""
+        return (*self.joints, self.links[1])
+
+    def singularity(self, x: dict, dx: dict, turn: dict, dturn: dict):
+        """The cosine of the rod's angle with the guide (signed, along the guide): zero where
+        the rod stands square to it, a limit position (the rod's length is constant)."""
+        e, j, slider = self._rod_and_slider()
+        rod, drod, u, du = x[j] - x[e], dx[j] - dx[e], turn[slider], dturn[slider]  # u: along the guide
+        scale = 1.0 / jnp.sqrt(rod.dot(rod))
+        return rod.dot(u) * scale, (drod.dot(u) + rod.dot(du)) * scale
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         (rod, slider), (e, j) = self.links, self.joints
@@ -73,6 +87,9 @@ class PRR(RRP):
     def required_points(self):
         j, e = self.joints
         return {self.links[0]: (j,), self.links[1]: (e, j)}
+
+    def _rod_and_slider(self):
+        return (*self.joints[::-1], self.links[0])
 
     def solve(self, links: dict[str, Link], placed: Placement, q: Array):
         mirrored = RRP(self.name, self.links[::-1], self.joints[::-1], self.guide_point, self.mode, self.direction, self.offset)

@@ -36,6 +36,7 @@ class RRR(AbstractGroup):
     kind = "RRR"
     name_fields = {"links": 2, "joints": 3}
     two_modes = True
+    singular_configuration = "stretched or folded"
 
     def __check_init__(self):
         check_mode(self)
@@ -47,7 +48,7 @@ class RRR(AbstractGroup):
         e1, e2, j = self.joints
         return {self.links[0]: (e1, j), self.links[1]: (e2, j)}
 
-    def singularity(self, x: dict, dx: dict):
+    def singularity(self, x: dict, dx: dict, turn: dict, dturn: dict):
         """The sine of the angle at J (signed): zero when the dyad is stretched or folded,
         or its external joints coincide (the link lengths are constant, so only the
         cross product varies)."""
