@@ -276,6 +276,72 @@ def test_a_start_exactly_at_a_slider_dyads_limit_is_refused(build, q_limit, insi
     assert abs(next(measure(q_limit))) < 1e-9
 
 
+def thrown_slider_crank():
+    """A slider-crank drawn with a 0.3 m crank on a 0.2 m rod, no gravity: thrown, it runs
+    into the limit sin q* = 0.2 / 0.3 where the rod stands square to the guide; and its
+    reduced inertia by hand (J(q), kg m^2)."""
+    r, rod = 0.3, 0.2
+    sketch = aj.Sketch(joints={"O": (0.0, 0.0), "A": (r, 0.0), "B": (r + rod, 0.0)},
+                       links={"crank": {"joints": ["O", "A"], "mass": 0.5, "inertia": 0.004},
+                              "rod": {"joints": ["A", "B"], "mass": 0.4, "inertia": 0.002},
+                              "slider": {"joints": ["B"], "mass": 1.0, "inertia": 0.0}},
+                       ground=["O"], driver="crank", slides=[aj.Slide("slider", "ground", (1.0, 0.0))])
+
+    def inertia(q):  # crank about O, the rod's centre and turn, the slider's travel
+        s, c = np.sin(q), np.cos(q)
+        root = np.sqrt(rod**2 - (r * s) ** 2)
+        db = -r * s - r * r * s * c / root
+        dg = np.array([-r * s + db, r * c]) / 2
+        return 0.004 + 0.5 * (r / 2) ** 2 + 0.002 * (r * c / root) ** 2 + 0.4 * dg @ dg + db**2
+
+    return sketch.scene(gravity=(0.0, 0.0)), np.arcsin(rod / r), inertia
+
+
+@pytest.mark.parametrize("omega0", [4.4, 4.8, 5.2])
+def test_a_step_that_turns_the_driver_at_a_limit_is_a_lock_up(omega0):
+    """Near a limit q* the motion approaches as q* - k (t* - t)^2, smooth in t: a step whose
+    stages all stayed short of q* passed the error test and turned w round on the same
+    branch ('reached t1', 98 % of the energy gone: w0 = 4.8 and 5.2 rad/s by default, 4.4 with
+    the tests' XLA flags, and 1-11 % of the starts of scans on other mechanisms). Such a step is
+    rejected: the run locks up at q* at the time of the energy quadrature
+    t* = int_0^q* sqrt(J(q) / (J(0) w0^2)) dq (J by hand)."""
+    from scipy.integrate import quad
+
+    scene, q_limit, inertia = thrown_slider_crank()
+    sol = aj.simulate(scene, q0=0.0, omega0=omega0, stop=None, t1=3.0)
+    assert sol.event == LOCKUP and sol.failed_group == scene.mechanism.groups[1].name
+    assert abs(float(sol.q_final) - q_limit) < 1e-8
+    t_limit = quad(lambda q: np.sqrt(inertia(q) / (inertia(0.0) * omega0**2)), 0.0, q_limit, limit=200)[0]
+    assert abs(float(sol.t_final) - t_limit) < 1e-5
+
+
+def test_constant_steps_that_turn_the_driver_at_a_limit_lock_up():
+    """Constant steps into a limit: a four-bar (crank 0.3, coupler 0.25, rocker 0.2, ground
+    0.4) thrown at 2 rad/s with dt = 0.01 s turned w round short of its limit ('reached t1',
+    99.6 % of the energy gone), 0.015 s reported the other limit; the triple rocker with
+    dt = 0.02 s ended at q = -2e28 beside a lock-up status. A turning step at a limit is
+    halved as a step that met NaN: each run ends at the limit it runs into (closed forms),
+    as a lock-up or, where the constant steps' last stages near it gave no sane velocity
+    (it depends on round-off: XLA's scheduler flags change which), saying the motion was
+    not resolved; never turned round ('reached t1')."""
+    a, b, c, d = 0.4, 0.3, 0.25, 0.2
+    u = (a - b) / (a - b)  # the crank along the ground line at q = 0: C over B D
+    along = ((a - b) ** 2 + c * c - d * d) / (2 * (a - b))
+    cx, cy = b + along * u, np.sqrt(c * c - along**2)
+    scene = aj.Sketch(joints={"A": (0.0, 0.0), "B": (b, 0.0), "C": (cx, cy), "D": (a, 0.0)},
+                      links={"crank": {"joints": ["A", "B"], "mass": 0.3, "inertia": 0.003},
+                             "coupler": {"joints": ["B", "C"], "mass": 0.25, "inertia": 0.002},
+                             "rocker": {"joints": ["D", "C"], "mass": 0.2, "inertia": 0.001}},
+                      ground=["A", "D"], driver="crank").scene(gravity=(0.0, 0.0))
+    q_limit = np.arccos((a * a + b * b - (c + d) ** 2) / (2 * a * b))  # coupler and rocker in line
+    rocker = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    runs = [(scene, 0.0, 2.0, dt, q_limit) for dt in (0.01, 0.012, 0.015)] + [(rocker, 0.9, -6.0, 0.02, -LIMIT)]
+    for case, q0, omega0, dt, limit in runs:
+        sol = aj.simulate(case, q0=q0, omega0=omega0, stop=None, t1=3.0, dt=dt)
+        assert sol.event == LOCKUP or "the motion was not resolved" in sol.status
+        assert abs(float(sol.q_final) - limit) < 1e-7
+
+
 def test_lockup_in_a_batch_stops_each_member_at_its_limit():
     """Vmapped runs, each closing in on a lock-up of its own (both limits), as run alone (the
     time of arrival is ill-conditioned: q approaches the limit quadratically in t)."""
@@ -461,6 +527,9 @@ def test_unassemblable_start_raises_naming_the_group(write_scene):
     group = roberts.mechanism.groups[int(np.argmin(ok[bad[0]]))].name
     with pytest.raises(aj.AssemblyError, match=f"group '{group}'"):
         aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05)
+    # with every step saved no row holds the start: the message named q0 = inf
+    with pytest.raises(aj.AssemblyError, match=f"cannot assemble at the start q0 = {float(qs[bad[0]]):.6g}:"):
+        aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05, save_steps=True)
 
 
 def test_point_and_link_rates_along_a_simulation(watt):

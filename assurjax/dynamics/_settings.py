@@ -14,10 +14,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import equinox.internal as eqxi
 import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
+from .._positions import assembled
 from .._values import MAGNITUDE_LIMIT, all_finite, concrete, found_words, value_problem
 from ._packed import UNPACKED, Packing
 from ._table import DEFAULT_TABLE_NODES
@@ -365,16 +367,17 @@ def controller_for(settings: Settings, norm=None) -> diffrax.AbstractStepSizeCon
                                  **kwargs)
 
 
-def lockup_controller(settings: Settings, packing: Packing = UNPACKED) -> diffrax.AbstractStepSizeController:
+def lockup_controller(settings: Settings, packing: Packing = UNPACKED, rebuild=None) -> diffrax.AbstractStepSizeController:
     """The step-size controller of :func:`controller_for` for the reduced link's state
     when its vector field may turn NaN (where a group cannot assemble, a friction jam, a
     load): it rejects the steps that meet NaN and closes in on where it starts
     (:class:`LockupController`, :class:`ConstantStepsUntilLockup`). ``packing``: how
-    diffrax gets the state (:class:`Packing`; by default as it is)."""
+    diffrax gets the state (:class:`Packing`; by default as it is); ``rebuild``: what
+    rebuilds the field's arguments from diffrax's args (None: they are the arguments)."""
     if not adaptive(settings):
-        return ConstantStepsUntilLockup(packing=packing)
+        return ConstantStepsUntilLockup(packing=packing, rebuild=rebuild)
     return LockupController(rtol=settings.rtol, atol=settings.atol, safety=CONTROLLER_SAFETY, dtmax=settings.max_step,
-                            norm=FiniteNorm(packing), packing=packing)
+                            norm=FiniteNorm(packing), packing=packing, rebuild=rebuild)
 
 
 def _met_unassembled(y1_candidate, y_error):
@@ -382,6 +385,35 @@ def _met_unassembled(y1_candidate, y_error):
     them all, the last one at the step's end included). Any state: the backward solve of
     ``adjoint='backsolve'`` steps an augmented one with these controllers too."""
     return ~all_finite((y1_candidate, y_error))
+
+
+def _turned_at_a_limit(t0, t1, y0, y1_candidate, args, rebuild):
+    """True where a step turned the driver (w changed sign) on a fixed branch with a limit
+    position within the step's reach beyond the turn: a group fails to assemble at the
+    turn's q (w taken linear over the step) moved on by the step's travel to and from it.
+    Near a limit q* the motion approaches as q* - k (t* - t)^2, smooth in t: a step whose
+    stages all stayed short of q* passed the error test, turned w round on the same branch
+    and lost most of the energy (a slider-crank thrown into its limit ran on, 'reached t1',
+    98 % of its kinetic energy gone, in 1-11 % of the starts of a scan). Such a step is
+    rejected, and the shorter ones that follow close in on the lock-up as the steps that
+    met NaN do; a turn short of the limit by more than the step's reach stands. One
+    position analysis at a turn; none on a tracked branch (it goes through the limit).
+    ``rebuild``: see :func:`lockup_controller`."""
+    if not hasattr(y0, "omega") or getattr(y0, "branch", None) is not None:
+        return jnp.asarray(False)
+    args = args if rebuild is None else rebuild(args)
+    if not getattr(args, "nan_unassembled", False):
+        return jnp.asarray(False)
+    w0, w1 = y0.omega, y1_candidate.omega
+    turned = w0 * w1 < 0
+    h = t1 - t0
+    peak = y0.q + 0.5 * w0 * h * w0 / jnp.where(turned, w0 - w1, 1.0)
+    reach = jnp.abs(peak - y0.q) + jnp.abs(peak - y1_candidate.q)
+
+    def short_of_a_limit():
+        return ~jnp.all(assembled(args.model.mechanism, peak + jnp.sign(w0) * reach))
+
+    return turned & jax.lax.cond(eqxi.unvmap_any(turned), short_of_a_limit, lambda: jnp.zeros_like(turned))
 
 
 REST_RESOLUTION = 1e-10  # s per s of t: the shortest step from rest (w = 0) that closes in on a lock-up
@@ -426,6 +458,7 @@ class LockupController(diffrax.PIDController):
     any accepted step: ``_stick`` reads that as held."""
 
     packing: Packing = UNPACKED
+    rebuild: object = None  # see lockup_controller
 
     def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
         next_t1, state = super().init(terms, t0, t1, y0, dt0, args, func, error_order)
@@ -437,10 +470,14 @@ class LockupController(diffrax.PIDController):
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
         packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
-        located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error))
+        turned = keep & _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild)
+        located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error) | turned)
         held = _held_at_rest(y0, y1_candidate)
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
-        kept = keep & ~held
+        kept = keep & ~held & ~turned
+        # a turn at a limit: this step again, halved, the controller's state as it was
+        next_t0, next_t1 = jnp.where(turned, t0, next_t0), jnp.where(turned, t0 + 0.5 * (t1 - t0), next_t1)
+        state = jax.tree.map(lambda new, old: jnp.where(turned, old, new), state, controller_state)
         return (kept, next_t0, next_t1, jump, (state, last.after(kept, t1, packed_y1)),
                 diffrax.RESULTS.where(result == diffrax.RESULTS.successful, located, result))
 
@@ -460,6 +497,7 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
     times below dt0."""
 
     packing: Packing = UNPACKED
+    rebuild: object = None  # see lockup_controller
 
     def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
         next_t1, state = super().init(terms, t0, t1, y0, dt0, args, func, error_order)
@@ -472,6 +510,7 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         met = _met_unassembled(y1_candidate, y_error)
+        met = met | (~met & _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild))  # halved as a NaN step
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
         on_grid = t1 >= grid_here

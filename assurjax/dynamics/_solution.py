@@ -220,22 +220,23 @@ SAVED_FIELDS = ("t", "q", "omega", "domega", "kinetic", "potential", "total", "d
                 "angular_velocities", "angular_accelerations")
 
 
-def trim(sol: Solution, mechanism: Mechanism, settings: Settings) -> Solution:
-    """Keep only the saved times reached, and turn codes into readable fields."""
+def trim(sol: Solution, mechanism: Mechanism, settings: Settings, q0) -> Solution:
+    """Keep only the saved times reached, and turn codes into readable fields. ``q0``: the
+    start (a start that is no motion names it; with save_steps no row is saved then)."""
     # On the host, in one transfer: slicing device arrays to a new length n would
     # compile per n. The trimmed Solution holds NumPy arrays.
     sol = to_host(sol)
     event, failed, code = int(sol.event), int(sol.failed_group_index), int(result_code(sol.result))
     group = mechanism.groups[failed].name if failed >= 0 else None
     if code == START_NOT_ASSEMBLED:
-        raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(sol.q[0]):.6g}: "
+        raise AssemblyError(f"{mechanism.groups[failed].describe()} cannot assemble at the start q0 = {float(q0):.6g}: "
                             "choose a starting driving coordinate where the mechanism closes (or, for a triad or class-IV "
                             "group, a better 'guess' of its inner joints)", group=group)
     if code == START_SINGULAR:
         raise AssemblyError(f"{mechanism.groups[failed].describe()} is exactly at a singular configuration at the start "
-                            f"q0 = {float(sol.q[0]):.6g} ({mechanism.groups[failed].singular_configuration}: a limit position "
-                            "of the driver, or where two branches cross), where the driving coordinate does not carry the motion: give a q0 inside "
-                            "the driver's range (a drawing made there gives this q0)", group=group)
+                            f"q0 = {float(q0):.6g} ({mechanism.groups[failed].singular_configuration}: a limit position "
+                            "of the driver, or where two branches cross), where the driving coordinate does not carry the "
+                            "motion: give a q0 inside the driver's range (a drawing made there gives this q0)", group=group)
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
     status = status_text(code, event, group, t_final, max_steps=settings.max_steps)

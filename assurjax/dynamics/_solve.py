@@ -215,7 +215,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         args=leaves,
         # with an event, the last accepted step's end (see _last_accepted_unless_event)
         saveat=diffrax.SaveAt(ts=ts, t1=True, steps=settings.save_steps, controller_state=event is not None),
-        stepsize_controller=lockup_controller(settings, packing),
+        stepsize_controller=lockup_controller(settings, packing, rebuild),
         event=packed_event(packing, event, rebuild),
         max_steps=settings.max_steps,
         adjoint=adjoint_for(settings),
@@ -439,7 +439,9 @@ def simulate(
     joint friction; pass 1e-10 or tighter for reference-quality runs; with joint
     friction the friction is solved at each right-hand side to 1e-2 of the tighter of the
     two, not below 1e-12), ``dt`` (a
-    fixed step, s), ``max_step`` (the longest adaptive step, s; default: no limit -- set it
+    fixed step, s; without error control the steps that close in on a lock-up find its
+    position, and its time and final velocity only as well as they resolve the singular
+    motion there: prefer the adaptive steps near limits), ``max_step`` (the longest adaptive step, s; default: no limit -- set it
     where a load varies in time faster than the motion shows, e.g. a short pulse on a
     mechanism held at rest by friction, which longer steps could pass over),
     ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per doubling of the
@@ -553,7 +555,7 @@ def simulate(
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
         sol = prepared.run(args, batch)
     if batch is None:
-        sol = with_jam_status(trim(sol, model.mechanism, settings), model)
+        sol = with_jam_status(trim(sol, model.mechanism, settings, q0), model)
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol
