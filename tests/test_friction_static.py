@@ -169,3 +169,35 @@ def test_derivative_in_the_static_coefficient_and_a_batch(write_scene):
         one = aj.simulate(swing, omega0=w0, stop=None, rtol=1e-10, atol=1e-10)
         assert one.omega[-1] == 0.0 and batch.omega[k][-1] == 0.0
         np.testing.assert_allclose(batch.q[k], one.q, rtol=0, atol=1e-9)
+
+
+BAND_SCRIPT = """
+import json, numpy as np, assurjax as aj
+sc = aj.load_scene("slider_crank")
+rough = tuple(aj.JointFriction(j, 0.2, radius=0.01) for j in ("O", "A", "B")) + (aj.SlideFriction("slider/ground", 0.15, 0.05),)
+lower, upper = aj.breakaway_band(sc.with_loads(sc.loads + rough), np.linspace(0.1, 6.2, 13))
+print(json.dumps([np.asarray(lower).tolist(), np.asarray(upper).tolist(), str(np.asarray(lower).dtype)]))
+"""
+
+
+@pytest.mark.slow  # a float32 process of its own
+def test_the_breakaway_band_in_float32():
+    """Each edge is tested with the drive just past it: 1e-9 of it, below float32's spacing,
+    put the test at the edge, where the sign of dw/dt is rounding (10 of the slider-crank's
+    13 bands came out with an infinite edge: 'no drive starts it'). In float32 the band is
+    the float64 one to float32's precision."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "ASSURJAX_FLOAT32": "1", "JAX_ENABLE_X64": "0"}
+    out = subprocess.run([sys.executable, "-c", BAND_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lower32, upper32, dtype = json.loads(out.stdout.strip().splitlines()[-1])
+    assert dtype == "float32"
+    sc = aj.load_scene("slider_crank")
+    rough = tuple(aj.JointFriction(j, 0.2, radius=0.01) for j in ("O", "A", "B")) + (aj.SlideFriction("slider/ground", 0.15, 0.05),)
+    lower, upper = aj.breakaway_band(sc.with_loads(sc.loads + rough), np.linspace(0.1, 6.2, 13))
+    np.testing.assert_allclose(lower32, lower, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(upper32, upper, rtol=0, atol=1e-5)

@@ -514,6 +514,27 @@ def test_singular_dyad_is_a_clear_error_not_nan():
         assert info.value.group == "dyad"
 
 
+def test_reactions_where_a_group_does_not_close_say_so():
+    """Where a group cannot assemble its statics is void, not singular: the AssemblyError of
+    the kinematics, naming the group (it was a SingularConfigurationError). The Roberts
+    linkage's dyad reaches only while |B D| <= 0.30 (closed form: q = 2 puts B 0.39 m from D)."""
+    roberts = assurjax.load_scene("roberts")
+    with pytest.raises(assurjax.AssemblyError, match="group 'dyad43' \\(RRR\\) cannot assemble at q = 2") as info:
+        static_reactions(roberts, 2.0)
+    assert info.value.group == "dyad43"
+
+
+def test_a_request_for_too_many_states_is_refused_before_its_values_are_read():
+    """3e8 states (a broadcast view: no memory) were scanned for NaN first, 5 s and 5 GB
+    before the bound refused them; the bound comes first (a NaN view gives the bound's error)."""
+    scene = assurjax.load_scene("slider_crank")
+    many = np.broadcast_to(np.nan, (300_000_000,))
+    with pytest.raises(assurjax.AssurjaxError, match="at most 1,000,000 states per call"):
+        reactions(scene, (many, 0.0, 0.0))
+    with pytest.raises(assurjax.AssurjaxError, match="at most 1,000,000 states per call"):
+        assurjax.inverse_dynamics(scene, lambda t: t, many)
+
+
 # ----------------------------------------------------------------------------- seed 003
 # Loads of seed 003 (N, N m). Each force's line of action is fixed by its direction and
 # its arm about the point the seed takes moments about, on the side the seed's moment
