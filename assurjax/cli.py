@@ -334,6 +334,25 @@ def _friction_unit(pair: str) -> str:
     return "N" if "/" in pair else "N m"
 
 
+def _friction_total_line(scene, sol) -> list[str]:
+    """Without reactions asked for (each element's friction comes with them): the friction's
+    total loss where it is the only dissipative load (``sol.dissipated``), and how to get
+    each element's; none without friction."""
+    from ._friction import frictions_of
+
+    frictions = frictions_of(scene.loads)
+    if not frictions:
+        return []
+    only_friction = sum(load.dissipative for load in scene.loads) == len(frictions)
+    if sol.dissipated is None:
+        lost = "its loss is not integrated without [outputs] energies"
+    elif only_friction:
+        lost = f"{float(sol.dissipated[-1]):.5g} J lost over the motion (integrated)"
+    else:
+        lost = f"{float(sol.dissipated[-1]):.5g} J lost over the motion with the dampers' (integrated, W_dissipated)"
+    return [f"  friction: {lost}; each element's loss and peak: name its joints under [outputs] reactions"]
+
+
 def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     """The friction's energy loss over the motion per element (trapezoidal rule on the
     samples) and its largest value (``peaks``, located on the dense output), for the
@@ -722,7 +741,7 @@ def cmd_run(args) -> int:
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps tried (rejected ones included)")
     if peaks:
         _print_peaks(peaks, units, scene, moves=_moves(sol))
-    for line in _friction_lines(scene, sol, along, peaks) if along else ():
+    for line in _friction_lines(scene, sol, along, peaks) if along else _friction_total_line(scene, sol):
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
         print(f"  friction law: regularized as asked in {', '.join(smooth)} (sign(rate) -> tanh(rate / v_s), v_s each "

@@ -79,6 +79,26 @@ def test_velocity_arrow_is_the_finite_difference_velocity(watt, watt_frames):
     np.testing.assert_allclose(np.asarray(arrow.xy) - watt_frames.points["E"][i], 0.1 * v, rtol=1e-6, atol=1e-9)
 
 
+def test_a_velocity_arrow_reaching_past_the_axes_is_drawn_to_their_edge(watt, watt_frames):
+    """matplotlib skips an annotation whose tip lies outside the axes: the fastest points lost
+    their arrows (the command's Watt six-bar animation: A in 11 of 60 frames). The arrow is
+    drawn, cut at the axes' edge: crimson pixels on the segment from E towards its tip."""
+    fig, ax = plt.subplots(figsize=(4, 4), dpi=100)
+    drawing = viz.MechanismDrawing(ax, watt, watt_frames, velocities=["E"], velocity_scale=50.0, labels=False)
+    drawing.update(2)
+    tail, tip = np.asarray(drawing.arrows["E"].xyann), np.asarray(drawing.arrows["E"].xy)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert not (x0 <= tip[0] <= x1 and y0 <= tip[1] <= y1)  # the tip is outside
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    crimson = (np.abs(image - np.array([220, 20, 60])).sum(-1) < 60)
+    inside = np.array([tail + s * (tip - tail) for s in np.linspace(0.0, 1.0, 4001)])
+    inside = inside[(inside[:, 0] > x0) & (inside[:, 0] < x1) & (inside[:, 1] > y0) & (inside[:, 1] < y1)]
+    pixels = ax.transData.transform(inside[len(inside) // 4: 3 * len(inside) // 4])  # clear of the joint
+    rows, cols = (image.shape[0] - pixels[:, 1]).astype(int), pixels[:, 0].astype(int)
+    near = [crimson[max(r - 2, 0): r + 3, max(c - 2, 0): c + 3].any() for r, c in zip(rows, cols)]
+    assert np.mean(near) > 0.9
+
 def test_coupler_curve_has_gaps_exactly_where_the_four_bar_cannot_assemble(roberts_scene):
     """Roberts: the dyad B-C-D assembles iff 0.06 <= |BD| <= 0.30 m (circle intersection)."""
     q = np.linspace(-np.pi, np.pi, 121)
@@ -129,6 +149,16 @@ def test_line_plots_carry_units_and_legends(watt_frames):
     (lambda m: viz.draw_mechanism(assurjax.load_scene("watt_sixbar"), 0.3), "expected an assurjax.Mechanism"),
     (lambda m: viz.save_gif([], "x.gif"), "save_gif: no frames to write"),
     (lambda m: viz.save_gif([np.zeros((4, 4, 3), np.uint8)], "x.png"), "save_gif: the path must end in .gif"),
+    # a bare KeyError, an IndexError, an AttributeError, matplotlib's NaN limits, NumPy's broadcast
+    (lambda m: viz.plot_angular_velocities(viz.mechanism_frames(m, [0.1, 0.2], velocities=True), ["nope"]),
+     "plot_angular_velocities: unknown link\\(s\\) \\['nope'\\]"),
+    (lambda m: viz.plot_energy_drift([], []), "energy drift: total must be a 1-D array of at least one sample"),
+    (lambda m: viz.render_frames([1, 2]), "render_frames: expected an animation made by assurjax.viz.animate"),
+    (lambda m: viz.plot_velocity_polygon({"A": [np.nan, 1.0]}), "the velocity of 'A' must be 2 finite numbers"),
+    (lambda m: viz.plot_reactions(np.linspace(0, 1, 10), {"A": np.ones(10)}), "the force at 'A' must be \\(samples, 2\\)"),
+    (lambda m: viz.plot_energies(np.linspace(0, 1, 10), np.ones(5), np.ones(10)), "energies: kinetic has shape \\(5,\\)"),
+    (lambda m: viz.plot_time_histories(np.linspace(0, 1, 10), {"x": np.ones(3)}, ylabel="x (m)"),
+     "'x' has shape \\(3,\\), its abscissa \\(10,\\)"),
 ])
 def test_bad_drawing_requests_are_named(watt, call, message):
     with pytest.raises(assurjax.AssurjaxError, match=message):
@@ -171,6 +201,9 @@ def test_animation_gif_and_html(tmp_path, watt):
     with Image.open(path) as im:
         assert im.n_frames == 4
         assert im.info["duration"] == 100  # ms per frame at 10 fps
+        # the figure's white in every frame (the first was 255, the rest 252: a flash at each loop)
+        corners = [(im.seek(i), tuple(np.asarray(im.convert("RGB"))[2, 2]))[1] for i in range(4)]
+        assert corners == [(255, 255, 255)] * 4
     html = viz.animation_html(viz.animate(watt, Q_WATT[:3]))
     assert "<script" in html and "img" in html
     assert html.count("iVBOR") == 3 + 1  # three PNG frames, plus the first one shown before any script runs
@@ -322,3 +355,14 @@ def test_animation_requests_are_checked_and_bounded(watt, call, message):
     with pytest.raises(assurjax.AssurjaxError, match=re.escape(message)):
         call(watt)
     plt.close("all")
+
+
+def test_an_animation_says_where_the_mechanism_does_not_assemble(roberts_scene, tmp_path):
+    """The Roberts linkage's dyad reaches only while |B D| <= 0.30 (closed form): at q = 2.5 it
+    does not; the frame's title says so, beside its faded links (it read as any other frame)."""
+    anim = viz.animate(roberts_scene.mechanism, np.array([0.3, 2.5]))
+    anim.show_frame(1)
+    assert anim.drawing.ax.get_title().endswith("q = 2.500 rad (does not assemble here)")
+    anim.show_frame(0)
+    assert anim.drawing.ax.get_title().endswith("q = 0.300 rad")
+    viz.save_gif(anim, tmp_path / "apart.gif")  # rendered (matplotlib warns of an animation never drawn)

@@ -79,7 +79,8 @@ def animate(
     def show(i):
         artists = drawing.update(i)
         when = f"t = {times[i]:.3f} s, " if times is not None else ""
-        ax.title.set_text(f"{head}: {when}q = {frames.q[i]:.3f} {q_unit}")
+        apart = "" if frames.ok[i] else " (does not assemble here)"  # its links drawn faded
+        ax.title.set_text(f"{head}: {when}q = {frames.q[i]:.3f} {q_unit}{apart}")
         return [*artists, ax.title]
 
     anim = FuncAnimation(ax.figure, show, frames=len(frames), interval=interval_ms, blit=False)
@@ -94,6 +95,8 @@ def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] |
 
     The figure's static part is rendered once; each frame redraws only the artists
     that move. ``progress(i, n)`` is called after each frame."""
+    if not hasattr(anim, "show_frame"):
+        raise AssurjaxError(f"render_frames: expected an animation made by assurjax.viz.animate, got {type(anim).__name__}")
     fig = anim._fig
     canvas = FigureCanvasAgg(fig)  # pixels without a display, whatever the backend
     n = anim.frame_count
@@ -146,10 +149,31 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     images = _images(anim, progress)
     if not len(images):
         raise AssurjaxError("save_gif: no frames to write")
-    first = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
-    rest = [Image.fromarray(im).quantize(palette=first, dither=Image.Dither.NONE) for im in images[1:]]
-    first.save(path, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)
+    colours = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT).getpalette()
+    frames = []
+    for indices in _nearest_colours(images, np.asarray(colours, dtype=np.int32).reshape(-1, 3)):
+        frame = Image.fromarray(indices, mode="P")
+        frame.putpalette(colours)
+        frames.append(frame)
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 / fps), loop=0)
     return path
+
+
+def _nearest_colours(images, palette):
+    """Each image's pixels as indices (uint8) of their nearest ``palette`` colour (n, 3),
+    exactly, through a table over the 2^24 colours filled as they appear (an animation has
+    a few thousand). Pillow's own mapping onto a palette is approximate: the first frame's
+    white stayed 255 while the others' became 252, a grey flash at each loop of the GIF."""
+    table, known = np.zeros(1 << 24, dtype=np.uint8), np.zeros(1 << 24, dtype=bool)
+    for image in images:
+        rgb = np.asarray(image, dtype=np.int32)[..., :3]
+        codes = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+        new = np.unique(codes[~known[codes]])
+        if new.size:
+            colour = np.stack([new >> 16, (new >> 8) & 255, new & 255], axis=-1)
+            table[new] = np.argmin(((colour[:, None, :] - palette[None]) ** 2).sum(-1), axis=1)
+            known[new] = True
+        yield table[codes]
 
 
 def _check_fps(fps) -> None:

@@ -72,10 +72,16 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
 
 def plot_against(x, series: Mapping[str, np.ndarray], *, xlabel: str, ylabel: str, ax=None, title: str | None = None, ok=None, styles: Mapping[str, str] | None = None):
     """One line per entry of ``series`` against ``x``; NaN gaps where ``ok`` is False."""
-    ax = _axes(ax)
     x = np.asarray(x, dtype=float)
-    for name, y in series.items():
-        y = np.asarray(y, dtype=float)
+    what = title or ylabel
+    if x.ndim != 1 or x.size == 0:
+        raise AssurjaxError(f"{what}: the abscissa must be a 1-D array of at least one sample, got shape {x.shape}")
+    values = {name: np.asarray(y, dtype=float) for name, y in series.items()}
+    for name, y in values.items():
+        if y.shape != x.shape:
+            raise AssurjaxError(f"{what}: '{name}' has shape {y.shape}, its abscissa {x.shape}: one value per sample")
+    ax = _axes(ax)
+    for name, y in values.items():
         y = masked(y, ok) if ok is not None else y
         ax.plot(x, y, (styles or {}).get(name, "-"), label=name)
     ax.set_xlabel(xlabel)
@@ -96,7 +102,11 @@ def plot_angular_velocities(frames: Frames, links: Iterable[str] | None = None, 
     if frames.angular_velocities is None:
         raise ValueError("angular velocities need frames computed with velocities=True")
     k = np.degrees(1.0) if degrees else 1.0
-    names = list(links) if links is not None else list(frames.angular_velocities)
+    names = [links] if isinstance(links, str) else list(links) if links is not None else list(frames.angular_velocities)
+    unknown = [n for n in names if n not in frames.angular_velocities]
+    if unknown:
+        raise AssurjaxError(f"plot_angular_velocities: unknown link(s) {unknown}; the frames have "
+                            f"{sorted(frames.angular_velocities)}")
     series = {f"w {n}": frames.angular_velocities[n] * k for n in names}
     return plot_against(frames.q, series, xlabel=driving_label(driver_kind), ylabel="angular velocity (deg/s)" if degrees else "angular velocity (rad/s)", ax=ax, title="angular velocities", ok=frames.ok)
 
@@ -111,6 +121,9 @@ def plot_energies(t, kinetic, potential, *, ax=None, work=None, dissipated=None)
     with ``work`` (J, the work of the loads outside V since t0, e.g. ``Solution.work``) the
     conserved T + V - W instead of E; with ``dissipated`` (J, e.g. ``Solution.dissipated``:
     what friction and dampers took since t0) that too."""
+    for name, v in (("kinetic", kinetic), ("potential", potential), ("work", work), ("dissipated", dissipated)):
+        if v is not None and np.shape(v) != np.shape(t):
+            raise AssurjaxError(f"energies: {name} has shape {np.shape(v)}, t {np.shape(t)}: one value per sample")
     kinetic, potential = np.asarray(kinetic), np.asarray(potential)
     series = {"T (kinetic)": kinetic, "V (potential)": potential}
     balance = "E = T + V" if work is None else "T + V - W"
@@ -124,6 +137,8 @@ def plot_energies(t, kinetic, potential, *, ax=None, work=None, dissipated=None)
 def plot_energy_drift(t, total, *, ax=None):
     """Drift of the conserved energy from its initial value (J) (Durango et al. 2014, Fig. 7b)."""
     total = np.asarray(total, dtype=float)
+    if total.ndim != 1 or total.size == 0:
+        raise AssurjaxError(f"energy drift: total must be a 1-D array of at least one sample, got shape {total.shape}")
     return plot_time_histories(t, {"E(t) - E(0)": total - total[0]}, ylabel="energy drift (J)", ax=ax, title="energy drift")
 
 
@@ -132,6 +147,9 @@ def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, component
     series = {}
     for joint, force in reactions.items():
         force = np.asarray(force, dtype=float)
+        if force.ndim != 2 or force.shape[-1] != 2:
+            raise AssurjaxError(f"joint reactions: the force at '{joint}' must be (samples, 2) (Fx, Fy per sample, N), "
+                                f"got shape {force.shape}")
         if components:
             series[f"{joint} Fx"], series[f"{joint} Fy"] = force[..., 0], force[..., 1]
         else:
@@ -170,6 +188,12 @@ def plot_velocity_polygon(velocities: Mapping[str, np.ndarray], *, ax=None, unit
 
     ``velocities``: point -> (2,) velocity (m/s); ``relative``: pairs (a, b) for
     which v_ab is drawn. Lengths in ``unit``/s."""
+    if not velocities:
+        raise AssurjaxError("plot_velocity_polygon: no velocities given (point -> (2,) velocity, m/s)")
+    for name, v in velocities.items():
+        v = np.asarray(v, dtype=float)
+        if v.shape != (2,) or not np.all(np.isfinite(v)):
+            raise AssurjaxError(f"plot_velocity_polygon: the velocity of '{name}' must be 2 finite numbers (m/s), got {v.tolist()}")
     ax, s = _axes(ax, (5, 5)), length_scale(unit)
     tips = {}
     for i, (name, v) in enumerate(velocities.items()):
