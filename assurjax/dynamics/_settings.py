@@ -11,10 +11,10 @@ from typing import NamedTuple
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
-import equinox.internal as eqxi
 import optimistix as optx
 from jaxtyping import Array
 
@@ -510,7 +510,7 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
         met = _met_unassembled(y1_candidate, y_error)
-        met = met | (~met & _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild))  # halved as a NaN step
+        met = met | _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild)  # halved as a NaN step
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
         on_grid = t1 >= grid_here
