@@ -230,7 +230,8 @@ def bridged_coefficients(mechanism: Mechanism, q, *, near: dict, window: float =
     """:func:`coefficients` (order 2) on a tracked branch (``near``: link angles), bridged
     across singular configurations.
 
-    Near a stretched, folded or coincident-joint dyad the closed forms lose their
+    Near a stretched, folded or coincident-joint dyad (RRR), a rod square to its guide
+    (RRP/PRR) or a guide square to the line of its pins (RPR) the closed forms lose their
     inputs' precision: positions err by ~eps/delta, the first coefficients by
     ~eps/delta^2 and the second by ~eps/delta^3 (delta: distance in q to the singular
     point), although the motion on the branch is smooth there. Within ``window`` of

@@ -165,9 +165,9 @@ def _check_kinds(links: dict, groups: tuple) -> None:
 
 
 def value_fields(mech: Mechanism):
-    """(what, value, its shape, its ranges) of each number a mechanism's user gives: its points,
-    and its links' centres of mass, masses and inertias (read by :func:`_check_values`, and
-    member by member for a batch by ``_sweep.check_batch_values``)."""
+    """(what, value, its shape, its ranges) of the mechanism's points, and its links' centres
+    of mass, masses and inertias (read by :func:`_check_values`, and member by member for a
+    batch by ``_sweep.check_batch_values``; the groups' guides are checked on their own)."""
     for p, xy in mech.ground.items():
         yield f"ground point '{p}'", xy, (2,), {}
     for name, link in mech.links.items():

@@ -334,6 +334,13 @@ def _friction_unit(pair: str) -> str:
     return "N" if "/" in pair else "N m"
 
 
+def _friction_only_dissipates(scene) -> bool:
+    """The joint friction is the scene's only dissipative load (its loss is ``sol.dissipated``)."""
+    from ._friction import frictions_of
+
+    return sum(load.dissipative for load in scene.loads) == len(frictions_of(scene.loads))
+
+
 def _friction_total_line(scene, sol) -> list[str]:
     """Without reactions asked for (each element's friction comes with them): the friction's
     total loss where it is the only dissipative load (``sol.dissipated``), and how to get
@@ -343,10 +350,9 @@ def _friction_total_line(scene, sol) -> list[str]:
     frictions = frictions_of(scene.loads)
     if not frictions:
         return []
-    only_friction = sum(load.dissipative for load in scene.loads) == len(frictions)
     if sol.dissipated is None:
         lost = "its loss is not integrated without [outputs] energies"
-    elif only_friction:
+    elif _friction_only_dissipates(scene):
         lost = f"{float(sol.dissipated[-1]):.5g} J lost over the motion (integrated)"
     else:
         lost = f"{float(sol.dissipated[-1]):.5g} J lost over the motion with the dampers' (integrated, W_dissipated)"
@@ -361,7 +367,6 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     are said to be."""
     import numpy as np
 
-    from ._friction import frictions_of
     from ._peaks import FRICTION
 
     if not along.friction:
@@ -369,8 +374,7 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     lost = {k: -float(np.trapezoid(p, np.asarray(sol.t))) for k, p in along.friction_power.items()}
     total = sum(lost.values())
     shares = ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(lost.items(), key=lambda kv: -kv[1])) if total > 0 else ""
-    only_friction = sum(load.dissipative for load in scene.loads) == len(frictions_of(scene.loads))
-    integrated = float(sol.dissipated[-1]) if only_friction and sol.dissipated is not None else None
+    integrated = float(sol.dissipated[-1]) if _friction_only_dissipates(scene) and sol.dissipated is not None else None
     if integrated is not None and abs(total - integrated) > 1e-3 * abs(integrated):
         lines = [f"  friction: {integrated:.5g} J lost over the motion (integrated); shares from the friction power at the "
                  f"{len(sol.t)} samples, whose trapezoidal sum is {total:.5g} J (more --samples for finer shares)"

@@ -315,8 +315,41 @@ def test_a_step_that_turns_the_driver_at_a_limit_is_a_lock_up(omega0):
     assert abs(float(sol.t_final) - t_limit) < 1e-5
 
 
+def test_a_batch_thrown_into_a_limit_locks_up_as_each_run_alone():
+    """The starts of the test above in one vmapped run (the turn test's cond on any member):
+    each member locks up at q* at its single run's time."""
+    scene, q_limit, _ = thrown_slider_crank()
+    omega0 = np.array([4.4, 4.8, 5.2])
+    batch = aj.simulate(scene, q0=0.0, omega0=omega0, stop=None, t1=3.0)
+    for i, w in enumerate(omega0):
+        alone = aj.simulate(scene, q0=0.0, omega0=float(w), stop=None, t1=3.0)
+        assert int(batch.event[i]) == LOCKUP and abs(float(batch.q_final[i]) - q_limit) < 1e-8
+        assert abs(float(batch.t_final[i]) - float(alone.t_final)) < 1e-7
+
+
+@pytest.mark.parametrize("short", [1e-4, 1e-6])
+def test_a_turn_just_short_of_a_limit_stands(short):
+    """A constant braking torque tau turns the thrown slider-crank where its work takes all
+    the kinetic energy: tau q_turn = J(0) w0^2 / 2, whatever J(q) on the way; with q_turn
+    ``short`` of the limit the turn is a motion, not a lock-up (the turn test must not take
+    it for one): the run reaches t1, back through the start, its energy T + tau q closed."""
+    from scipy.integrate import quad
+
+    scene, q_limit, inertia = thrown_slider_crank()
+    omega0 = 4.8
+    energy = 0.5 * inertia(0.0) * omega0**2
+    tau = energy / (q_limit - short)
+    t_turn = quad(lambda q: np.sqrt(inertia(q) / (2 * (energy - tau * q))), 0.0, q_limit - short, limit=400)[0]
+    sol = aj.simulate(scene, loads=(aj.Drive(-tau),), q0=0.0, omega0=omega0, stop=None, t1=2 * t_turn + 0.3,
+                      save_steps=True)
+    assert sol.event != LOCKUP and sol.status.startswith("reached t1")
+    assert abs(np.max(sol.q) - (q_limit - short)) < 1e-6  # the runs: 1.5e-8 past it (their tolerance)
+    q, w = float(sol.q_final), float(sol.omega_final)
+    assert q < 0.0 and abs(0.5 * inertia(q) * w**2 + tau * q - energy) < 1e-6 * energy
+
+
 def test_constant_steps_that_turn_the_driver_at_a_limit_lock_up():
-    """Constant steps into a limit: a four-bar (crank 0.3, coupler 0.25, rocker 0.2, ground
+    """Constant steps (dt=, steps=) into a limit: a four-bar (crank 0.3, coupler 0.25, rocker 0.2, ground
     0.4) thrown at 2 rad/s with dt = 0.01 s turned w round short of its limit ('reached t1',
     99.6 % of the energy gone), 0.015 s reported the other limit; the triple rocker with
     dt = 0.02 s ended at q = -2e28 beside a lock-up status. A turning step at a limit is
@@ -325,9 +358,8 @@ def test_constant_steps_that_turn_the_driver_at_a_limit_lock_up():
     (it depends on round-off: XLA's scheduler flags change which), saying the motion was
     not resolved; never turned round ('reached t1')."""
     a, b, c, d = 0.4, 0.3, 0.25, 0.2
-    u = (a - b) / (a - b)  # the crank along the ground line at q = 0: C over B D
-    along = ((a - b) ** 2 + c * c - d * d) / (2 * (a - b))
-    cx, cy = b + along * u, np.sqrt(c * c - along**2)
+    along = ((a - b) ** 2 + c * c - d * d) / (2 * (a - b))  # the crank along the ground line at q = 0: C over B D
+    cx, cy = b + along, np.sqrt(c * c - along**2)
     scene = aj.Sketch(joints={"A": (0.0, 0.0), "B": (b, 0.0), "C": (cx, cy), "D": (a, 0.0)},
                       links={"crank": {"joints": ["A", "B"], "mass": 0.3, "inertia": 0.003},
                              "coupler": {"joints": ["B", "C"], "mass": 0.25, "inertia": 0.002},
@@ -340,6 +372,12 @@ def test_constant_steps_that_turn_the_driver_at_a_limit_lock_up():
         sol = aj.simulate(case, q0=q0, omega0=omega0, stop=None, t1=3.0, dt=dt)
         assert sol.event == LOCKUP or "the motion was not resolved" in sol.status
         assert abs(float(sol.q_final) - limit) < 1e-7
+    # steps= (a scan, no controller): the thrown slider-crank ran on ('reached t1') at 150 and 300
+    # steps; now it stops at the step before the turn (located to the step, as at a NaN)
+    thrown, q_star, _ = thrown_slider_crank()
+    for n in (150, 300):
+        sol = aj.simulate(thrown, q0=0.0, omega0=4.8, stop=None, t1=3.0, steps=n)
+        assert sol.event == LOCKUP and 0.0 < q_star - float(sol.q_final) < 3e-3
 
 
 def test_lockup_in_a_batch_stops_each_member_at_its_limit():

@@ -387,7 +387,7 @@ def _met_unassembled(y1_candidate, y_error):
     return ~all_finite((y1_candidate, y_error))
 
 
-def _turned_at_a_limit(t0, t1, y0, y1_candidate, args, rebuild):
+def _turned_at_a_limit(t0, t1, y0, y1_candidate, args, rebuild, kept):
     """True where a step turned the driver (w changed sign) on a fixed branch with a limit
     position within the step's reach beyond the turn: a group fails to assemble at the
     turn's q (w taken linear over the step) moved on by the step's travel to and from it.
@@ -397,29 +397,37 @@ def _turned_at_a_limit(t0, t1, y0, y1_candidate, args, rebuild):
     98 % of its kinetic energy gone, in 1-11 % of the starts of a scan). Such a step is
     rejected, and the shorter ones that follow close in on the lock-up as the steps that
     met NaN do; a turn short of the limit by more than the step's reach stands. One
-    position analysis at a turn; none on a tracked branch (it goes through the limit).
-    ``rebuild``: see :func:`lockup_controller`."""
+    position analysis at a turn of a step the error test ``kept``; none on a tracked branch
+    (it goes through the limit). ``rebuild``: see :func:`lockup_controller`. Returns (that
+    flag, the step's reach: where it is below the lock-up's resolution the lock-up is found)."""
     if not hasattr(y0, "omega") or getattr(y0, "branch", None) is not None:
-        return jnp.asarray(False)
+        return jnp.asarray(False), jnp.zeros(())
     args = args if rebuild is None else rebuild(args)
     if not getattr(args, "nan_unassembled", False):
-        return jnp.asarray(False)
-    w0, w1 = y0.omega, y1_candidate.omega
-    turned = w0 * w1 < 0
-    h = t1 - t0
-    peak = y0.q + 0.5 * w0 * h * w0 / jnp.where(turned, w0 - w1, 1.0)
-    reach = jnp.abs(peak - y0.q) + jnp.abs(peak - y1_candidate.q)
+        return jnp.asarray(False), jnp.zeros(())
+    turned, probe, reach = turn_probe(t1 - t0, y0.q, y0.omega, y1_candidate.q, y1_candidate.omega)
+    turned = turned & kept
 
     def short_of_a_limit():
-        return ~jnp.all(assembled(args.model.mechanism, peak + jnp.sign(w0) * reach))
+        return ~jnp.all(assembled(args.model.mechanism, probe))
 
-    return turned & jax.lax.cond(eqxi.unvmap_any(turned), short_of_a_limit, lambda: jnp.zeros_like(turned))
+    return turned & jax.lax.cond(eqxi.unvmap_any(turned), short_of_a_limit, lambda: jnp.zeros_like(turned)), reach
+
+
+def turn_probe(h, q0, w0, q1, w1):
+    """(turned, probe, reach) of steps of length ``h`` from (q0, w0) to (q1, w1): w changed
+    sign; the q where a group must assemble for the turn to stand: the turn's q (w linear
+    over the step) moved on by the step's travel to and from it, ``reach``."""
+    turned = w0 * w1 < 0
+    peak = q0 + 0.5 * w0 * h * w0 / jnp.where(turned, w0 - w1, 1.0)
+    reach = jnp.abs(peak - q0) + jnp.abs(peak - q1)
+    return turned, peak + jnp.sign(w0) * reach, reach
 
 
 REST_RESOLUTION = 1e-10  # s per s of t: the shortest step from rest (w = 0) that closes in on a lock-up
 
 
-def _located(t0, t1, y0, met, shortest=0.0):
+def _located(t0, t1, y0, met, shortest=0.0, turned=False, reach=0.0):
     """diffrax's ``dt_min_reached`` where a step that met a configuration that cannot
     assemble moves q by less than ``LOCKUP_RESOLUTION`` (1 + |q|) or is no longer than
     ``shortest``: the lock-up is found (or, if no group fails just past it, the solver
@@ -430,7 +438,9 @@ def _located(t0, t1, y0, met, shortest=0.0):
     moving = y0.omega != 0
     small = ((moving & (jnp.abs(y0.omega) * (t1 - t0) <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))))
              | (~moving & (t1 - t0 <= REST_RESOLUTION * (1.0 + jnp.abs(t0)))) | (t1 - t0 <= shortest))
-    return diffrax.RESULTS.where(met & small, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
+    # a step that turned at a limit (_turned_at_a_limit) by the q it travelled, to the turn and back
+    small_turn = turned & ((reach <= LOCKUP_RESOLUTION * (1.0 + jnp.abs(y0.q))) | (t1 - t0 <= shortest))
+    return diffrax.RESULTS.where((met & small) | small_turn, diffrax.RESULTS.dt_min_reached, diffrax.RESULTS.successful)
 
 
 class LastAccepted(NamedTuple):
@@ -470,8 +480,8 @@ class LockupController(diffrax.PIDController):
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
         packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
-        turned = keep & _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild)
-        located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error) | turned)
+        turned, reach = _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild, keep)
+        located = _located(t0, t1, y0, _met_unassembled(y1_candidate, y_error), turned=turned, reach=reach)
         held = _held_at_rest(y0, y1_candidate)
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, located)
         kept = keep & ~held & ~turned
@@ -509,8 +519,9 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
             t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state)
         packed_y1 = y1_candidate
         y0, y1_candidate = self.packing.view(y0), self.packing.view(y1_candidate)
-        met = _met_unassembled(y1_candidate, y_error)
-        met = met | _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild)  # halved as a NaN step
+        nan = _met_unassembled(y1_candidate, y_error)
+        turned, reach = _turned_at_a_limit(t0, t1, y0, y1_candidate, args, self.rebuild, ~nan)
+        met = nan | turned  # a turn at a limit is halved as a NaN step
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
         on_grid = t1 >= grid_here
@@ -519,7 +530,8 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         state = jax.tree.map(lambda new, old: jnp.where(~met & on_grid, new, old), grid_state, controller_state)
         shortest = 2.0**-30 * (end - start) / count
         held = _held_at_rest(y0, y1_candidate)  # as LockupController
-        located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached, _located(t0, t1, y0, met, shortest))
+        located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached,
+                                        _located(t0, t1, y0, nan, shortest, turned=turned, reach=reach))
         kept = ~met & ~held
         return kept, jnp.where(met, t0, t1), next_t1, jump, (state, last.after(kept, t1, packed_y1)), located
 

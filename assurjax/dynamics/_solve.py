@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -33,7 +34,7 @@ from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
 from ._settings import (BASELINES, SAVED_STEPS_LIMIT, WORK_LIMITS, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
-                        lockup_controller, state_problem, step_budget)
+                        lockup_controller, state_problem, step_budget, turn_probe)
 from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
                         saved_rows, to_host, trim)
@@ -155,7 +156,7 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
                         jnp.where(bad, jnp.argmin(ok_start), sol.failed_group_index)))
 
 
-START_SINGULAR_SINE = 1e-9  # |sin| of a closed form's singular angle below which it sits on its square root's clamp
+START_SINGULAR_MEASURE = 1e-9  # |singularity measure| (a sine or cosine) below which a closed form sits on its square root's clamp
 
 
 def _singular_groups(mechanism) -> list[int]:
@@ -164,8 +165,8 @@ def _singular_groups(mechanism) -> list[int]:
 
 
 def _checked_regular_start(sol: Solution, mechanism, declared, pose) -> Solution:
-    """A start exactly at a singular configuration of a group that declares one (the sine
-    of its ``singularity`` measure below START_SINGULAR_SINE; the RRR, RRP/PRR and RPR dyads:
+    """A start exactly at a singular configuration of a group that declares one (its
+    ``singularity`` measure below START_SINGULAR_MEASURE; the RRR, RRP/PRR and RPR dyads:
     the square root of their closed form is clamped there, which keeps its derivatives
     finite, and they are not the motion's: a four-bar drawn at its crank's limit swung off
     it gaining 2 % of its energy) is no motion: say so. ``declared``: the groups that declare
@@ -173,9 +174,9 @@ def _checked_regular_start(sol: Solution, mechanism, declared, pose) -> Solution
     point; 1e-12 rad away the measure is ~1e-6 and the coefficients are the motion's."""
     turn = {name: jnp.stack([jnp.cos(a), jnp.sin(a)]) for name, a in pose.angles.items()}
     zeros = lambda named: {name: jnp.zeros(2) for name in named}  # noqa: E731 (no rates needed)
-    sines = jnp.stack([jnp.abs(mechanism.groups[i].singularity(pose.points, zeros(pose.points), turn, zeros(turn))[0])
-                       for i in declared])
-    at = sines <= START_SINGULAR_SINE
+    measures = jnp.stack([jnp.abs(mechanism.groups[i].singularity(pose.points, zeros(pose.points), turn, zeros(turn))[0])
+                          for i in declared])
+    at = measures <= START_SINGULAR_MEASURE
     first = jnp.asarray(declared)[jnp.argmax(at)]
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(jnp.any(at), RESULTS.start_singular, sol.result),
@@ -291,6 +292,9 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
     # a NaN or inf marks a step that met a configuration that cannot assemble, or steps too
     # long for the motion (they blew up: no group fails one step on, with a table none can)
     finite = jnp.isfinite(q) & jnp.isfinite(w)
+    turns = _turns_at_limits(mechanism, h, q, w) if args.nan_unassembled else None
+    if turns is not None:  # a step that turned the driver at a limit ends the samples as one that met NaN
+        finite = finite & jnp.concatenate([jnp.array([True]), jnp.all(turns, axis=-1)])
     stopped = ~jnp.all(finite)
     last = jnp.where(stopped, jnp.argmin(finite) - 1, n)  # the last sample before it
     valid = jnp.arange(n + 1) <= last
@@ -299,6 +303,7 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
         failed = jnp.asarray(-1)
     else:
         ahead = assembled(mechanism, q[last] + h * w[last])  # the group failing one step on
+        ahead = ahead & turns[jnp.minimum(last, n - 1)]  # or beyond the turn of the step after the last sample
         failed = jnp.where(stopped & ~jnp.all(ahead), jnp.argmin(ahead), -1)
     locked, unresolved = stopped & (failed >= 0), stopped & (failed < 0)
     return Solution(
@@ -308,6 +313,18 @@ def _steps_solve(model: Model, q0, omega0, t0, t1, settings: Settings, table) ->
         failed_group_index=failed, result=RESULTS.where(unresolved, RESULTS.dt_min_reached, RESULTS.successful),
         num_steps=jnp.asarray(n),
     )
+
+
+def _turns_at_limits(mechanism: Mechanism, h, q, w):
+    """Per step of ``steps=`` (n, groups): whether each group assembles where the step's
+    turn of the driver must stand (all True where it did not turn; see
+    ``_settings._turned_at_a_limit``: a step over a limit position turned w round on the
+    same branch, a thrown slider-crank ran on with most of its energy gone). One position
+    analysis per step, only where some step turned."""
+    turned, probe, _ = turn_probe(h, q[:-1], w[:-1], q[1:], w[1:])
+    assembles = lambda: jax.vmap(lambda x: assembled(mechanism, x))(probe)  # noqa: E731
+    every = jnp.ones((q.shape[0] - 1, len(mechanism.groups)), dtype=bool)
+    return jax.lax.cond(eqxi.unvmap_any(jnp.any(turned)), assembles, lambda: every) | ~turned[:, None]
 
 
 def check_steps(settings: Settings, model: Model | None = None) -> None:
@@ -457,7 +474,7 @@ def simulate(
     d theta/dq w, from the same jvp) and every group takes the root nearest to them,
     which keeps the motion on one continuous branch through singular configurations
     (e.g. the N-four-bar's). ``bridge`` (rad or m of q; default 0: off): within that
-    distance of an RRR dyad's singular configuration the kinematic coefficients of a
+    distance of a dyad's singular configuration (RRR, RRP/PRR, RPR) the kinematic coefficients of a
     tracked branch are interpolated from outside the window
     (:func:`assurjax.bridged_coefficients`), where the closed forms lose their precision:
     ``bridge=5e-3`` lets tight tolerances (1e-12) pass such crossings (IFToMM A02, N = 40,

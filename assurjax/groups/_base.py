@@ -212,14 +212,16 @@ class AbstractGroup(eqx.Module):
         of the pair; direction in its link's frame; offset to the left, m) of each guide."""
         return ()
 
-    singular_configuration = ""  # where ``singularity`` is zero, in words (e.g. "stretched or folded")
+    singular_configuration = "its singular configuration"  # where ``singularity`` is zero, in words
 
     def singularity(self, x: dict, dx: dict, turn: dict, dturn: dict) -> tuple[Array, Array] | None:
         """A scale-free measure that crosses zero at this group's singular configurations
         and its q-derivative, from the global points ``x`` and their coefficients ``dx``
         (dx/dq), and the links' rotations ``turn`` ((cos, sin) by link name) and theirs
         ``dturn``; None when the kind declares none (then it is never bridged, see
-        :func:`assurjax.bridged_coefficients`, nor its exact limit refused as a start)."""
+        :func:`assurjax.bridged_coefficients`, nor its exact limit refused as a start).
+        (The rotations were added for the slider dyads, whose guide's direction the points
+        alone do not give: a group of one's own with the former ``(x, dx)`` takes them too.)"""
         return None
 
     def describe(self) -> str:

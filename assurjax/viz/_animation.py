@@ -152,7 +152,7 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     colours = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT).getpalette()
     frames = []
     for indices in _nearest_colours(images, np.asarray(colours, dtype=np.int32).reshape(-1, 3)):
-        frame = Image.fromarray(indices, mode="P")
+        frame = Image.fromarray(indices)  # an L image: putpalette makes it P (mode= is deprecated)
         frame.putpalette(colours)
         frames.append(frame)
     frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 / fps), loop=0)
