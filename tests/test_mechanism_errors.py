@@ -638,3 +638,17 @@ def test_a_slot_through_the_cranks_pivot_is_a_mechanism():
     pose = assurjax.positions(mech, q)
     j = np.asarray(pose.points["J"])
     assert abs(np.hypot(*(j - h)) - 0.15) < 1e-12 and abs(u[0] * j[1] - u[1] * j[0]) < 1e-12  # on the circle and the slot
+
+
+def test_a_mechanism_replaced_in_a_scene_is_checked():
+    """A NaN mass set by eqx.tree_at and put in a scene ran and failed as a load's NaN (or a
+    step budget), a negative one gave numbers: replace_mechanism checks the values as the
+    Mechanism's own; traced values pass (a gradient through it)."""
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(MechanismError, match="link 'crank': mass must be finite"):
+        scene.replace_mechanism(eqx.tree_at(lambda m: m.links["crank"].mass, scene.mechanism, np.nan))
+    with pytest.raises(MechanismError, match="link 'crank': mass must be non-negative"):
+        scene.replace_mechanism(eqx.tree_at(lambda m: m.links["crank"].mass, scene.mechanism, -0.5))
+    traced = jax.jit(lambda m: scene.replace_mechanism(eqx.tree_at(lambda x: x.links["crank"].mass, scene.mechanism, m))
+                     .mechanism.links["crank"].mass)
+    assert float(traced(0.7)) == 0.7

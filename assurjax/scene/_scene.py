@@ -71,6 +71,15 @@ class Scene(eqx.Module):
         return Model(self.mechanism, self.gravity, self.loads)
 
     def replace_mechanism(self, mechanism: Mechanism) -> "Scene":
+        """A copy with this ``mechanism`` (e.g. one changed by ``eqx.tree_at``), its values
+        checked as the Mechanism's own (a NaN or negative mass set by tree_at ran, and failed
+        as a load's NaN, or gave numbers) and the loads against it; traced values pass."""
+        from .._loads import check_loads
+        from .._mechanism import _check_values, check_mechanism
+
+        check_mechanism(mechanism, "replace_mechanism")
+        _check_values(mechanism)
+        check_loads(mechanism, self.loads)
         return eqx.tree_at(lambda s: s.mechanism, self, mechanism)
 
     def with_loads(self, loads) -> "Scene":
