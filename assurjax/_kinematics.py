@@ -22,6 +22,7 @@ from ._jit import jit
 from ._mechanism import Mechanism, Pose, check_mechanism, point_names, positions
 from ._positions import checked_request, stacked_positions
 from ._values import check_state_count, check_value, check_values, concrete
+from .groups._base import AbstractGroup
 
 
 class Kinematics(eqx.Module):
@@ -215,6 +216,18 @@ def coefficients(mechanism: Mechanism, q, *, order: int = 2, near=None) -> Coeff
 BRIDGE_NODES = (-3.0, -2.0, 2.0, 3.0)
 BRIDGE_WEIGHTS = (-0.4, 0.9, 0.9, -0.4)
 BRIDGE_WINDOW = 5e-3  # d0 (rad or m of q): rounding noise ~eps/d0^3 at the nodes, truncation ~d0^4
+
+
+def singular_groups(mechanism: Mechanism) -> list[int]:
+    """The groups that declare a singularity measure (``AbstractGroup.singularity``)."""
+    return [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
+
+
+def singularity_measures(mechanism: Mechanism, coeffs: Coefficients, groups) -> Array:
+    """(measure, its q-derivative) of each of ``groups`` (indices; see
+    :func:`singular_groups`) at the coefficients' q: (len(groups), 2)."""
+    (x, _, _, turn), (dx, _, _, dturn) = coeffs.x, coeffs.dx
+    return jnp.stack([jnp.stack(mechanism.groups[i].singularity(x, dx, turn, dturn)) for i in groups])
 
 
 def singular_distance(mechanism: Mechanism, coeffs: Coefficients) -> Array | None:

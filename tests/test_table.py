@@ -276,3 +276,22 @@ def test_a_table_given_to_simulate_must_be_the_scenes(watt, tables):
         aj.simulate(watt, table=table, reduction="exact", **run)
     with pytest.raises(aj.AssurjaxError, match="depend on the driving velocity"):
         aj.simulate(aj.load_scene("press_with_friction"), table=table, **run)
+
+
+def test_a_window_between_the_nodes_where_a_group_cannot_assemble_is_refused():
+    """The bundled slider-crank with its guide 0.2 m + 1e-9 m off the pivot (the crank 0.1 m,
+    rod 0.3 m: rod - crank = 0.2 m), tilted by pi / 4096 so that the window where the rod
+    cannot reach (closed form: |offset - crank sin q| > rod, about 2.7e-4 rad round q = pi/2)
+    falls between two of the 4096 nodes: every node assembles, and the table's runs went
+    through the window. The squared singularity measure's cubic between the nodes dips below
+    0 there: refused, naming the group. 1e-6 m the other way (it turns fully) is tabulated."""
+    scene = aj.load_scene("slider_crank")
+    tilt = np.pi / 4096
+    guide = jnp.array([np.cos(tilt), np.sin(tilt)])
+    short = eqx.tree_at(lambda m: (m.groups[1].offset, m.groups[1].direction), scene.mechanism, (-(0.2 + 1e-9), guide))
+    q = np.linspace(np.pi / 2 - 1e-3, np.pi / 2 + 1e-3, 2001)  # the window exists (dense closed-form sweep)
+    assert not np.all(np.asarray(aj.kinematics(short, q, order=0, check=False).ok))
+    with pytest.raises(aj.AssurjaxError, match="group 'rod_slider' cannot assemble between the nodes"):
+        aj.build_table(short, scene.gravity, scene.loads)
+    turns = eqx.tree_at(lambda m: (m.groups[1].offset, m.groups[1].direction), scene.mechanism, (-(0.2 - 1e-6), guide))
+    assert np.all(np.asarray(aj.build_table(turns, scene.gravity, scene.loads).ok))

@@ -28,7 +28,7 @@ from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from .._values import all_finite
-from ..groups._base import AbstractGroup
+from .._kinematics import singular_groups
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
@@ -138,7 +138,7 @@ def _checked_starts(sol: Solution, mechanism, q0, *, assembly: bool) -> Solution
     """The start checked to be regular (:func:`_checked_regular_start`) and, with ``assembly``
     (where no end check covers the start, see :func:`_finished`), assembled: one position
     analysis for both."""
-    singular = _singular_groups(mechanism)
+    singular = singular_groups(mechanism)
     if not (singular or assembly):
         return sol
     start = positions(mechanism, q0)
@@ -159,18 +159,13 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
 START_SINGULAR_MEASURE = 1e-9  # |singularity measure| (a sine or cosine) below which a closed form sits on its square root's clamp
 
 
-def _singular_groups(mechanism) -> list[int]:
-    """The groups that declare a singularity measure (see :func:`_checked_regular_start`)."""
-    return [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
-
-
 def _checked_regular_start(sol: Solution, mechanism, declared, pose) -> Solution:
     """A start exactly at a singular configuration of a group that declares one (its
     ``singularity`` measure below START_SINGULAR_MEASURE; the RRR, RRP/PRR and RPR dyads:
     the square root of their closed form is clamped there, which keeps its derivatives
     finite, and they are not the motion's: a four-bar drawn at its crank's limit swung off
     it gaining 2 % of its energy) is no motion: say so. ``declared``: the groups that declare
-    a measure (:func:`_singular_groups`); ``pose``: the start's. Within ~1e-14 rad of such a
+    a measure (:func:`assurjax._kinematics.singular_groups`); ``pose``: the start's. Within ~1e-14 rad of such a
     point; 1e-12 rad away the measure is ~1e-6 and the coefficients are the motion's."""
     turn = {name: jnp.stack([jnp.cos(a), jnp.sin(a)]) for name, a in pose.angles.items()}
     zeros = lambda named: {name: jnp.zeros(2) for name in named}  # noqa: E731 (no rates needed)

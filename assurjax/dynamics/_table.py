@@ -52,6 +52,7 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._jit import jit
+from .._kinematics import coefficients, singular_groups, singularity_measures
 from .._loads import any_velocity_dependent, check_loads
 from .._mechanism import Mechanism
 from .._reduction import reduce_single, reduced_acceleration
@@ -192,7 +193,10 @@ def _build_and_probe(mechanism, gravity, loads, nodes: int):
         return ok, dtau_dt, torque(q + TWO_PI, jnp.zeros(()))[0] - tau
 
     group_ok, dtau_dt, shift = jax.vmap(probe)(q)
-    return table, group_ok, dtau_dt, shift
+    declared = singular_groups(mechanism)
+    measures = jax.vmap(lambda q: singularity_measures(mechanism, coefficients(mechanism, q, order=1), declared))(q) \
+        if declared else None
+    return table, group_ok, dtau_dt, shift, measures
 
 
 def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAULT_TABLE_NODES) -> ReducedTable:
@@ -222,8 +226,10 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
     loads = tuple(loads)
     check_loads(mechanism, loads)
     check_tabulable(mechanism, loads)
-    table, group_ok, dtau_dt, shift = jax.device_get(_build_and_probe(mechanism, gravity, loads, int(nodes)))
+    table, group_ok, dtau_dt, shift, measures = jax.device_get(_build_and_probe(mechanism, gravity, loads, int(nodes)))
     _check_assembly(mechanism, np.asarray(group_ok), int(nodes))
+    if measures is not None:
+        _check_between_nodes(mechanism, np.asarray(measures), int(nodes))
     scale = 1.0 + np.max(np.abs(np.asarray(table.data[:, 2])))
     if np.max(np.abs(dtau_dt)) > 1e-12 * scale:
         raise AssurjaxError("reduction='table': the applied loads depend on time t (d tau/dt != 0 at some node), so "
@@ -232,6 +238,34 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
         raise AssurjaxError("reduction='table': the applied loads are not 2 pi-periodic in the crank angle q "
                             "(tau(q + 2 pi) != tau(q)), so one turn cannot be tabulated. Use reduction='exact'.")
     return jax.tree.map(jnp.asarray, table)
+
+
+# A dip of a group's squared singularity measure below this between two nodes is a window
+# where it cannot assemble (the measure's square is smooth through the limit: it goes negative)
+BETWEEN_NODES_DIP = 1e-9
+
+
+def _check_between_nodes(mechanism: Mechanism, measures: np.ndarray, nodes: int) -> None:
+    """A group that cannot assemble between two nodes only: the cubic through its squared
+    singularity measure f = m^2 and df/dq = 2 m m' at the interval's nodes dips below 0.
+    The nodes alone passed a slider-crank whose rod was 1e-9 m short of turning through a
+    window of 2.7e-4 rad, and the table's runs went straight through it ('reached t1', 6 rad
+    from the exact reduction's lock-up)."""
+    h = TWO_PI / nodes
+    s = np.linspace(0.0, 1.0, 33)[1:-1, None]
+    basis = (2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2)
+    for j, g in enumerate(singular_groups(mechanism)):
+        m, dm = measures[:, j, 0], measures[:, j, 1]
+        f, df = m**2, 2.0 * m * dm * h
+        cubic = basis[0] * f + basis[1] * df + basis[2] * np.roll(f, -1) + basis[3] * np.roll(df, -1)
+        dips = np.flatnonzero(cubic.min(axis=0) < -BETWEEN_NODES_DIP)
+        if dips.size:
+            k = int(dips[0])
+            raise AssurjaxError(
+                f"reduction='table': group '{mechanism.groups[g].name}' cannot assemble between the nodes q = "
+                f"{k * h:.6f} and {(k + 1) * h:.6f} rad (its singular measure's square dips below 0 there: a limit "
+                "position within one node spacing): the crank cannot turn fully, so the reduction cannot be "
+                "tabulated over one turn. Use the exact reduction (reduction='exact').")
 
 
 def _check_assembly(mechanism: Mechanism, group_ok: np.ndarray, nodes: int) -> None:
