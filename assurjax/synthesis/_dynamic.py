@@ -23,7 +23,10 @@ the adjoint named by ``adjoint``:
   panels (0.2 at 4, 2e-8 at 64, 3e-9 at 256) where "sensitivity" gave 2.5e-9. Settings: ``solver``, ``rtol``, ``atol``, ``dt``,
   ``max_steps``, ``panels`` (default 16), ``nodes`` (default 6 per panel): raise
   ``panels`` where the motion changes fast (compare two panel counts, or with
-  "sensitivity", when it matters).
+  "sensitivity", when it matters). Where a panel's polynomial does not resolve the
+  acceleration's slopes at all (a guard against gross failure only: a slider-crank driven
+  over two turns gave derivatives 44x off at 16 panels) the derivatives are NaN; a 1e-2
+  error at 64 panels on the same motion passes the guard.
 - ``"sensitivity"``: the forward-sensitivity equations S' = f_y S + f_p integrated
   by diffrax together with the state (one reverse pass of the acceleration per stage);
   same accuracy, no quadrature parameters, slower.
