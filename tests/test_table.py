@@ -295,3 +295,22 @@ def test_a_window_between_the_nodes_where_a_group_cannot_assemble_is_refused():
         aj.build_table(short, scene.gravity, scene.loads)
     turns = eqx.tree_at(lambda m: (m.groups[1].offset, m.groups[1].direction), scene.mechanism, (-(0.2 - 1e-6), guide))
     assert np.all(np.asarray(aj.build_table(turns, scene.gravity, scene.loads).ok))
+
+
+def test_final_state_with_a_table_checks_it_as_build_table_does():
+    """final_state(..., reduction="table") built its table inside the traced program, without
+    build_table's checks: on the slider-crank 1e-9 m short of turning fully (the window between
+    nodes above) it returned a state 6 rad past the exact reduction's lock-up. Refused now
+    where the mechanism is concrete; traced (under grad), the run goes as before."""
+    from assurjax import synthesis as syn
+
+    scene = aj.load_scene("slider_crank")
+    tilt = np.pi / 4096
+    guide = jnp.array([np.cos(tilt), np.sin(tilt)])
+    short = scene.replace_mechanism(eqx.tree_at(lambda m: (m.groups[1].offset, m.groups[1].direction), scene.mechanism,
+                                                (-(0.2 + 1e-9), guide)))
+    with pytest.raises(aj.AssurjaxError, match="group 'rod_slider' cannot assemble between the nodes"):
+        syn.final_state(short, 0.5, q0=0.5, omega0=20.0, reduction="table")
+    q, w = syn.final_state(scene, 0.5, q0=0.5, omega0=2.0, reduction="table")
+    q_exact, w_exact = syn.final_state(scene, 0.5, q0=0.5, omega0=2.0)
+    assert abs(float(q) - float(q_exact)) < 1e-6

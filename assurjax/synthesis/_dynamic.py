@@ -53,6 +53,7 @@ from ..dynamics._field import arrival_acceleration
 from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
 from ..dynamics._settings import ADJOINTS, check_single_start, fixed_step_from, settings_from
 from ..dynamics._stick import jammed_members
+from ..dynamics._table import build_table
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_state
 
@@ -67,6 +68,10 @@ def _settings(scene, settings: dict, **fixed):
     """The scene's settings under the caller's, for a lean run (no outputs, exact reduction)."""
     opts = settings_from(scene, **{"samples": 2, "domega": False, "points": (), "angles": (), "energies": False,
                                    **settings, **fixed})
+    if opts.reduction == "table" and not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scene.model)):
+        # the run builds its table traced, without build_table's checks (a window between its
+        # nodes where a group cannot assemble: a state 6 rad past the exact reduction's lock-up)
+        build_table(scene.mechanism, scene.gravity, scene.loads, opts.table_nodes)
     return opts._replace(reduction="exact") if opts.reduction == "auto" else opts
 
 
