@@ -225,8 +225,13 @@ def singular_groups(mechanism: Mechanism) -> list[int]:
 
 def singularity_measures(mechanism: Mechanism, coeffs: Coefficients, groups) -> Array:
     """(measure, its q-derivative) of each of ``groups`` (indices; see
-    :func:`singular_groups`) at the coefficients' q: (len(groups), 2)."""
-    (x, _, _, turn), (dx, _, _, dturn) = coeffs.x, coeffs.dx
+    :func:`singular_groups`) at the coefficients' q: (len(groups), 2); of order-0
+    coefficients the derivatives are 0 (not computed)."""
+    (x, _, _, turn) = coeffs.x
+    if coeffs.dx is None:
+        dx, dturn = ({name: jnp.zeros(2) for name in named} for named in (x, turn))
+    else:
+        dx, dturn = coeffs.dx[0], coeffs.dx[3]
     return jnp.stack([jnp.stack(mechanism.groups[i].singularity(x, dx, turn, dturn)) for i in groups])
 
 

@@ -28,7 +28,7 @@ from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from .._values import all_finite
-from .._kinematics import singular_groups
+from .._kinematics import coefficients, singular_groups, singularity_measures
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
@@ -141,9 +141,9 @@ def _checked_starts(sol: Solution, mechanism, q0, *, assembly: bool) -> Solution
     singular = singular_groups(mechanism)
     if not (singular or assembly):
         return sol
-    start = positions(mechanism, q0)
+    start = coefficients(mechanism, q0, order=0)
     if singular:
-        sol = _checked_regular_start(sol, mechanism, singular, start)
+        sol = _checked_regular_start(sol, mechanism, singularity_measures(mechanism, start, singular)[:, 0], singular)
     return _checked_start(sol, start.ok) if assembly else sol
 
 
@@ -159,19 +159,15 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
 START_SINGULAR_MEASURE = 1e-9  # |singularity measure| (a sine or cosine) below which a closed form sits on its square root's clamp
 
 
-def _checked_regular_start(sol: Solution, mechanism, declared, pose) -> Solution:
+def _checked_regular_start(sol: Solution, mechanism, measures, declared) -> Solution:
     """A start exactly at a singular configuration of a group that declares one (its
     ``singularity`` measure below START_SINGULAR_MEASURE; the RRR, RRP/PRR and RPR dyads:
     the square root of their closed form is clamped there, which keeps its derivatives
     finite, and they are not the motion's: a four-bar drawn at its crank's limit swung off
-    it gaining 2 % of its energy) is no motion: say so. ``declared``: the groups that declare
-    a measure (:func:`assurjax._kinematics.singular_groups`); ``pose``: the start's. Within ~1e-14 rad of such a
-    point; 1e-12 rad away the measure is ~1e-6 and the coefficients are the motion's."""
-    turn = {name: jnp.stack([jnp.cos(a), jnp.sin(a)]) for name, a in pose.angles.items()}
-    zeros = lambda named: {name: jnp.zeros(2) for name in named}  # noqa: E731 (no rates needed)
-    measures = jnp.stack([jnp.abs(mechanism.groups[i].singularity(pose.points, zeros(pose.points), turn, zeros(turn))[0])
-                          for i in declared])
-    at = measures <= START_SINGULAR_MEASURE
+    it gaining 2 % of its energy) is no motion: say so. ``measures``: at the start, of the
+    groups ``declared`` (:func:`assurjax._kinematics.singular_groups`). Within ~1e-14 rad of
+    such a point; 1e-12 rad away the measure is ~1e-6 and the coefficients are the motion's."""
+    at = jnp.abs(measures) <= START_SINGULAR_MEASURE
     first = jnp.asarray(declared)[jnp.argmax(at)]
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(jnp.any(at), RESULTS.start_singular, sol.result),

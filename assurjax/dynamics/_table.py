@@ -87,8 +87,7 @@ class ReducedTable(eqx.Module):
         i = jnp.clip(jnp.floor(u), 0, n - 1).astype(jnp.int32)
         s = (u - i)[..., None]  # broadcast against the three columns
         (f0, d0), (f1, d1) = (jnp.split(self._row(k), 2, axis=-1) for k in (i, jnp.where(i + 1 == n, 0, i + 1)))
-        s2, r = s * s, 1.0 - s
-        p = (1.0 + 2.0 * s) * r * r * f0 + s * r * r * h * d0 + s2 * (3.0 - 2.0 * s) * f1 - s2 * r * h * d1
+        p = hermite(s, h, f0, d0, f1, d1)
         return p[..., 0], p[..., 1], p[..., 2]
 
     def _row(self, k):
@@ -245,6 +244,13 @@ def build_table(mechanism: Mechanism, gravity=None, loads=(), nodes: int = DEFAU
 BETWEEN_NODES_DIP = 1e-9
 
 
+def hermite(s, h, f0, d0, f1, d1):
+    """The cubic through (f0, d0) and (f1, d1) (values, derivatives) at the ends of an interval
+    of length h, at its fraction s (NumPy or JAX arrays)."""
+    s2, r = s * s, 1.0 - s
+    return (1.0 + 2.0 * s) * r * r * f0 + s * r * r * h * d0 + s2 * (3.0 - 2.0 * s) * f1 - s2 * r * h * d1
+
+
 def _check_between_nodes(mechanism: Mechanism, measures: np.ndarray, nodes: int) -> None:
     """A group that cannot assemble between two nodes only: the cubic through its squared
     singularity measure f = m^2 and df/dq = 2 m m' at the interval's nodes dips below 0.
@@ -253,11 +259,10 @@ def _check_between_nodes(mechanism: Mechanism, measures: np.ndarray, nodes: int)
     from the exact reduction's lock-up)."""
     h = TWO_PI / nodes
     s = np.linspace(0.0, 1.0, 33)[1:-1, None]
-    basis = (2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2)
     for j, g in enumerate(singular_groups(mechanism)):
         m, dm = measures[:, j, 0], measures[:, j, 1]
-        f, df = m**2, 2.0 * m * dm * h
-        cubic = basis[0] * f + basis[1] * df + basis[2] * np.roll(f, -1) + basis[3] * np.roll(df, -1)
+        f, df = m**2, 2.0 * m * dm
+        cubic = hermite(s, h, f, df, np.roll(f, -1), np.roll(df, -1))
         dips = np.flatnonzero(cubic.min(axis=0) < -BETWEEN_NODES_DIP)
         if dips.size:
             k = int(dips[0])

@@ -68,11 +68,17 @@ def _settings(scene, settings: dict, **fixed):
     """The scene's settings under the caller's, for a lean run (no outputs, exact reduction)."""
     opts = settings_from(scene, **{"samples": 2, "domega": False, "points": (), "angles": (), "energies": False,
                                    **settings, **fixed})
-    if opts.reduction == "table" and not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scene.model)):
-        # the run builds its table traced, without build_table's checks (a window between its
-        # nodes where a group cannot assemble: a state 6 rad past the exact reduction's lock-up)
-        build_table(scene.mechanism, scene.gravity, scene.loads, opts.table_nodes)
     return opts._replace(reduction="exact") if opts.reduction == "auto" else opts
+
+
+def _checked_table(scene, opts):
+    """With ``reduction="table"`` and a concrete model, the table built with every check of
+    :func:`assurjax.build_table`, for the run to use; else None (the run builds it traced,
+    where those checks cannot run: a window between its nodes where a group cannot assemble
+    gave a state 6 rad past the exact reduction's lock-up)."""
+    if opts.reduction != "table" or _traced(*jax.tree.leaves(scene.model)):
+        return None
+    return build_table(scene.mechanism, scene.gravity, scene.loads, opts.table_nodes)
 
 
 def _check_start(scene, q0, omega0, t1, adjoint) -> None:
@@ -110,7 +116,7 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     # past a lock-up the motion means nothing: whether the final pose assembles, in the run's program
     model = scene.model
     sol, assembles = _run(model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts,
-                          final_pose=True)
+                          final_pose=True, table=_checked_table(scene, opts))
     return _run_as_asked("final_state", sol, model, opts, (sol.q_final, sol.omega_final),
                          ended=lambda event: event < 0, assembles=assembles)
 
@@ -179,21 +185,22 @@ def _run_as_asked(what: str, sol, model, settings, values: tuple, *, ended, asse
     return values
 
 
-def _run(model, q0, omega0, t0, t1, dt, settings, *, final_pose: bool = False):
+def _run(model, q0, omega0, t0, t1, dt, settings, *, final_pose: bool = False, table=None):
     """``simulate_core`` as one cached program (:func:`_core_program`), its numbers as arrays;
-    with ``final_pose``, (the Solution, whether the mechanism assembles at its final q)."""
+    with ``final_pose``, (the Solution, whether the mechanism assembles at its final q).
+    ``table``: a checked table for ``reduction="table"`` (None: built in the program)."""
     numbers = tuple(None if v is None else jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1, dt))
-    return _core_program(model, *numbers, settings, final_pose)
+    return _core_program(model, *numbers, settings, final_pose, table)
 
 
 @jit
-def _core_program(model, q0, omega0, t0, t1, dt, settings, final_pose: bool):
+def _core_program(model, q0, omega0, t0, t1, dt, settings, final_pose: bool, table):
     """``simulate_core`` compiled once per structure and settings, the model's arrays and the
     numbers traced. Called in pieces, under a ``jax.grad`` that the user has not jitted, the
     segment loop of the exact friction law was traced and compiled anew at every call (the
     slider-crank's derivative in mu: 51 s a call, 0.1 s once compiled). ``final_pose``: also
     whether the mechanism assembles at the final q."""
-    sol = simulate_core(model, None, (), q0, omega0, t0, t1, None, dt, settings=settings)
+    sol = simulate_core(model, None, (), q0, omega0, t0, t1, None, dt, settings=settings, table=table)
     return (sol, jnp.all(assembled(model.mechanism, sol.q_final))) if final_pose else sol
 
 
@@ -227,7 +234,8 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t1 = state.get("t1", 1.0) if t1 is None else t1
     model = scene.model
-    sol = _run(model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts)
+    sol = _run(model, q0, omega0, state.get("t0", 0.0), t1, fixed_step_from(scene, settings.get("dt")), opts,
+               table=_checked_table(scene, opts))
     alpha = jax.lax.stop_gradient(arrival_acceleration(model, sol.t_final, sol.q_final, sol.omega_final,
                                                        jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float),
                                                        jnp.asarray(state.get("t0", 0.0), dtype=float)))

@@ -13,7 +13,7 @@ import numpy as np
 from .._errors import AssemblyError, AssurjaxError
 from .._values import check_value, check_values
 from ._design import Design
-from ._dynamic import SENSITIVITY_ROUTES, _check_start, _route, _settings, standstill_time
+from ._dynamic import SENSITIVITY_ROUTES, _check_start, _checked_table, _route, _settings, standstill_time
 from ._sensitivity import _options
 from ._linkages import roberts_like
 from ._objectives import coupler_curve, line_pose, straight_line_deviation
@@ -218,7 +218,7 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
     if adjoint in SENSITIVITY_ROUTES:  # a misspelt or out-of-range setting, before any run
         _options(scene, _route(adjoint, settings))
     else:
-        _settings(scene, settings, standstill=True, adjoint=adjoint)
+        _checked_table(scene, _settings(scene, settings, standstill=True, adjoint=adjoint))
     base = (jnp.asarray(mass[0], dtype=float), jnp.asarray(position[0], dtype=float))
     design = Design(base, lambda v: v, lower=(mass[1], position[1]), upper=(mass[2], position[2]))
 
