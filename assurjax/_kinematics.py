@@ -418,8 +418,9 @@ def broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
 
 
 def first_failure(mechanism: Mechanism, ok, q):
-    """(group, q, count) of the first False flag in ``ok`` (last axis: groups), or
-    None when all are True or the flags are traced."""
+    """(group, q, a note of how many configurations fail: "" for a single one, else
+    " (k of n configurations fail)") of the first False flag in ``ok`` (last axis: groups),
+    or None when all are True or the flags are traced."""
     if isinstance(ok, jax.core.Tracer):
         return None
     ok = np.asarray(ok)
@@ -427,16 +428,18 @@ def first_failure(mechanism: Mechanism, ok, q):
         return None
     bad = np.argwhere(~ok)[0]
     q_bad = float(np.asarray(q)[tuple(bad[:-1])]) if np.ndim(q) else float(q)
-    count = int((~ok).any(-1).sum()) if ok.ndim > 1 else 1
-    return mechanism.groups[bad[-1]], q_bad, count
+    if ok.ndim < 2:
+        return mechanism.groups[bad[-1]], q_bad, ""
+    failing, total = int((~ok).any(-1).sum()), int(np.prod(ok.shape[:-1]))
+    return mechanism.groups[bad[-1]], q_bad, f" ({failing} of {total} configurations fail)"
 
 
 def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
     """Raise :class:`AssemblyError` naming the first group that cannot assemble (no-op under tracing)."""
     failure = first_failure(mechanism, ok, q)
     if failure is not None:
-        group, q_bad, count = failure
-        raise AssemblyError(f"{group.describe()} cannot assemble at q = {q_bad:.6g} ({count} configuration(s) fail)", group=group.name)
+        group, q_bad, how_many = failure
+        raise AssemblyError(f"{group.describe()} cannot assemble at q = {q_bad:.6g}{how_many}", group=group.name)
 
 
 def pose_at(mechanism: Mechanism, q) -> Pose:

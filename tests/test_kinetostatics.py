@@ -522,6 +522,10 @@ def test_reactions_where_a_group_does_not_close_say_so():
     with pytest.raises(assurjax.AssemblyError, match="group 'dyad43' \\(RRR\\) cannot assemble at q = 2") as info:
         static_reactions(roberts, 2.0)
     assert info.value.group == "dyad43"
+    assert str(info.value).endswith("at q = 2")  # one configuration: no count
+    # a batch counts its failures against its size: q = 2 and 2.1 fail, 0.5 closes
+    with pytest.raises(assurjax.AssemblyError, match=r"at q = 2 \(2 of 3 configurations fail\)$"):
+        assurjax.kinematics(roberts.mechanism, np.array([0.5, 2.0, 2.1]))
 
 
 def test_a_request_for_too_many_states_is_refused_before_its_values_are_read():

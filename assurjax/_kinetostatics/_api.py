@@ -610,12 +610,11 @@ def raise_if_singular(mechanism: Mechanism, ok, q) -> None:
     failure = first_failure(mechanism, ok, q)
     if failure is None:
         return
-    group, q_bad, count = failure
+    group, q_bad, how_many = failure
     # a group that does not close there says so (kinematics' error), where its statics is not singular but void
     raise_if_not_assembled(mechanism, positions(mechanism, q_bad).ok, q_bad)
     raise SingularConfigurationError(
-        f"{group.describe()}: its equilibrium equations are singular at q = {q_bad:.6g}; "
-        f"{count} state(s) affected. A singular group (e.g. a dyad with "
+        f"{group.describe()}: its equilibrium equations are singular at q = {q_bad:.6g}{how_many}. A singular group (e.g. a dyad with "
         "its links collinear) cannot carry a general load: its reactions are not determined by statics",
         group=group.name,
     )
