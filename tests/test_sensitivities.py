@@ -332,6 +332,24 @@ def test_sensitivity_routes_reject_bad_input(watt):
         syn.standstill_time_problem(watt, -1.0)
 
 
+def test_forward_mode_through_the_default_adjoint():
+    """jax.jvp / jax.jacfwd of final_state with the default adjoint (reverse-mode
+    "recursive") raised JAX's "can't apply forward-mode autodiff (jvp) to a custom_vjp
+    function"; it runs as adjoint="forward" there, against central differences in gravity.
+    Forward over reverse (jax.hessian) neither adjoint takes: refused by name, before any run."""
+    slider = assurjax.load_scene("slider_crank")
+    g, v = jnp.asarray(slider.gravity, dtype=float), jnp.array([1.0, 0.5])
+    f = lambda g: syn.final_state(eqx.tree_at(lambda s: s.gravity, slider, g), 0.3, **SIM)[0]  # noqa: E731
+    jvp = jax.jvp(f, (g,), (v,))[1]
+    fd = _directional_fd(jax.jit(f), g, v, 1e-3)
+    assert abs(jvp - fd) <= RTOL * abs(fd), (float(jvp), float(fd))
+    with pytest.raises(assurjax.AssurjaxError, match="final_state: forward-mode derivatives of reverse-mode ones"):
+        jax.hessian(f)(g)
+    with pytest.raises(assurjax.AssurjaxError, match="backsolve.*reverse mode only"):
+        jax.jvp(lambda g: syn.final_state(eqx.tree_at(lambda s: s.gravity, slider, g), 0.3, adjoint="backsolve")[0],
+                (g,), (v,))
+
+
 @pytest.mark.slow
 def test_backsolve_adjoint_matches_the_recursive_one():
     """adjoint='backsolve' (diffrax's BacksolveAdjoint) against the recursive checkpointed

@@ -6,6 +6,11 @@ the adjoint named by ``adjoint``:
 - ``"recursive"`` (diffrax.RecursiveCheckpointAdjoint, the default): reverse mode,
   exact gradients of the computed solution (discretize-then-optimize); best for
   many parameters (the whole mechanism) and one scalar result.
+  Under ``jax.jvp`` or ``jax.jacfwd`` (traced by them when this is called) it runs as
+  ``"forward"``: the same derivatives (diffrax's reverse-mode adjoints take no forward
+  mode). A ``jax.jacfwd`` of a jitted function calling this is not seen here and raises
+  JAX's TypeError: jit inside the jacfwd, or ask ``adjoint="forward"``. Forward over
+  reverse (``jax.hessian``) is refused: nest ``jax.jacfwd`` instead.
 - ``"forward"`` (diffrax.ForwardMode): forward mode (``jax.jvp``/``jax.jacfwd``);
   best for a few parameters or directional derivatives (one jvp ~3x a simulation;
   ``jax.jacfwd`` over 50 parameters ~100-200x: every tangent goes through the
@@ -60,6 +65,39 @@ from ._sensitivity import final_state_sensitivity, standstill_state
 SENSITIVITY_ROUTES = {"quadrature": "quadrature", "sensitivity": "loop"}
 
 
+def _derivative_modes(*trees) -> set[str]:
+    """The autodiff modes tracing any leaf of ``trees``: "forward" (jax.jvp, jax.jacfwd),
+    "reverse" (jax.grad, jax.vjp, jax.linearize), read down each tracer's chain of primals
+    (a vmapped jacfwd: a forward tracer over a batch tracer)."""
+    modes = set()
+    for leaf in jax.tree.leaves(trees):
+        while isinstance(leaf, jax.core.Tracer):
+            kind = type(leaf).__name__
+            modes |= {"JVPTracer": {"forward"}, "LinearizeTracer": {"reverse"}}.get(kind, set())
+            leaf = getattr(leaf, "primal", getattr(leaf, "val", None))
+    return modes
+
+
+def _adjoint_for_modes(name: str, adjoint: str, *inputs) -> str:
+    """The diffrax adjoint for the derivatives being taken of ``inputs``: the default,
+    reverse-mode "recursive", becomes "forward" under jax.jvp or jax.jacfwd (the same
+    derivatives: diffrax's reverse-mode adjoints take no forward-mode derivative and raised
+    JAX's own TypeError). Forward over reverse (jax.hessian, jax.jacfwd of jax.grad) neither
+    adjoint can take: refused, naming the routes that can."""
+    modes = _derivative_modes(*inputs)
+    if adjoint not in ("recursive", "backsolve") or "forward" not in modes:
+        return adjoint
+    if "reverse" in modes:
+        raise AssurjaxError(f"{name}: forward-mode derivatives of reverse-mode ones (jax.hessian, jax.jacfwd of "
+                            f"jax.grad) do not pass diffrax's adjoint {adjoint!r}, and adjoint='forward' takes no "
+                            "reverse mode: nest forward modes (jax.jacfwd of jax.jacfwd), or take the outer "
+                            "derivative by differences")
+    if adjoint == "backsolve":
+        raise AssurjaxError(f"{name}: adjoint='backsolve' is reverse mode only; jax.jvp and jax.jacfwd need "
+                            "adjoint='forward' (or 'recursive', the default, which switches to it)")
+    return "forward"
+
+
 def _route(adjoint: str, settings: dict) -> dict:
     return {**settings, "method": SENSITIVITY_ROUTES[adjoint]}
 
@@ -106,6 +144,7 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     this raises :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``,
     ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run."""
     _check_start(scene, q0, omega0, t1, adjoint)
+    adjoint = _adjoint_for_modes("final_state", adjoint, scene, q0, omega0, t1, settings)
     if adjoint in SENSITIVITY_ROUTES:
         q, w, result = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return _route_as_asked("final_state", result, (q, w), pose=(scene.mechanism, q))
@@ -225,6 +264,7 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     if adjoint == "backsolve":  # diffrax's BacksolveAdjoint takes no events
         raise AssurjaxError("standstill_time: adjoint='backsolve' solves no events, and the standstill is one; use "
                             "'recursive', 'forward', 'quadrature' or 'sensitivity'")
+    adjoint = _adjoint_for_modes("standstill_time", adjoint, scene, q0, omega0, t1, settings)
     if adjoint in SENSITIVITY_ROUTES:
         t_star, q_star, ok, result = standstill_state(scene, t1=t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
         return _route_as_asked("standstill_time", result, (t_star, ok), pose=(scene.mechanism, q_star))
