@@ -28,7 +28,12 @@ figure; the machine's load moves both alike).
 
     python benchmarks/bench_friction_step_parts.py [--repeats 2] [--out FILE]
 
-Writes results/friction_step_parts.json unless told otherwise.
+Writes results/friction_step_parts.json unless told otherwise. With ``--rhs``, the same floors
+on one right-hand side (``bench_friction.per_serial_evaluation``: evaluations one after another
+in one program, as a step's stages call them) of the slider-crank, the Watt six-bar, the press
+and the strandbeest with friction in every pair, each variant's against the frictionless one
+measured in turns in one process (the median of the rounds' ratios); writes
+results/friction_rhs_parts.json.
 """
 
 from __future__ import annotations
@@ -59,6 +64,32 @@ q_end = float(np.asarray(assurjax.simulate(press, stop=None, t1=2.0, samples=2).
 print(json.dumps(dict(plain_us=r["plain"]["us_per_step"], friction_us=r["friction"]["us_per_step"],
                       ratio=r["friction_ratio"]["median"], quartiles=r["friction_ratio"]["quartiles"],
                       steps=r["friction"]["steps"], q_end_2s=q_end)))
+"""
+
+
+RHS_VARIANTS = ("shipped", "law once, no bound", "no statics, law once, no bound")
+RHS_SCENES = ("slider_crank", "watt_sixbar", "press_with_friction", "strandbeest")
+
+RHS_CHILD = r"""
+import json, sys
+import numpy as np
+import assurjax
+import bench_friction_step_parts as parts
+from bench_friction import frictions, per_serial_evaluation
+
+name, variant = sys.argv[1].split(":")
+parts.apply(variant)
+scene = assurjax.load_scene(name)
+plain = tuple(load for load in scene.loads if not load.needs_reactions)
+rough = scene.loads if len(plain) < len(scene.loads) else scene.loads + frictions(scene.mechanism)
+n = 200 if name == "strandbeest" else 1000
+times = {"plain": [], "friction": []}
+for _ in range(7):
+    for key, loads in (("plain", plain), ("friction", rough)):
+        times[key].append(1e6 * per_serial_evaluation(scene, loads, n=n))
+ratios = np.asarray(times["friction"]) / np.asarray(times["plain"])
+print(json.dumps(dict(elements=len(rough) - len(plain), plain_us=min(times["plain"]), friction_us=min(times["friction"]),
+                      ratio=float(np.median(ratios)), quartiles=[float(np.percentile(ratios, 25)), float(np.percentile(ratios, 75))])))
 """
 
 
@@ -118,15 +149,26 @@ def main():
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--out", default=str(HERE / "results" / "friction_step_parts.json"))
+    parser.add_argument("--out", default=None)
+    parser.add_argument("--rhs", action="store_true", help="the floors on one right-hand side of four mechanisms")
     args = parser.parse_args()
+    if args.rhs:
+        runs = {f"{name}:{variant}": [] for name in RHS_SCENES for variant in RHS_VARIANTS}
+        for _ in range(args.repeats):
+            for case, case_runs in runs.items():
+                case_runs.append(child_run(RHS_CHILD, str(HERE.parent), case))
+                print(case, json.dumps(case_runs[-1]), flush=True)
+        result = dict(machine=platform.platform(), cpus=os.cpu_count(), variants=runs)
+        with open(args.out or HERE / "results" / "friction_rhs_parts.json", "w") as f:
+            json.dump(result, f, indent=1)
+        return
     runs = {variant: [] for variant in VARIANTS}
     for _ in range(args.repeats):  # the variants in turns
         for variant in VARIANTS:
             runs[variant].append(child_run(CHILD, str(HERE.parent), variant))
             print(variant, json.dumps(runs[variant][-1]), flush=True)
     result = dict(machine=platform.platform(), cpus=os.cpu_count(), scene="press_with_friction", variants=runs)
-    with open(args.out, "w") as f:
+    with open(args.out or HERE / "results" / "friction_step_parts.json", "w") as f:
         json.dump(result, f, indent=1)
 
 

@@ -27,11 +27,12 @@ the adjoint named by ``adjoint``:
   atol = 1e-10, against central differences) the Jacobian erred by 2e-5 relative at 16
   panels (0.2 at 4, 2e-8 at 64, 3e-9 at 256) where "sensitivity" gave 2.5e-9. Settings: ``solver``, ``rtol``, ``atol``, ``dt``,
   ``max_steps``, ``panels`` (default 16), ``nodes`` (default 6 per panel): raise
-  ``panels`` where the motion changes fast (compare two panel counts, or with
-  "sensitivity", when it matters). Where a panel's polynomial does not resolve the
-  acceleration's slopes at all (a guard against gross failure only: a slider-crank driven
-  over two turns gave derivatives 44x off at 16 panels) the derivatives are NaN; a 1e-2
-  error at 64 panels on the same motion passes the guard.
+  ``panels`` where the motion changes fast. The error is estimated (S again with A
+  interpolated one degree lower, in the same transition solve): where it exceeds 1e-3 of a
+  column's largest entry the derivatives are NaN, a loud failure (a slider-crank driven over
+  two turns: 44x off at 16 panels, 1.7e-2 at 64 (estimated ~1e-2): NaN; 8e-6 at 128
+  (estimated ~1e-5) and 1.4e-6 at 256 pass). Below it the error can still reach ~1e-3
+  relative: compare two panel counts, or "sensitivity", where that matters.
 - ``"sensitivity"``: the forward-sensitivity equations S' = f_y S + f_p integrated
   by diffrax together with the state (one reverse pass of the acceleration per stage);
   same accuracy, no quadrature parameters, slower.
