@@ -385,6 +385,21 @@ def test_final_state_past_a_lock_up_is_no_result():
     assert np.isfinite(q) and np.asarray(assurjax.positions(scene.mechanism, q).ok).all()
 
 
+def test_standstill_time_without_a_standstill_has_t1s_derivative():
+    """No standstill before t1: t* = t1, ok False, and d t*/d q0 = 0 (central differences);
+    the implicit-function term was applied there too and gave 1.35. jax.grad with
+    adjoint='forward' is refused by name (it raised JAX's while_loop error)."""
+    slider = assurjax.load_scene("slider_crank")
+    f = lambda q0: syn.standstill_time(slider, q0=q0, omega0=5.0, t1=0.1)  # noqa: E731
+    t_star, ok = f(1.0)
+    assert float(t_star) == 0.1 and not bool(ok)
+    fd = (f(1.0 + 1e-4)[0] - f(1.0 - 1e-4)[0]) / 2e-4
+    assert float(fd) == 0.0
+    assert float(jax.grad(lambda q0: f(q0)[0])(1.0)) == 0.0
+    with pytest.raises(assurjax.AssurjaxError, match="standstill_time: adjoint='forward'.*jax.grad use 'recursive'"):
+        jax.grad(lambda q0: syn.standstill_time(slider, q0=q0, omega0=5.0, t1=0.1, adjoint="forward")[0])(1.0)
+
+
 def test_standstill_time_past_a_lock_up_is_no_result():
     """The sensitivity routes integrate through a lock-up (no assembly checks): an offset
     slider-crank that locks up at 0.31 s (simulate stops there) came to a 'standstill' at

@@ -84,8 +84,12 @@ def _adjoint_for_modes(name: str, adjoint: str, *inputs) -> str:
     reverse-mode "recursive", becomes "forward" under jax.jvp or jax.jacfwd (the same
     derivatives: diffrax's reverse-mode adjoints take no forward-mode derivative and raised
     JAX's own TypeError). Forward over reverse (jax.hessian, jax.jacfwd of jax.grad) neither
-    adjoint can take: refused, naming the routes that can."""
+    adjoint can take, nor "forward" reverse mode: refused, naming the routes that can."""
     modes = _derivative_modes(*inputs)
+    if adjoint == "forward" and "reverse" in modes:
+        raise AssurjaxError(f"{name}: adjoint='forward' (diffrax's ForwardMode) takes forward-mode derivatives only "
+                            "(jax.jvp, jax.jacfwd); for jax.grad use 'recursive' (the default), 'backsolve', "
+                            "'quadrature' or 'sensitivity'")
     if adjoint not in ("recursive", "backsolve") or "forward" not in modes:
         return adjoint
     if "reverse" in modes:
@@ -280,8 +284,9 @@ def standstill_time(scene, *, t1=None, q0=None, omega0=None, adjoint: str = "rec
     alpha = jax.lax.stop_gradient(arrival_acceleration(model, sol.t_final, sol.q_final, sol.omega_final,
                                                        jnp.asarray(q0, dtype=float), jnp.asarray(omega0, dtype=float),
                                                        jnp.asarray(state.get("t0", 0.0), dtype=float)))
-    w = sol.omega_final
-    t_star = sol.t_final - (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha)
-    # at its standstill, or at t1 with none before it (ok False)
-    return _run_as_asked("standstill_time", sol, model, opts, (t_star, sol.event == STANDSTILL),
+    w, stopped = sol.omega_final, sol.event == STANDSTILL
+    # at its standstill the implicit-function term; at t1 with none before it (ok False) t1, whose
+    # derivative is t1's own (the term there gave d t*/d q0 = 1.35 where differences give 0)
+    moved = jnp.where(stopped, (w - jax.lax.stop_gradient(w)) / jnp.where(alpha == 0, 1.0, alpha), 0.0)
+    return _run_as_asked("standstill_time", sol, model, opts, (sol.t_final - moved, stopped),
                          ended=lambda event: event <= STANDSTILL)
