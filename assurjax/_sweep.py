@@ -383,7 +383,7 @@ def batch_simulate(
     member that locks up or fails does not stop the others).
     """
     from .dynamics._settings import check_single_start, fixed_step_from, settings_from
-    from .dynamics._solve import checked_saveat, simulate_core
+    from .dynamics._solve import check_steps_request, checked_saveat, simulate_core
     from .dynamics._solution import batch_summary
     from .dynamics._stick import batch_settings, jammed_members
 
@@ -403,6 +403,8 @@ def batch_simulate(
                             "not batches (use samples or saveat)")
     step = fixed_step_from(scene, settings.get("dt"))
     gravity, loads = scene.gravity, scene.loads
+    if options.steps is not None:  # as simulate's (friction, events, saveat and dt refused)
+        check_steps_request(options, scene.model, saveat, step)
     if saveat is not None:  # as simulate's
         saveat = checked_saveat(saveat, t0, t1)
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)

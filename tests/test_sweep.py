@@ -184,6 +184,19 @@ def test_batch_simulate_with_friction_matches_single_simulations():
     assert np.all(np.asarray(short.num_steps) <= 100 + BATCH_SEGMENT_STEPS)
 
 
+def test_batch_simulate_refuses_what_simulate_refuses_with_fixed_steps():
+    """steps= with joint friction (no stick or break-away can be located: the batch stayed at
+    rest where the slider-crank falls to q = -0.77), and steps= with saveat (silently ignored):
+    refused before any run, in simulate's words."""
+    scene = assurjax.load_scene("slider_crank")
+    rough = scene.with_loads(scene.loads + tuple(assurjax.JointFriction(j, 0.3, radius=0.02) for j in ("O", "A", "B")))
+    batch = assurjax.stack_mechanisms([scene.mechanism] * 2)
+    with pytest.raises(assurjax.AssurjaxError, match="steps= \\(fixed steps\\) cannot locate where a mechanism with joint friction"):
+        assurjax.batch_simulate(rough, batch, q0=0.5, t1=1.0, steps=200)
+    with pytest.raises(assurjax.AssurjaxError, match="steps= saves the state at each of its equal steps and takes no saveat"):
+        assurjax.batch_simulate(scene, batch, t1=1.0, steps=100, saveat=[0.1, 0.2])
+
+
 def test_a_member_that_locks_up_beside_one_that_stops_keeps_its_final_state():
     # crank 0.32 m, rod 0.3 m: from q0 = 0.5 at 5 rad/s the in-line slider-crank locks up at
     # q = asin(0.3 / 0.32); from -0.5 it comes to a standstill. Batched, diffrax re-evaluated

@@ -334,6 +334,16 @@ def check_steps(settings: Settings, model: Model | None = None) -> None:
         raise AssurjaxError("steps= needs branch='fixed' (a tracked branch travels in the adaptive solver's state)")
 
 
+def check_steps_request(settings: Settings, model: Model, saveat, step) -> None:
+    """:func:`check_steps` of a user's run (simulate, batch_simulate) with its save times and
+    constant step: steps= saves its own equal steps and takes neither."""
+    check_steps(settings, model)
+    for given, name in ((saveat, "saveat"), (step, "dt")):
+        if given is not None:
+            raise AssurjaxError(f"steps= saves the state at each of its equal steps and takes no {name}: give one of "
+                                f"them (steps, or the adaptive solver with {name})")
+
+
 def _tabulated(settings: Settings) -> bool:
     """True in table mode; clear errors for unknown modes and unsupported combinations."""
     if settings.reduction not in ("exact", "table", "auto"):
@@ -536,11 +546,7 @@ def simulate(
         return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
                                    standstill=settings.standstill, max_steps=max_steps)
     if settings.steps is not None:
-        check_steps(settings, model)
-        for given, name in ((saveat, "saveat"), (step, "dt")):
-            if given is not None:
-                raise AssurjaxError(f"steps= saves the state at each of its equal steps and takes no {name}: give one of "
-                                    f"them (steps, or the adaptive solver with {name})")
+        check_steps_request(settings, model, saveat, step)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
