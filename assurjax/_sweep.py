@@ -376,8 +376,9 @@ def batch_simulate(
     state; ``saveat``: save times (s). ``settings``: fields of
     :class:`assurjax.SimulationSettings` (``solver``, ``rtol``, ``atol``,
     ``standstill``, ``samples``, ``points``, ``angles``, ``max_steps``...) over the
-    scene's ``[simulation]`` and ``[outputs]`` (the exact reduction: one table per
-    mechanism would not pay off).
+    scene's ``[simulation]`` and ``[outputs]``. Always the exact reduction (a scene's
+    ``reduction`` 'table' or 'auto' too; the keyword ``reduction='table'`` is refused): one
+    table per mechanism would not pay off, and each would need its own checks.
     Returns an untrimmed Solution of numpy arrays with the batch axis in front:
     read ``valid``, ``event``, ``t_stop`` and ``result`` per mechanism (a batch
     member that locks up or fails does not stop the others).
@@ -395,9 +396,12 @@ def batch_simulate(
     batch_size(mechanisms)  # a ragged batch is named before its values are read
     check_batch_values(mechanisms, "batch_simulate")
     check_has_inertia(mechanisms)
+    if settings.get("reduction") == "table":
+        raise AssurjaxError("batch_simulate: reduction='table' would need a table per mechanism, built and checked "
+                            "apart (the batch's tables ran unchecked through positions a member cannot assemble in): "
+                            "batch_simulate runs the exact reduction; simulate() tabulates a batch of starts")
     options = settings_from(scene, **settings)
-    options = options._replace(reduction="exact") if options.reduction == "auto" else options
-    options = batch_settings(options, scene.loads)
+    options = batch_settings(options._replace(reduction="exact"), scene.loads)  # a scene's 'table' or 'auto' too
     if options.save_steps:  # as simulate's batches
         raise AssurjaxError("batch_simulate: save_steps saves up to max_steps states per run: it is for single runs, "
                             "not batches (use samples or saveat)")

@@ -187,7 +187,7 @@ def test_batch_simulate_with_friction_matches_single_simulations():
 def test_batch_simulate_refuses_what_simulate_refuses_with_fixed_steps():
     """steps= with joint friction (no stick or break-away can be located: the batch stayed at
     rest where the slider-crank falls to q = -0.77), and steps= with saveat (silently ignored):
-    refused before any run, in simulate's words."""
+    refused before any run, in simulate's words; and reduction='table'."""
     scene = assurjax.load_scene("slider_crank")
     rough = scene.with_loads(scene.loads + tuple(assurjax.JointFriction(j, 0.3, radius=0.02) for j in ("O", "A", "B")))
     batch = assurjax.stack_mechanisms([scene.mechanism] * 2)
@@ -195,6 +195,10 @@ def test_batch_simulate_refuses_what_simulate_refuses_with_fixed_steps():
         assurjax.batch_simulate(rough, batch, q0=0.5, t1=1.0, steps=200)
     with pytest.raises(assurjax.AssurjaxError, match="steps= saves the state at each of its equal steps and takes no saveat"):
         assurjax.batch_simulate(scene, batch, t1=1.0, steps=100, saveat=[0.1, 0.2])
+    # a table per member would run unchecked (a member whose rod is shorter than its crank ran
+    # on through positions it cannot assemble in, 'reached t1'): refused; the scene's 'table' runs exact
+    with pytest.raises(assurjax.AssurjaxError, match="batch_simulate: reduction='table' would need a table per mechanism"):
+        assurjax.batch_simulate(scene, batch, t1=1.0, reduction="table")
 
 
 def test_a_member_that_locks_up_beside_one_that_stops_keeps_its_final_state():
