@@ -354,6 +354,20 @@ def test_a_start_on_two_dead_points_then_a_jam():
     assert_reference_locks_at(reference, float(sol.q_final), float(sol.omega_final), drive=3.0)
 
 
+def test_a_heavier_mechanism_moves_the_same(slider):
+    """Every mass and inertia 1e5 times larger scales every force, the friction included, by
+    1e5: the same motion. The friction solves' absolute tolerance was capped at 1 N m, which
+    elements with small reactions beside 1e5 N m ones could not meet (their round-off is the
+    mechanism's force scale times epsilon): a jam reported at t = 0.15 s."""
+    names = list(slider.mechanism.links)
+    heavy = eqx.tree_at(lambda m: [m.links[n].mass for n in names] + [m.links[n].inertia for n in names], slider.mechanism,
+                        [1e5 * slider.mechanism.links[n].mass for n in names] + [1e5 * slider.mechanism.links[n].inertia for n in names])
+    loads = tuple(aj.JointFriction(j, 0.6, 0.05) for j in ("O", "A", "B"))
+    light, heavy = (aj.simulate(slider, mechanism=m, loads=loads, stop=None, t1=1.0, samples=51) for m in (slider.mechanism, heavy))
+    assert light.status == heavy.status == "reached t1 = 1 s", heavy.status
+    np.testing.assert_allclose(heavy.q, light.q, rtol=0, atol=1e-7)
+
+
 def test_zero_friction_reproduces_the_frictionless_motion(slider):
     """mu = 0 on every pair: with the same (fixed) steps up to the first standstill, the same
     motion as without friction to round-off; past it, the stick-slip segments (adaptive)
