@@ -278,6 +278,30 @@ def test_a_table_given_to_simulate_must_be_the_scenes(watt, tables):
         aj.simulate(aj.load_scene("press_with_friction"), table=table, **run)
 
 
+def test_the_table_checks_are_relative_to_the_mechanisms_own_size():
+    """The slider-crank shrunk to L = 1e-3 (0.4 mm) and 1e-8 of its masses (torques ~1e-11 N m):
+    the checks compared against 1 + the largest value, so a table built without gravity was
+    taken (the crank stayed at q0 where it falls), and a linear torsion spring, not periodic
+    by 3e-12 N m a turn, was tabulated. Both are refused now, as at full size."""
+    import importlib.resources
+    import tomllib
+
+    text = (importlib.resources.files("assurjax") / "scenes" / "slider_crank.toml").read_text()
+    data, length, mass = tomllib.loads(text), 1e-3, 1e-8
+    data["ground"] = {k: [length * x for x in v] for k, v in data["ground"].items()}
+    for link in data["links"].values():
+        link["points"] = {k: [length * x for x in v] for k, v in link["points"].items()}
+        link["com"] = [length * x for x in link["com"]]
+        link["mass"] *= mass
+        link["inertia"] *= mass * length**2
+    small = aj.scene_from_dict(data, source="small slider-crank")
+    with pytest.raises(aj.AssurjaxError, match="table: it does not tabulate this scene's mechanism, gravity and loads"):
+        aj.simulate(small, table=aj.build_table(small.mechanism, None, small.loads, 64), t1=0.05, samples=2)
+    spring = aj.Couple("crank", aj.Polynomial([0.0, -0.5 * mass * length], variable="q"))
+    with pytest.raises(aj.AssurjaxError, match="not 2 pi-periodic"):
+        aj.build_table(small.mechanism, small.gravity, [spring], 64)
+
+
 def test_a_window_between_the_nodes_where_a_group_cannot_assemble_is_refused():
     """The bundled slider-crank with its guide 0.2 m + 1e-9 m off the pivot (the crank 0.1 m,
     rod 0.3 m: rod - crank = 0.2 m), tilted by pi / 4096 so that the window where the rod
