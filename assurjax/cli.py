@@ -381,7 +381,7 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
                  + (f": {shares}" if shares else "")]
     else:
         lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
-    located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {peaks[FRICTION + k].t:.4f} s"
+    located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {_seconds(peaks[FRICTION + k].t)} s"
                         for k in along.friction)
     lines.append(f"  peak |friction| (located on the dense output): {located}")
     locked = int(np.count_nonzero(~along.friction_ok))
@@ -403,11 +403,16 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     from .dynamics._results import LOCKUP
 
     grid = magnitudes_of(along.forces, along.driving, along.friction)
-    # a lock-up's or a jam's final state has no dw/dt of the motion: its reactions do not count
-    stopped = int(np.asarray(sol.event)) == LOCKUP or not sol.successful
+    # a jam's final state has no dw/dt of the motion: its reactions do not count; nor do those of
+    # a lock-up's approach, which the steps do not resolve (1e-7 s before a slider's lock-up T was
+    # 1e-3 of its value, and the peak |F| found there 569 N where the motion's tends to 307 N)
+    before = None
+    if int(np.asarray(sol.event)) == LOCKUP:
+        before = float(sol.t_final) - _lockup_window(sol)
+    elif not sol.successful:
+        before = float(sol.t_final)
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
-                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene),
-                          before=float(sol.t_final) if stopped else None)
+                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene), before=before)
 
 
 def _force_peaks(peaks: dict) -> list:
@@ -417,17 +422,25 @@ def _force_peaks(peaks: dict) -> list:
     return [p for name, p in peaks.items() if name != "driving" and not name.startswith(FRICTION)]
 
 
-def _print_peaks(peaks: dict, units: dict, scene, moves: bool = True):
-    """The peaks' lines; ``moves``: whether the mechanism moves at all (else it is held at rest)."""
+def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True):
+    """The peaks' lines; ``sol``: the run they were found on (a lock-up's says where they were
+    searched); ``moves``: whether the mechanism moves at all (else it is held at rest)."""
+    import numpy as np
+
+    from .dynamics._results import LOCKUP
+
     forces = _force_peaks(peaks)
-    print("  peak |F| (located on the dense output): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {p.t:.4f} s" for p in forces))
+    where = "located on the dense output"
+    if sol is not None and int(np.asarray(sol.event)) == LOCKUP:
+        where += f", before the last {_lockup_window(sol):.3g} s: the approach to the lock-up is not resolved"
+    print(f"  peak |F| ({where}): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {_seconds(p.t)} s" for p in forces))
     drive = peaks["driving"]
     if _driving_is_round_off(peaks, scene, units):
         why = "the loads alone drive this motion" if moves else "it stays at rest"
         size = "exactly 0" if drive.value == 0 else f"largest value {drive.value:.1e} {units['driving']} is round-off"
         print(f"  driving effort: none needed ({why}; {size})")
     else:
-        print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {drive.t:.4f} s")
+        print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {_seconds(drive.t)} s")
 
 
 def _driving_is_round_off(peaks: dict, scene, units: dict) -> bool:
@@ -608,7 +621,17 @@ def _energy_drift(scene, sol):
     return drift, drift / scale
 
 
-LOCKUP_APPROACH = 0.01  # the share of a run before its lock-up whose balance the command reports apart
+LOCKUP_APPROACH = 0.01  # the share of a run before its lock-up whose balance and peaks the command reports apart
+
+
+def _lockup_window(sol) -> float:
+    """The last LOCKUP_APPROACH of a run (s), before its lock-up."""
+    return LOCKUP_APPROACH * (float(sol.t_final) - float(sol.t[0]))
+
+
+def _seconds(t) -> str:
+    """A time to 6 significant digits (4 decimals read every peak of a millimetre mechanism as 0.0080 s)."""
+    return f"{float(t):.6g}"
 
 
 def _lockup_approach(sol):
@@ -621,7 +644,7 @@ def _lockup_approach(sol):
 
     if getattr(sol, "balance", None) is None or int(np.asarray(sol.event)) != LOCKUP:
         return None
-    window = LOCKUP_APPROACH * (float(sol.t_final) - float(sol.t[0]))
+    window = _lockup_window(sol)
     before = np.asarray(sol.t) < float(sol.t_final) - window
     balance = np.abs(np.asarray(sol.balance))
     return float(np.max(balance[before], initial=0.0)), window, float(np.max(balance[~before]))
@@ -675,7 +698,7 @@ def _rest_line(scene, sol) -> str | None:
         return "  at rest throughout" + (", held by the joint friction" if held else ": nothing moves it from its start")
     if not held:
         return None  # w passes through 0 at the last sample
-    return (f"  comes to rest between the samples at t = {t[moving[-1]]:.4f} and {t[moving[-1] + 1]:.4f} s and stays "
+    return (f"  comes to rest between the samples at t = {_seconds(t[moving[-1]])} and {_seconds(t[moving[-1] + 1])} s and stays "
             "there, held by the joint friction")
 
 
@@ -744,7 +767,7 @@ def cmd_run(args) -> int:
     grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps tried (rejected ones included)")
     if peaks:
-        _print_peaks(peaks, units, scene, moves=_moves(sol))
+        _print_peaks(peaks, units, scene, sol, moves=_moves(sol))
     for line in _friction_lines(scene, sol, along, peaks) if along else _friction_total_line(scene, sol):
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
@@ -813,7 +836,7 @@ def cmd_reactions(args) -> int:
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
-    _print_peaks(peaks, units, scene, moves=_moves(sol))
+    _print_peaks(peaks, units, scene, sol, moves=_moves(sol))
     for line in _friction_lines(scene, sol, along, peaks):
         print(line)
     _print_files(files)
