@@ -234,6 +234,19 @@ def test_lockup_with_friction_stops_at_the_limit():
     assert abs(sol.q_final + test_dynamics.LIMIT) < 1e-8 and np.all(sol.q >= -test_dynamics.LIMIT - 1e-12)  # round-off
 
 
+@pytest.mark.slow  # a quick-return with friction under a drive function: ~30 s to compile
+def test_a_jam_where_the_effective_inertia_goes_to_zero_is_named():
+    """The quick-return driven by 6 sin(2 pi t / 1.5) N m with friction in its slot and at O4:
+    at t = 0.572 s dw/dt runs to -7.5e5 rad/s^2 as the effective inertia goes to 0 (det(I - S)
+    2e-3 at the end, no consistent friction 1e-5 rad further on): a Painleve jam. The jam test
+    probed only 5e-7 rad past the end and said 'NaN ahead' (a jam one of its possible causes)."""
+    scene = aj.load_scene("quick_return")
+    rough = (aj.SlideFriction("block/arm", 0.3, length=0.04), aj.JointFriction("O4", 0.3, radius=0.01))
+    drive = aj.Drive(lambda q, w, t: 6.0 * jnp.sin(2 * jnp.pi * t / 1.5))
+    sol = aj.simulate(scene, loads=rough + (drive,), q0=0.3, omega0=0.0, t1=0.6, stop=None, samples=7, throw=False)
+    assert sol.status.startswith("the joint friction jams the mechanism at t = 0.57"), sol.status
+
+
 def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     """The same rocker with 10 mm pins: near the stretched dyad its pins' friction circles
     take the coupler's force line, and the motion jams 5e-5 rad short of the limit (it used

@@ -294,7 +294,9 @@ def _expand(mask, like):
     return mask.reshape(mask.shape + (1,) * (jnp.ndim(like) - 1))
 
 
-JAM_PROBES = (1.0, 10.0, 100.0)  # past a stopped motion's end, its friction is tested where q moved by these x LOCKUP_RESOLUTION (1 + |q|)
+# past a stopped motion's end, its friction is tested where q moved by these x LOCKUP_RESOLUTION (1 + |q|):
+# up to 1e4 (~2e-5 rad), where a Painleve jam's effective inertia goes to 0 only just past the end
+JAM_PROBES = (1.0, 10.0, 100.0, 1e3, 1e4)
 
 
 def with_jam_status(sol: Solution, model: Model) -> Solution:
