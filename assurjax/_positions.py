@@ -33,6 +33,7 @@ from collections.abc import Iterable, Mapping
 from typing import NamedTuple
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -649,12 +650,14 @@ MAX_HALVINGS = 12
 def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched: bool):
     """Starting angles at q for the iterative groups ``pending`` that share the first
     one's reference (guess_q) and substeps: each is solved from its guess at guess_q,
-    then the mechanism is followed to q (for a crank the step q - guess_q is wrapped to
-    (-pi, pi]) in steps of at most (q - guess_q) / substeps, halved where needed (see
-    STEP_TRUST); each step predicts along the tangent d(angles)/dq (a jvp of the
-    analysis: the implicit function theorem through the solves) and corrects with a
-    loose Newton solve. Returns the angles at q (loosely corrected: the caller's final
-    solve corrects them, and only it is differentiated) and, per group, whether the
+    then the mechanism is followed to q in steps of at most (q - guess_q) / substeps,
+    halved where needed (see STEP_TRUST); each step predicts along the tangent
+    d(angles)/dq (a jvp of the analysis: the implicit function theorem through the solves)
+    and corrects with a loose Newton solve. For a crank the way is q - guess_q wrapped to
+    (-pi, pi], and where that does not reach q the other way round (a crank that cannot
+    turn fully, drawn nearer one end of its range than pi: the short way crosses the range
+    where it does not assemble). Returns the angles at q (loosely corrected: the caller's
+    final solve corrects them, and only it is differentiated) and, per group, whether the
     continuation reached q (when it did not: the groups whose last corrector failed, or
     all of them when the last step was rejected for another reason)."""
     first = mechanism.groups[pending[0]]
@@ -667,53 +670,73 @@ def _continued_angles(mechanism: Mechanism, q, pending: list[int], near, batched
     mech, near = _stop(mechanism), _stop(near)
     q = jax.lax.stop_gradient(q)
     q_ref = jnp.asarray(first.guess_q, dtype=q.dtype)
-    delta = q - q_ref
-    if mechanism.driver.kind == "crank":
-        delta = wrap_angle(delta)
     swept_set = frozenset(swept)
     longest = 1.0 / first.substeps  # steps are fractions of the way from q_ref to q
-
-    def corrected(s, z, from_guess):
-        """Angles of the unknown links at q_ref + s delta after a loose solve, and each swept group's convergence flag."""
-        start = near if from_guess else {**(near or {}), **z}
-        table, oks = analysis(mech, q_ref + s * delta, needed, start, materialize=False,
-                               from_guess=swept_set if from_guess else frozenset(), loose=swept_set, batched=batched)
-        return jnp.stack([heading(table[k].rot) for k in unknown]), jnp.stack([oks[i] for i in swept])
-
-    def with_tangent(s, z, from_guess):
-        """Corrected angles at s, their tangent d(angles)/ds and the flags."""
-        z_new, t, ok = jax.jvp(lambda ss: corrected(ss, z, from_guess), (s,), (jnp.ones_like(s),), has_aux=True)
-        return z_new, jnp.where(jnp.isfinite(t), t, 0.0), ok  # singular: no tangent
-
     as_dict = lambda z: dict(zip(unknown, z))  # noqa: E731
-    zero = jnp.zeros((), dtype=q.dtype)
-    z0, t0, ok0 = with_tangent(zero, None, True)  # at the reference, from the guesses
 
-    budget = 4 * first.substeps + 4 * MAX_HALVINGS  # steps, accepted or not
+    def follow(delta):
+        """(angles at q_ref + delta, each swept group's flag), followed along delta."""
 
-    def unfinished(state):
-        s, _, _, h, _, n = state
-        return (s < 1.0) & (h >= longest * 2.0**-MAX_HALVINGS) & (n < budget)
+        def corrected(s, z, from_guess):
+            """Angles of the unknown links at q_ref + s delta after a loose solve, and each swept group's convergence flag."""
+            start = near if from_guess else {**(near or {}), **z}
+            table, oks = analysis(mech, q_ref + s * delta, needed, start, materialize=False,
+                                   from_guess=swept_set if from_guess else frozenset(), loose=swept_set, batched=batched)
+            return jnp.stack([heading(table[k].rot) for k in unknown]), jnp.stack([oks[i] for i in swept])
 
-    def step(state):
-        s, z, t, h, _, n = state
-        h = jnp.minimum(h, LONGEST_MOVE / jnp.maximum(jnp.max(jnp.abs(t)), 1e-30))  # where the angles turn fast
-        last = h >= 1.0 - s
-        h = jnp.where(last, 1.0 - s, h)
-        move = t * h
-        z_new, t_new, converged = with_tangent(s + h, as_dict(z + move), False)
-        # the trapezoidal rule with the tangents at both ends predicts the chord to third order
-        mismatch = jnp.max(jnp.abs(wrap_angle(z_new - z) - (t + t_new) * h / 2))
-        close = mismatch <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
-        accept = jnp.all(converged) & close
-        s = jnp.where(accept, jnp.where(last, 1.0, s + h), s)
-        z, t = jnp.where(accept, z_new, z), jnp.where(accept, t_new, t)
-        h = jnp.where(accept, jnp.minimum(2.0 * h, longest), h / 2.0)
-        return s, z, t, h, converged, n + 1
+        def with_tangent(s, z, from_guess):
+            """Corrected angles at s, their tangent d(angles)/ds and the flags."""
+            z_new, t, ok = jax.jvp(lambda ss: corrected(ss, z, from_guess), (s,), (jnp.ones_like(s),), has_aux=True)
+            return z_new, jnp.where(jnp.isfinite(t), t, 0.0), ok  # singular: no tangent
 
-    first_step = jnp.where(delta == 0, 1.0, longest)  # at the reference itself: one step, to q
-    start = (zero, z0, t0, first_step.astype(q.dtype), ok0, jnp.zeros((), dtype=int))
-    s, z, _, _, converged, _ = jax.lax.while_loop(unfinished, step, start)
-    reached = s >= 1.0
-    ok = ok0 & (reached | (converged & ~jnp.all(converged)))
+        zero = jnp.zeros((), dtype=q.dtype)
+        z0, t0, ok0 = with_tangent(zero, None, True)  # at the reference, from the guesses
+        budget = 4 * first.substeps + 4 * MAX_HALVINGS  # steps, accepted or not
+
+        def unfinished(state):
+            s, _, _, h, _, n = state
+            return (s < 1.0) & (h >= longest * 2.0**-MAX_HALVINGS) & (n < budget)
+
+        def step(state):
+            s, z, t, h, _, n = state
+            h = jnp.minimum(h, LONGEST_MOVE / jnp.maximum(jnp.max(jnp.abs(t)), 1e-30))  # where the angles turn fast
+            last = h >= 1.0 - s
+            h = jnp.where(last, 1.0 - s, h)
+            move = t * h
+            z_new, t_new, converged = with_tangent(s + h, as_dict(z + move), False)
+            # the trapezoidal rule with the tangents at both ends predicts the chord to third order
+            mismatch = jnp.max(jnp.abs(wrap_angle(z_new - z) - (t + t_new) * h / 2))
+            close = mismatch <= STEP_TRUST * jnp.max(jnp.abs(move)) + STEP_SLACK
+            accept = jnp.all(converged) & close
+            s = jnp.where(accept, jnp.where(last, 1.0, s + h), s)
+            z, t = jnp.where(accept, z_new, z), jnp.where(accept, t_new, t)
+            h = jnp.where(accept, jnp.minimum(2.0 * h, longest), h / 2.0)
+            return s, z, t, h, converged, n + 1
+
+        first_step = jnp.where(delta == 0, 1.0, longest)  # at the reference itself: one step, to q
+        start = (zero, z0, t0, first_step.astype(q.dtype), ok0, jnp.zeros((), dtype=int))
+        s, z, _, _, converged, _ = jax.lax.while_loop(unfinished, step, start)
+        reached = s >= 1.0
+        return z, ok0 & (reached | (converged & ~jnp.all(converged)))
+
+    delta = q - q_ref
+    if mechanism.driver.kind != "crank":
+        z, ok = follow(delta)
+        return as_dict(z), {i: ok[n] for n, i in enumerate(swept)}
+    short = wrap_angle(delta)
+    ways = jnp.stack([short, short - 2.0 * jnp.pi * jnp.where(short >= 0, 1.0, -1.0)])
+
+    def attempt(carry, i):  # the short way; the other way round only where it failed
+        z, ok = carry
+
+        def run():
+            z_new, ok_new = follow(ways[i])
+            take = (i == 0) | (~jnp.all(ok) & jnp.all(ok_new))
+            return jnp.where(take, z_new, z), jnp.where(take, ok_new, ok)
+
+        # one trace of the continuation for both ways; the second runs only where some member needs it
+        return jax.lax.cond((i == 0) | eqxi.unvmap_any(~jnp.all(ok)), run, lambda: carry), None
+
+    unset = (jnp.zeros(len(unknown), dtype=q.dtype), jnp.zeros(len(swept), dtype=bool))
+    (z, ok), _ = jax.lax.scan(attempt, unset, jnp.arange(2))
     return as_dict(z), {i: ok[n] for n, i in enumerate(swept)}

@@ -347,6 +347,29 @@ def test_a_tracked_sweep_ends_with_the_branch():
         assert np.max(np.abs(ref.residual(x, float(qs[i])))) < TOL
 
 
+def test_a_crank_that_cannot_turn_fully_is_followed_the_long_way_round():
+    """An eight-bar drawn with its crank at q0 = pi/4 (a triad, then a dyad) assembles up to
+    q ~ 4.0806, more than pi past the drawing. The continuation from the drawing went the
+    short way (q - q0 wrapped to (-pi, pi]), backwards through the range where it does not
+    assemble: 'cannot assemble' past q0 + pi, and simulate stopped there with a lock-up that
+    is not one. Now it goes the other way round where the short way fails: the same pose as
+    a tracked sweep from the drawing in small steps, and not ok past the real limit."""
+    joints = dict(O2=(0, 0), A=(0.1, 0.1), P1=(0.35, 0.4), P2=(0.6, 0.45), P3=(0.5, 0.7), O4=(0.7, 0.0),
+                  O6=(0.2, 0.9), C=(0.8, 0.3), D=(1.0, 0.5), O8=(1.1, 0.1))
+    links = {"crank": ["O2", "A"], "T": ["P1", "P2", "P3"], "arm1": ["A", "P1"], "arm2": ["O4", "P2", "C"],
+             "arm3": ["O6", "P3"], "l7": ["C", "D"], "l8": ["D", "O8"]}
+    sketch = assurjax.Sketch(joints=joints, links={k: {"joints": v, "mass": 0.3, "inertia": 0.002} for k, v in links.items()},
+                             ground=["O2", "O4", "O6", "O8"], driver="crank")
+    mechanism, q0 = sketch.mechanism(), np.pi / 4
+    qs = jnp.asarray(q0 + np.array([3.10, 3.15, 3.25, 3.30]))
+    alone = jax.vmap(lambda q: assurjax.positions(mechanism, q))(qs)
+    assert np.asarray(alone.ok).all(-1).tolist() == [True, True, True, False]  # the limit at ~4.0806
+    tracked = assurjax.positions_tracked(mechanism, jnp.linspace(q0, float(qs[2]), 400))
+    assert np.asarray(tracked.ok).all()
+    for name in ("T", "arm2", "l8"):
+        np.testing.assert_allclose(float(alone.angles[name][2]), float(tracked.angles[name][-1]), rtol=0, atol=1e-10)
+
+
 def test_a_failed_member_does_not_stop_a_batch(scene):
     """A NaN crank angle in a vmapped batch (or a Newton start at a dead centre, whose first
     step is 0/0) stopped the whole batch with an error raised by lineax from inside the
