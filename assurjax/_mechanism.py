@@ -178,6 +178,21 @@ def value_fields(mech: Mechanism):
         yield f"link '{name}': inertia", link.inertia, (), {"nonnegative": True}
 
 
+_VALUES_CHECKED: dict = {}  # id -> the mechanisms whose values check_values_once passed (kept: ids stay theirs)
+
+
+def check_values_once(mech: Mechanism) -> None:
+    """:func:`_check_values` of a mechanism a dynamics entry point is given, once per object:
+    one rebuilt by ``eqx.tree_at`` (a design step, ``flatten_parameters``' rebuild) skipped
+    the constructor's checks, and a negative mass ran, a NaN one failed as 'a jam'."""
+    if _VALUES_CHECKED.get(id(mech)) is mech:
+        return
+    _check_values(mech)
+    if len(_VALUES_CHECKED) > 64:
+        _VALUES_CHECKED.clear()
+    _VALUES_CHECKED[id(mech)] = mech
+
+
 def _check_values(mech: Mechanism) -> None:
     """Finite values of sane magnitude (the scene loader's words), non-negative masses and
     inertias, non-zero lengths and guide directions; tracers are checked where they are concrete."""

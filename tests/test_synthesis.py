@@ -6,6 +6,7 @@ against numbers the synthesis code produced.
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -96,6 +97,12 @@ def test_bounded_reparametrization_round_trip():
         syn.Design(mech, lambda m: m.ground["D"], lower=0.2, upper=0.3)
     with pytest.raises(AssurjaxError, match="selection does not exist"):
         syn.Design(mech, lambda m: m.links["nope"].points["B"])
+    with pytest.raises(AssurjaxError, match="Design: select returns no array"):
+        syn.Design(mech, lambda m: ())
+    # a start far nearer one bound than the box is wide comes back as itself (the logit's
+    # ratio was clipped to [1e-12, 1 - 1e-12]: 1e-4 in [0, 1e9] came back as 1e-3)
+    wide = syn.Design((jnp.array(1e-4), jnp.array(5.0)), lambda v: v, lower=0.0, upper=1e9)
+    np.testing.assert_allclose(np.asarray(wide.values(wide.init())), [1e-4, 5.0], rtol=1e-9)
 
 
 # ----------------------------------------------------------------------------- problem 1: straight line
@@ -211,6 +218,27 @@ def test_steps_that_break_assembly_are_halved_never_scored():
         dist = np.linalg.norm(b - d, axis=-1)
         assert np.all(dist <= 0.25 + 0.22 + 1e-12) and np.all(dist >= 0.03 - 1e-12)
     assert result.status in ("steps", "infeasible")
+
+
+def test_a_design_free_in_its_masses_stays_physical():
+    """Masses free of bounds, an objective that wants them negative (the driving torque of a
+    slider-crank at 20 rad/s pulled to -3 N m): the optimizer stepped the rod to -1.07 kg and
+    the slider to -0.50 kg and returned that, and simulate ran it. A negative mass is now
+    not acceptable, as a design that cannot assemble; and simulate refuses one by name."""
+    scene = assurjax.load_scene("slider_crank")
+    design = syn.Design(scene, lambda s: (s.mechanism.links["rod"].mass, s.mechanism.links["slider"].mass))
+    qs = jnp.linspace(0.2, 1.2, 8)
+
+    def objective(s):
+        tau, ok = syn.driving_torque(s.mechanism, qs, 20.0, gravity=s.gravity)
+        return jnp.mean((tau + 3.0) ** 2), {"ok": ok}
+
+    result = syn.optimize(design, objective, optax.adam, 300, options={"learning_rate": 0.05}, has_aux=True)
+    assert all(float(v) >= 0.0 for v in result.values)
+    assert np.all(np.isfinite(result.history.loss)) and result.loss < float(objective(scene)[0])
+    negative = eqx.tree_at(lambda m: m.links["rod"].mass, scene.mechanism, jnp.asarray(-0.1))
+    with pytest.raises(assurjax.MechanismError, match="link 'rod': mass must be non-negative, got -0.1"):
+        assurjax.simulate(negative, t1=0.2, stop=None)
 
 
 # ----------------------------------------------------------------------------- problem 3: dynamic objective

@@ -320,6 +320,9 @@ def test_optimize_requests_and_starts_are_checked_by_name():
     # a NaN learning rate or schedule stage ran to 'infeasible' or 'cannot assemble'; a vector loss failed in JAX's words
     with pytest.raises(AssurjaxError, match="optimize: option 'learning_rate' must be finite"):
         syn.optimize(design, objective, optax.adam, 10, has_aux=True, options={"learning_rate": float("nan")})
+    for rate in (-1, 0):  # an integer passed unchecked: -1 ran uphill and ended 'steps'
+        with pytest.raises(AssurjaxError, match="optimize: option 'learning_rate' must be positive"):
+            syn.optimize(design, objective, optax.adam, 10, has_aux=True, options={"learning_rate": rate})
     with pytest.raises(AssurjaxError, match="optimize: schedule 'sharpness' must be finite"):
         syn.optimize(design, objective, optax.adam, 10, has_aux=True, options={"learning_rate": 1e-3},
                      schedule={"sharpness": [50.0, float("nan")]})

@@ -23,7 +23,7 @@ from .._errors import AssurjaxError
 from .._friction import frictions_of, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
-from .._mechanism import Mechanism, positions
+from .._mechanism import Mechanism, check_values_once, positions
 from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
@@ -652,6 +652,7 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
 
 def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
     model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    check_values_once(model.mechanism)
     check_has_inertia(model.mechanism)
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
     settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"])})

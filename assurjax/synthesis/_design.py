@@ -52,6 +52,8 @@ class Design(eqx.Module):
                  absolute: float | None = None, fixed: Any = False):
         self.base, self.select = base, by_structure(select)
         x0, _ = _selected(base, select)
+        if not jax.tree.leaves(x0):  # optimize failed on it with an IndexError
+            raise AssurjaxError("Design: select returns no array: there is nothing to optimize")
         if relative is not None or absolute is not None:
             if lower is not None or upper is not None:
                 raise AssurjaxError("Design: give either lower/upper or relative/absolute bounds, not both")
@@ -143,8 +145,10 @@ def _inverse_softplus(y):
 def _to_unconstrained(x, lo, hi):
     box, only_lo, only_hi = _kinds(lo, hi)
     lo_, hi_ = jnp.where(jnp.isfinite(lo), lo, 0.0), jnp.where(jnp.isfinite(hi), hi, 0.0)
-    width = jnp.where(box, hi_ - lo_, 1.0)
-    u = jnp.clip((x - lo_) / width, 1e-12, 1.0 - 1e-12)
-    z = jnp.where(box, jnp.log(u) - jnp.log1p(-u), x)
+    # the logit of (x - lo) / (hi - lo) from the two gaps: its ratio clipped to [1e-12, 1 - 1e-12]
+    # moved a start of 1e-4 in [0, 1e9] to 1e-3
+    tiny = jnp.finfo(jnp.result_type(x, float)).tiny
+    below, above = jnp.maximum(x - lo_, tiny), jnp.maximum(hi_ - x, tiny)
+    z = jnp.where(box, jnp.log(below) - jnp.log(above), x)
     z = jnp.where(only_lo, _inverse_softplus(x - lo_), z)
     return jnp.where(only_hi, _inverse_softplus(hi_ - x), z)

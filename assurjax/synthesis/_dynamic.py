@@ -53,6 +53,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._jit import jit
+from .._mechanism import check_values_once
 from .._model import check_has_inertia
 from .._positions import assembled
 from ..dynamics._field import arrival_acceleration
@@ -130,6 +131,7 @@ def _check_start(scene, q0, omega0, t1, adjoint) -> None:
     known = sorted(ADJOINTS) + sorted(SENSITIVITY_ROUTES)
     if adjoint not in known:
         raise AssurjaxError(f"unknown adjoint {adjoint!r}; choose one of {known}")
+    check_values_once(scene.mechanism)
     check_has_inertia(scene.mechanism)
     state = scene.state
     check_single_start(state.get("q0", 0.0) if q0 is None else q0, state.get("omega0", 0.0) if omega0 is None else omega0,

@@ -21,6 +21,7 @@ import optax
 
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
+from .._mechanism import Mechanism
 from .._structure import by_structure
 from .._values import all_finite, check_value, check_values
 from ._design import Design, check_inside
@@ -111,6 +112,18 @@ def assembles(mechanism_or_flags) -> jax.Array:
     return jnp.all(ok)
 
 
+def _physical(tree) -> jax.Array:
+    """Whether every mechanism in ``tree`` has non-negative masses and inertias: a design
+    free in them (bounds are optional) stepped a rod's mass to -1.07 kg, which the
+    Mechanism's constructor refuses but a rebuilt design skips."""
+    ok = jnp.array(True)
+    for found in jax.tree.leaves(tree, is_leaf=lambda x: isinstance(x, Mechanism)):
+        if isinstance(found, Mechanism):
+            for link in found.links.values():
+                ok = ok & jnp.all(link.mass >= 0) & jnp.all(link.inertia >= 0)
+    return ok
+
+
 # --------------------------------------------------------------------------- the compiled problem
 
 
@@ -145,7 +158,7 @@ class _Problem(eqx.Module):
         ok = jnp.all(aux["ok"]) if isinstance(aux, dict) and "ok" in aux else jnp.array(True)
         if self.feasible is not None:
             ok = ok & jnp.all(self.feasible(tree))
-        ok = ok & jnp.isfinite(loss)
+        ok = ok & jnp.isfinite(loss) & _physical(tree)
         return jnp.where(ok, loss, jnp.inf), (ok, aux)
 
     def evaluate(self, z, params):
@@ -394,7 +407,7 @@ def optimize(
       (relative) over ``patience`` steps, restart the method from the best design
       (fresh optimizer state) while ``restarts`` remain, else stop ("converged").
     - ``max_backtracks``: a step that leads to a design that cannot assemble (or
-      a non-finite loss or gradient) is halved up to this many times; then the
+      a non-finite loss or gradient, or a negative mass or inertia) is halved up to this many times; then the
       method restarts from the best design (while ``restarts`` remain) or the run
       stops with status ``"infeasible"``. Such designs are never scored.
     - ``schedule``: continuation, e.g. ``{"sharpness": [20., 50., 200., 1000.]}``:
@@ -503,6 +516,9 @@ def _split_options(optimizer, options):
     if not callable(optimizer):
         raise AssurjaxError("optimize: optimizer must be an optax GradientTransformation or a factory of one, "
                             f"got {type(optimizer).__name__}")
+    rate = options.get("learning_rate")
+    if isinstance(rate, (int, np.integer)) and not isinstance(rate, bool):  # an int is a rate too (-1 ran uphill unchecked)
+        options["learning_rate"] = float(rate)
     numeric = {k: jnp.asarray(v, dtype=float) for k, v in options.items() if isinstance(v, float) or eqx.is_inexact_array(v)}
     for name, value in numeric.items():  # a NaN learning rate ran to "infeasible", blaming the design
         check_value(AssurjaxError, f"optimize: option '{name}'", value, positive=name == "learning_rate")
@@ -605,5 +621,5 @@ def _message(status: str, history: History, stages: int) -> str:
             "target": f"loss {history.loss[-1]:.6g} reached the target after {steps} steps",
             "converged": f"converged after {steps} steps (gradient norm at or below gtol, or no relative improvement "
                          f"above rtol over patience steps with no restart left)",
-            "infeasible": "a step led to a design that cannot assemble (or has a non-finite objective or gradient) "
-                          "even after every halving and restart"}[status]
+            "infeasible": "a step led to a design that cannot assemble (or has a non-finite objective or gradient, "
+                          "or a negative mass or inertia: bound them below by 0) even after every halving and restart"}[status]
