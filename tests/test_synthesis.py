@@ -99,6 +99,9 @@ def test_bounded_reparametrization_round_trip():
         syn.Design(mech, lambda m: m.links["nope"].points["B"])
     with pytest.raises(AssurjaxError, match="Design: select returns no array"):
         syn.Design(mech, lambda m: ())
+    # a part of an array was taken, and its rebuild failed in equinox's words
+    with pytest.raises(AssurjaxError, match="select must pick whole arrays of the mechanism or scene"):
+        syn.flatten_parameters(mech, select=lambda m: m.ground["D"][0])
     # a start far nearer one bound than the box is wide comes back as itself (the logit's
     # ratio was clipped to [1e-12, 1 - 1e-12]: 1e-4 in [0, 1e9] came back as 1e-3)
     wide = syn.Design((jnp.array(1e-4), jnp.array(5.0)), lambda v: v, lower=0.0, upper=1e9)

@@ -33,6 +33,12 @@ def _selected(tree: Any, select: Callable | None):
     for leaf in jax.tree.leaves(params):
         if not eqx.is_inexact_array(leaf):
             raise AssurjaxError(f"select: every selected parameter must be a floating-point array, got {type(leaf).__name__}")
+    try:  # the selection put back once: it must name whole arrays of the tree
+        eqx.tree_at(select, tree, params)
+    except (TypeError, ValueError) as e:
+        raise AssurjaxError("select must pick whole arrays of the mechanism or scene (a point, a mass), not parts or "
+                            "copies of them (e.g. m.ground['D'][0]: select m.ground['D'], and keep a coordinate "
+                            f"with Design's fixed=) ({type(e).__name__}: {e})") from None
     return params, lambda p: eqx.tree_at(select, tree, p)
 
 
