@@ -24,11 +24,16 @@ def _axes(ax, figsize=(6, 4)):
 
 def place_legend_clear(ax, entries: int):
     """A legend that does not hide data: inside (matplotlib's emptiest corner) for up to
-    two entries, outside on the right of the axes for more."""
+    two entries, outside on the right of the axes for more. Outside, in a figure of several
+    axes without a layout engine, the figure gets matplotlib's constrained layout, which
+    makes room for it (without, it lay on the next panel's ticks and title)."""
     if entries <= 2:
         ax.legend(fontsize=8, loc="best")
-    else:
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+        return
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    fig = ax.get_figure()
+    if fig is not None and len(fig.axes) > 1 and fig.get_layout_engine() is None:
+        fig.set_layout_engine("constrained")
 
 
 def driving_label(frames_or_kind) -> str:
