@@ -91,6 +91,11 @@ def test_library_jacobian_matches_jax(roberts):
     assert_close_jacobian(np.concatenate([np.ravel(x) for x in g]), fd[0])
     assert syn.parameter_names(roberts, select=sel) == [".ground['D'][0]", ".ground['D'][1]", ".links['link4'].points['P'][0]", ".links['link4'].points['P'][1]"]
     assert ".links['link4'].points['P'][1]" in syn.parameter_names(roberts)
+    # one array object in two places is named where it is selected (by identity it took the other's name)
+    shared = jnp.zeros(2)
+    twice = eqx.tree_at(lambda m: (m.links["link2"].points["A"], m.links["link4"].points["P"]), roberts, (shared, shared))
+    assert syn.parameter_names(twice, select=lambda m: m.links["link2"].points["A"]) == [".links['link2'].points['A'][0]",
+                                                                                       ".links['link2'].points['A'][1]"]
 
 
 def _law_of_cosines_mu(l_a, l_b, d):

@@ -58,14 +58,36 @@ def parameter_names(tree: Any, *, select: Callable | None = None) -> list[str]:
     """A readable name for every entry of :func:`flatten_parameters`' vector,
     e.g. ``".links['link4'].points['P'][1]"``."""
     params, _ = _selected(tree, select)
-    # a selected array is named by where it sits in the whole tree (found by identity)
-    where = {id(leaf): jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
     names = []
-    for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
-        base = where.get(id(leaf), jax.tree_util.keystr(path))
+    for (path, leaf), base in zip(jax.tree_util.tree_flatten_with_path(params)[0], _selected_paths(tree, select, params)):
         shape = np.shape(leaf)
         names += [base] if not shape else [base + str(list(i)) .replace(", ", "][") for i in np.ndindex(shape)]
     return names
+
+
+class _Path:
+    """A stand-in for an array of the tree, carrying where it sits (see :func:`_selected_paths`)."""
+
+    def __init__(self, where: str):
+        self.where = where
+
+
+def _selected_paths(tree: Any, select: Callable | None, params: Any) -> list[str]:
+    """Where each selected array sits in the whole tree: ``select`` run on the tree with its
+    arrays replaced by their paths (found by identity, an array used in two places was named
+    by the other). Without a select, or where it cannot run on stand-ins, by identity."""
+    leaves = jax.tree_util.tree_flatten_with_path(params)[0]
+    if select is not None:
+        marked = jax.tree_util.tree_map_with_path(
+            lambda path, x: _Path(jax.tree_util.keystr(path)) if eqx.is_array(x) else x, tree)
+        try:
+            found = jax.tree.leaves(select(marked), is_leaf=lambda x: isinstance(x, _Path))
+        except Exception:  # noqa: BLE001 (a select that computes on its arrays: named by identity below)
+            found = []
+        if len(found) == len(leaves) and all(isinstance(f, _Path) for f in found):
+            return [f.where for f in found]
+    where = {id(leaf): jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
+    return [where.get(id(leaf), jax.tree_util.keystr(path)) for path, leaf in leaves]
 
 
 def jacobian(
