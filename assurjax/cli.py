@@ -398,16 +398,12 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
     from ._peaks import magnitudes_of, peak_reactions
 
-    import numpy as np
-
-    from .dynamics._results import LOCKUP
-
     grid = magnitudes_of(along.forces, along.driving, along.friction)
     # a jam's final state has no dw/dt of the motion: its reactions do not count; nor do those of
     # a lock-up's approach, which the steps do not resolve (1e-7 s before a slider's lock-up T was
     # 1e-3 of its value, and the peak |F| found there 569 N where the motion's tends to 307 N)
     before = None
-    if int(np.asarray(sol.event)) == LOCKUP:
+    if _ended_at_lockup(sol):
         before = float(sol.t_final) - _lockup_window(sol)
     elif not sol.successful:
         before = float(sol.t_final)
@@ -425,13 +421,9 @@ def _force_peaks(peaks: dict) -> list:
 def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True):
     """The peaks' lines; ``sol``: the run they were found on (a lock-up's says where they were
     searched); ``moves``: whether the mechanism moves at all (else it is held at rest)."""
-    import numpy as np
-
-    from .dynamics._results import LOCKUP
-
     forces = _force_peaks(peaks)
     where = "located on the dense output"
-    if sol is not None and int(np.asarray(sol.event)) == LOCKUP:
+    if sol is not None and _ended_at_lockup(sol):
         where += f", before the last {_lockup_window(sol):.3g} s: the approach to the lock-up is not resolved"
     print(f"  peak |F| ({where}): " + ", ".join(f"{p.name} {p.value:.5g} N at t = {_seconds(p.t)} s" for p in forces))
     drive = peaks["driving"]
@@ -498,7 +490,6 @@ def _history_figure(scene, sol, forces, units):
     import numpy as np
 
     from . import viz
-    from .dynamics._results import LOCKUP
     from .viz._plots import place_legend_clear
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), layout="constrained")
@@ -508,7 +499,7 @@ def _history_figure(scene, sol, forces, units):
         lost = getattr(sol, "dissipated", None)
         lost = lost if lost is not None and np.max(np.abs(lost)) > 0 else None  # no flat zero line
         viz.plot_energies(sol.t, sol.kinetic, sol.potential, ax=axes[1, 0], work=sol.work, dissipated=lost)
-        if int(np.asarray(sol.event)) == LOCKUP:
+        if _ended_at_lockup(sol):
             axes[1, 0].axvline(float(sol.t_final), color="0.5", ls="--", lw=1, label="lock-up (T not resolved at it)")
             place_legend_clear(axes[1, 0], len(axes[1, 0].get_lines()))
     else:
@@ -624,6 +615,14 @@ def _energy_drift(scene, sol):
 LOCKUP_APPROACH = 0.01  # the share of a run before its lock-up whose balance and peaks the command reports apart
 
 
+def _ended_at_lockup(sol) -> bool:
+    import numpy as np
+
+    from .dynamics._results import LOCKUP
+
+    return int(np.asarray(sol.event)) == LOCKUP
+
+
 def _lockup_window(sol) -> float:
     """The last LOCKUP_APPROACH of a run (s), before its lock-up."""
     return LOCKUP_APPROACH * (float(sol.t_final) - float(sol.t[0]))
@@ -640,9 +639,7 @@ def _lockup_approach(sol):
     ``Solution.balance``); None otherwise."""
     import numpy as np
 
-    from .dynamics._results import LOCKUP
-
-    if getattr(sol, "balance", None) is None or int(np.asarray(sol.event)) != LOCKUP:
+    if getattr(sol, "balance", None) is None or not _ended_at_lockup(sol):
         return None
     window = _lockup_window(sol)
     before = np.asarray(sol.t) < float(sol.t_final) - window
@@ -742,6 +739,8 @@ def cmd_run(args) -> int:
     )
     if peaks:
         summary["peaks"] = {name: dict(value=p.value, t=p.t) for name, p in peaks.items()}
+        if _ended_at_lockup(sol):  # searched before the lock-up's unresolved approach
+            summary["peaks_searched_before_s"] = float(sol.t_final) - _lockup_window(sol)
     drift = _energy_drift(scene, sol)
     if drift is not None:
         summary["energy_drift_J"], summary["energy_drift_relative"] = drift

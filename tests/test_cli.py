@@ -456,6 +456,7 @@ def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsy
     # (a slider's lock-up gave 569, 366 or 323 N at the lock-up by its scale, where they tend to 307 N)
     assert "before the last" in printed and "the approach to the lock-up is not resolved" in printed
     assert summary["peaks"] and all(p["t"] < cols["t"][-1] - window for p in summary["peaks"].values())
+    assert summary["peaks_searched_before_s"] == pytest.approx(cols["t"][-1] - window)
 
 
 def test_summary_names_samples_held_where_the_friction_self_locks():

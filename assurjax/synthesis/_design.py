@@ -145,8 +145,8 @@ def _inverse_softplus(y):
 def _to_unconstrained(x, lo, hi):
     box, only_lo, only_hi = _kinds(lo, hi)
     lo_, hi_ = jnp.where(jnp.isfinite(lo), lo, 0.0), jnp.where(jnp.isfinite(hi), hi, 0.0)
-    # the logit of (x - lo) / (hi - lo) from the two gaps: its ratio clipped to [1e-12, 1 - 1e-12]
-    # moved a start of 1e-4 in [0, 1e9] to 1e-3
+    # the logit of (x - lo) / (hi - lo) as the log of the two gaps (that ratio, clipped to
+    # [1e-12, 1 - 1e-12], moved a start of 1e-4 in [0, 1e9] to 1e-3)
     tiny = jnp.finfo(jnp.result_type(x, float)).tiny
     below, above = jnp.maximum(x - lo_, tiny), jnp.maximum(hi_ - x, tiny)
     z = jnp.where(box, jnp.log(below) - jnp.log(above), x)
