@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -188,6 +189,8 @@ def check_values_once(mech: Mechanism) -> None:
     if _VALUES_CHECKED.get(id(mech)) is mech:
         return
     _check_values(mech)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(mech)):
+        return  # traced values are not checked, nor kept
     if len(_VALUES_CHECKED) > 64:
         _VALUES_CHECKED.clear()
     _VALUES_CHECKED[id(mech)] = mech
