@@ -700,7 +700,7 @@ def _iterated_root(inputs):
 def _newton_root(inputs):
     mechanism, frictions, reactions, kin, rates, signs, omega, inertial, _ = inputs
     u0 = _law(mechanism, frictions, reactions, kin, rates, signs, omega)(jnp.zeros(len(frictions)))
-    return _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, friction_size(u0))
+    return _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, friction_atol(u0, NEWTON_TOLERANCE))
 
 
 def _finished_root(inputs):
@@ -761,14 +761,13 @@ def iterate_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sig
     ``tolerance``: the iteration's, see :func:`iteration_tolerance`."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     u0 = law(jnp.zeros(len(frictions)))
-    size = friction_size(u0)
     # up to SUMMED_TERMS elements the iterate as K scalars, not one (K,) array: XLA's loop
     # writes the array's entries one by one and copies it whole at the next step, a load the
     # CPU cannot take from those stores while they are in flight (the press's step 8.5-8.8 ->
     # 8.1-8.5 us, same results, though 3.2k instructions more: see docs/design-notes.md)
     split, join = (tuple, jnp.stack) if len(frictions) <= SUMMED_TERMS else (jnp.asarray, jnp.asarray)
-    # atol in the friction's size (in N or N m, it let a press scaled to 1e-12 kg err by 2e-3 rad at any rtol)
-    fixed = optx.fixed_point(lambda u, _: split(law(join(u))), optx.FixedPointIteration(rtol=tolerance, atol=tolerance * size),
+    # atol: see friction_atol (in N or N m alone, a press scaled to 1e-12 kg erred by 2e-3 rad at any rtol)
+    fixed = optx.fixed_point(lambda u, _: split(law(join(u))), optx.FixedPointIteration(rtol=tolerance, atol=friction_atol(u0, tolerance)),
                              split(u0), max_steps=FIXED_POINT_STEPS, throw=False)
     value = join(fixed.value)
     converged = fixed.result == optx.RESULTS.successful
@@ -801,19 +800,27 @@ def finish_friction(mechanism: Mechanism, frictions, reactions, kin, rates, sign
 @region
 def _newton_fallback(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, fixed: FixedPoint, inertial):
     u, ok = _robust_newton(mechanism, frictions, reactions, kin, rates, signs, omega, inertial,
-                           jnp.where(fixed.converged, fixed.value, fixed.u0), friction_size(fixed.u0))
+                           jnp.where(fixed.converged, fixed.value, fixed.u0), friction_atol(fixed.u0, NEWTON_TOLERANCE))
     return jnp.where(fixed.settled, fixed.value, u), fixed.settled | ok
 
 
-def friction_size(u0):
-    """The scale (N or N m) of the friction solves' absolute tolerance: the largest friction
-    value with no friction in the statics (law(0)); 1 where all are 0 (then u = 0). The
-    round-off of an element with a small reaction is the mechanism's force scale times
-    epsilon, not its own: capped at 1, a slider-crank with 1e5 times the masses reported a
-    jam (the solves could not meet an absolute 1e-12 N m on elements near 0 beside 1e5 N m)
-    where the motion is the same as at 1 kg."""
+# The round-off floor of an element's friction value, per unit of the largest (see friction_atol)
+ROUNDOFF_SPACINGS = 100.0
+NEWTON_TOLERANCE = 1e-12  # Newton's method's (relative, and absolute in the friction's size)
+
+
+def friction_atol(u0, tolerance):
+    """The friction solves' absolute tolerance (N or N m) at a ``tolerance``: in units of the
+    friction's size up to 1 (the largest friction value with no friction in the statics,
+    |law(0)|; 1 where all are 0, then u = 0), and at least ROUNDOFF_SPACINGS float spacings of
+    that size. In N or N m alone, a press scaled to 1e-12 of its masses erred by 1.9e-3 rad;
+    capped at 1 N m, a slider-crank with 1e5 x the masses reported a jam at 0.15 s (an element
+    with a small reaction beside large ones has their round-off, which no relative tolerance of
+    its own covers); scaled by the size above 1 as well, batches drifted 1.6e-8 rad from single
+    runs (the press's Coulomb switches amplify a looser solve)."""
     size = jnp.max(jnp.abs(u0))
-    return jnp.where(size > 0, size, 1.0)
+    size = jnp.where(size > 0, size, 1.0)
+    return tolerance * jnp.minimum(size, 1.0) + ROUNDOFF_SPACINGS * jnp.finfo(u0.dtype).eps * size
 
 
 def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
@@ -831,7 +838,7 @@ def _viscous(frictions, rates, omega):
     return jnp.stack([f.viscous for f in frictions]) * rates * omega
 
 
-def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, size):
+def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega, inertial, u0, atol):
     """Newton's method from u0 on the law of :func:`solve_friction`; where its root is not
     consistent, Newton's method again, continued in mu from 0 (where u = -viscous) in
     CONTINUATION_STEPS steps, each from the last root: the root on the branch of moderate
@@ -839,8 +846,8 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
     land on one that is not consistent while this one is (a slider-crank, mu = 5 on a 5 mm
     block: a consistent root at dw/dt = -279 rad/s^2, Newton from u0 at one at -2513, with
     det(I - dlaw/du) < 0, which stopped the run as a jam). The attempts are one scan, so that
-    the program holds one Newton's method (two: first calls 35 % longer). ``size``: the
-    tolerance's scale, :func:`friction_size`. Returns (u, ok)."""
+    the program holds one Newton's method (two: first calls 35 % longer). ``atol``: its
+    absolute tolerance, :func:`friction_atol`. Returns (u, ok)."""
     law = _law(mechanism, frictions, reactions, kin, rates, signs, omega)
     viscous = _viscous(frictions, rates, omega)
 
@@ -852,8 +859,7 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
         def residual(u, _):
             return u - law(u, scale)
 
-        # atol in the friction's size, as the iteration's
-        sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12 * size, linear_solver=small_solver()), start,
+        sol = optx.root_find(residual, optx.Newton(rtol=NEWTON_TOLERANCE, atol=atol, linear_solver=small_solver()), start,
                              max_steps=64, throw=False)
         value = sol.value
         # Painleve's paradox: where the effective inertia is not positive the friction feeds the

@@ -558,9 +558,10 @@ def _band(model: Model, q, t):
         # in float32 1e-9 is below the float spacing: the test ran at the edge, where the sign of
         # dw/dt is rounding (10 of 13 edges of the slider-crank's band came out infinite)
         beyond = max(BEYOND_EDGE, EDGE_SPACINGS * float(jnp.finfo(driving.dtype).eps))
-        # relative to the band's own size (1 + it was 100x a milligram mechanism's band)
-        size = jnp.abs(driving[0]) + jnp.abs(driving[1])
-        past = beyond * jnp.where(size > 0, size, 1.0)
+        # (1 + the edges' sizes: relative to the edges alone, a float32 edge came out infinite, the
+        # push within the rounding of the torques it balances; for a milligram mechanism the push
+        # is then far past its band, which tests the same: whether a push beyond the edge starts it)
+        past = beyond * (1.0 + jnp.abs(driving[0]) + jnp.abs(driving[1]))
 
         def starts(edge, way):  # the forward dynamics at rest, driven just past the edge
             driven = Model(model.mechanism, model.gravity, undriven + (Drive(edge + way * past),))
