@@ -347,6 +347,7 @@ def test_a_tracked_sweep_ends_with_the_branch():
         assert np.max(np.abs(ref.residual(x, float(qs[i])))) < TOL
 
 
+@pytest.mark.slow  # an eight-bar's positions and tracked sweep (~10 s of compiles)
 def test_a_crank_that_cannot_turn_fully_is_followed_the_long_way_round():
     """An eight-bar drawn with its crank at q0 = pi/4 (a triad, then a dyad) assembles up to
     q ~ 4.0806, more than pi past the drawing. The continuation from the drawing went the

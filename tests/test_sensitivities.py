@@ -337,6 +337,7 @@ def test_sensitivity_routes_reject_bad_input(watt):
         syn.standstill_time_problem(watt, -1.0)
 
 
+@pytest.mark.slow  # a forward-mode compile through diffrax (~12 s): the default suite stays under 10 min
 def test_forward_mode_through_the_default_adjoint():
     """jax.jvp / jax.jacfwd of final_state with the default adjoint (reverse-mode
     "recursive") raised JAX's "can't apply forward-mode autodiff (jvp) to a custom_vjp
@@ -390,6 +391,7 @@ def test_final_state_past_a_lock_up_is_no_result():
     assert np.isfinite(q) and np.asarray(assurjax.positions(scene.mechanism, q).ok).all()
 
 
+@pytest.mark.slow  # a reverse-mode compile through the standstill event (~10 s)
 def test_standstill_time_without_a_standstill_has_t1s_derivative():
     """No standstill before t1: t* = t1, ok False, and d t*/d q0 = 0 (central differences);
     the implicit-function term was applied there too and gave 1.35. jax.grad with
