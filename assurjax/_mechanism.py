@@ -131,9 +131,7 @@ def _check_structure(ground, links, groups) -> dict[str, str]:
         for link in g.links:
             for p in links[link].points:
                 owner.setdefault(p, link)
-    reserved = [p for p in owner if p.startswith(COM_PREFIX)]
-    if reserved:
-        raise MechanismError(f"point name(s) {reserved}: names starting with '{COM_PREFIX}' are reserved for centres of mass ('com:<link>')")
+    check_point_names(owner)
     unused = [name for name in links if name not in placed_links]
     if unused:
         raise MechanismError(f"link(s) {unused} belong to no group of the formation sequence")
@@ -144,6 +142,24 @@ def _check_structure(ground, links, groups) -> dict[str, str]:
             "check the point names shared between links (a shared name is a joint)"
         )
     return owner
+
+
+PAIR_MARKS = "[]/"
+"""Characters of the generated pair names ('B[rocker]': one pair of a joint of three links or
+more; 'ram/guide': a prismatic pair), which no point's name may hold."""
+
+
+def check_point_names(names: Iterable[str]) -> None:
+    """Refuse the point names the package generates for other things (a centre of mass, a pair)."""
+    for name in names:
+        if name.startswith(COM_PREFIX):
+            raise MechanismError(f"point name '{name}': names starting with '{COM_PREFIX}' are reserved for centres of "
+                                 "mass ('com:<link>')")
+        marks = [c for c in PAIR_MARKS if c in name]
+        if marks:
+            raise MechanismError(f"point name '{name}': the characters {marks} are reserved for the names of pairs "
+                                 "('B[rocker]', one pair of a joint shared by three links or more; 'ram/guide', a "
+                                 "prismatic pair); rename the point")
 
 
 def gruebler(ground, links, groups) -> tuple[int, int, int]:

@@ -652,3 +652,11 @@ def test_a_mechanism_replaced_in_a_scene_is_checked():
     traced = jax.jit(lambda m: scene.replace_mechanism(eqx.tree_at(lambda x: x.links["crank"].mass, scene.mechanism, m))
                      .mechanism.links["crank"].mass)
     assert float(traced(0.7)) == 0.7
+
+
+@pytest.mark.parametrize("name", ["B[rocker]", "P/Q", "com:P"])
+def test_a_point_may_not_take_a_name_the_package_gives_a_pair_or_a_centre(name):
+    """Pairs of a joint of three links or more are named 'B[link]', prismatic pairs
+    'slider/guide', centres of mass 'com:link': a point so named shared its name with one."""
+    with raises(assurjax.AssurjaxError, f"'{name}'", "reserved"):
+        scene(lambda d: d["links"]["coupler"]["points"].update({name: [0.5, 0.1]}))

@@ -11,6 +11,7 @@ References, independent of the code under test:
 
 from __future__ import annotations
 
+import re
 import tomllib
 
 import equinox as eqx
@@ -511,3 +512,14 @@ def test_a_drawing_at_the_cranks_limit_is_no_start_and_a_start_beside_it_locks_u
     assert abs(float(inside.q_final) - q_limit) < 1e-8  # it reached the limit
     batch = assurjax.simulate(scene, stop=None, q0=np.array([q_limit, q_limit - 1e-6]))
     assert batch.status == "batch of 2: 1 lock-up, 1 start exactly at a singular configuration"
+
+
+@pytest.mark.parametrize("name", ["B[rocker]", "C/D", "com:C"])
+def test_a_joint_may_not_take_a_name_the_package_gives_a_pair(name):
+    """B is shared by coupler, rocker and l5, so its pairs are 'B[rocker]' and 'B[l5]'. A drawn
+    pin named 'B[rocker]' took one of those names: the reactions had 6 pairs instead of 7 (the
+    pin's own gone) and JointFriction('B[rocker]') went to either pin. Refused by name."""
+    joints = {"O2": (0, 0), "A": (0.05, 0.0866), "B": (0.42, 0.29), "O4": (0.4, 0.0), "O6": (0.8, 0.4), name: (0.6178, 0.5142)}
+    links = dict(crank=["O2", "A"], coupler=["A", "B"], rocker=["O4", "B"], l5=["B", name], l6=[name, "O6"])
+    with pytest.raises(MechanismError, match=f"point name '{re.escape(name)}'.*reserved"):
+        Sketch(joints=joints, links={k: {"joints": v} for k, v in links.items()}, ground=["O2", "O4", "O6"], driver="crank")

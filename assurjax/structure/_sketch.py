@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import MechanismError
+from .._mechanism import check_point_names
 from .._values import check_value
 from ..groups import GROUND
 
@@ -195,6 +196,7 @@ def _validate(sk: Sketch) -> None:
         raise MechanismError(f"link name '{GROUND}' is reserved for the frame: list fixed joints in 'ground'")
     if GROUND in sk.joints:
         raise MechanismError(f"joint name '{GROUND}' is reserved")
+    check_point_names(sk.joints)
     for j in sk.ground:
         if j not in sk.joints:
             raise MechanismError(f"ground joint '{j}' is not among the joints {sorted(sk.joints)}")
