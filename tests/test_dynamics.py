@@ -213,6 +213,18 @@ def test_lockup_is_located_by_rejected_steps(dt):
     assert np.all(sol.q >= -LIMIT) and np.all(np.diff(sol.q) <= 0.0)
 
 
+def test_a_step_budget_spent_closing_in_on_a_lock_up_says_so():
+    """At rtol 1e-11 the steps near the triple rocker's limit shrink until the budget is gone
+    (J_red's round-off outgrows the tolerance there; 692 steps at 1e-10): the status said
+    only 'raise max_steps'. It now names the dyad and the limit position the run closed in
+    on, which the closed form puts within 1e-6 rad ahead."""
+    scene = four_bar_scene(0.0, 1.0, 0.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0))
+    sol = aj.simulate(scene, q0=0.9, omega0=-6.0, stop=None, t1=3.0, rtol=1e-11, atol=1e-11)
+    assert sol.event != LOCKUP and "step budget" in sol.status
+    assert "closing in on a limit position (group 'dyad'" in sol.status and "loosen rtol/atol" in sol.status
+    assert 0.0 < sol.q_final + LIMIT < 1e-6
+
+
 def long_crank_slider(kind: str):
     """The bundled slider-crank with a 0.32 m crank on its 0.3 m rod: the crank cannot turn
     past sin q = 0.3 / 0.32, where the rod stands square to the guide. ``kind``: its dyad

@@ -38,7 +38,7 @@ _EVENT = int(RESULTS.event_occurred._value)
 FINISHED = (_SUCCESS, _EVENT)  # host-side codes of runs that ended as asked
 START_NOT_ASSEMBLED = int(RESULTS.start_not_assembled._value)
 START_SINGULAR = int(RESULTS.start_singular._value)
-_MAX_STEPS = int(RESULTS.max_steps_reached._value)
+MAX_STEPS = int(RESULTS.max_steps_reached._value)  # host-side code of a run that used up its step budget
 DT_MIN = int(RESULTS.dt_min_reached._value)  # host-side code of a run that could not get on (NaN ahead)
 
 
@@ -46,7 +46,7 @@ def result_text(code: int, *, max_steps: int | None = None) -> str:
     """A sentence for a result code with what to change."""
     if code in (_SUCCESS, _EVENT):
         return "successful"
-    if code == _MAX_STEPS:
+    if code == MAX_STEPS:
         budget = "" if max_steps is None else f" (max_steps = {max_steps})"
         return (f"the step budget{budget} was used up before t1: raise max_steps, loosen rtol/atol, "
                 "or shorten the time span")
