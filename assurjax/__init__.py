@@ -91,6 +91,23 @@ from ._sweep import (
 from . import structure as structure
 from .structure import Sketch as Sketch, Slide as Slide
 
+# the public names (the lazily imported submodules synthesis and viz among them)
+__all__ = [
+    "AbstractLoad", "applied_wrenches", "AssemblyError", "AssurjaxError", "batch_kinematics", "batch_mesh",
+    "batch_simulate", "branch_angles", "breakaway_band", "bridged_coefficients", "build_table",
+    "build_table_core", "bundled_scenes", "Coefficients", "coefficients", "Couple", "Damper",
+    "dissipated_power", "Drive", "driver_effort", "enable_compilation_cache", "enable_fast_loops", "groups",
+    "inverse_dynamics", "inverse_kinematics", "jit", "joint_names", "JointFriction", "Kinematics",
+    "kinematics", "Link", "load_scene", "Mechanism", "MechanismError", "Model", "MotorLine", "n_four_bar",
+    "perturb", "PointForce", "Polynomial", "Pose", "pose_at", "positions", "positions_tracked",
+    "potential_energy", "reactions", "Reactions", "reduce", "ReducedTable", "Reduction", "RESULTS",
+    "RotaryDamper", "Scene", "scene_from_dict", "SceneError", "SeedEulerSolution", "settings_from",
+    "shard_batch", "simulate", "simulate_core", "simulate_seed_euler", "SimulationSettings",
+    "SingularConfigurationError", "Sketch", "Slide", "SlideFriction", "Solution", "Spring",
+    "stack_mechanisms", "static_reactions", "static_torque", "strandbeest", "structure", "sweep",
+    "synthesis", "Table", "Vector", "viz",
+]
+
 __version__ = "0.1.0"
 
 _LAZY_SUBMODULES = ("synthesis", "viz")  # optax and matplotlib load on first use, not with the package
