@@ -516,6 +516,9 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     has no consistent friction, or does not move that way), that edge is infinite:
     ``upper`` +inf, ``lower`` -inf.
     Any shape of ``q`` (and ``t``, broadcast with it); ``check``: as in :func:`reactions`.
+    Differentiable (``jax.grad``, ``jax.jacfwd``); where an element's ``static_coefficient``
+    equals its ``coefficient`` the band depends on the static one alone, so the derivative
+    in ``coefficient`` is 0 there and all of it goes to ``static_coefficient``.
 
     **Example** (the torque a motor needs to start a mechanism from rest, either way):
     >>> lower, upper = assurjax.breakaway_band(scene, jnp.linspace(0.0, 3.14, 50))
