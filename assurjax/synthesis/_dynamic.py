@@ -8,7 +8,8 @@ the adjoint named by ``adjoint``:
   many parameters (the whole mechanism) and one scalar result.
   Under ``jax.jvp`` or ``jax.jacfwd`` (traced by them when this is called) it runs as
   ``"forward"``: the same derivatives (diffrax's reverse-mode adjoints take no forward
-  mode). A ``jax.jacfwd`` of a jitted function calling this is not seen here and raises
+  mode; with joint friction they agree to ~1e-5 relative after many Coulomb switches: the
+  press's dw/dr at rtol 1e-11, within what central differences resolve there). A ``jax.jacfwd`` of a jitted function calling this is not seen here and raises
   JAX's TypeError: jit inside the jacfwd, or ask ``adjoint="forward"``. Forward over
   reverse (``jax.hessian``) is refused: nest ``jax.jacfwd`` instead.
 - ``"forward"`` (diffrax.ForwardMode): forward mode (``jax.jvp``/``jax.jacfwd``);
@@ -17,8 +18,8 @@ the adjoint named by ``adjoint``:
   second-order kinematics at every solver stage).
 - ``"backsolve"`` (diffrax.BacksolveAdjoint): solves the adjoint ODE backwards in
   time, O(1) memory, gradients only to the solver tolerance; no events.
-- ``"quadrature"`` (the fastest for the whole gradient, ~3-4x one simulation for the
-  50 parameters of the Watt six-bar): forward sensitivities by the
+- ``"quadrature"`` (the fastest for the whole gradient, ~3-6x one simulation for the
+  50 parameters of the Watt six-bar: benchmarks/README.md): forward sensitivities by the
   variation-of-constants formula (:mod:`._sensitivity`): the plain simulation, one
   batched reverse pass of the reduced acceleration at Gauss-Legendre nodes and a 2x2
   transition-matrix solve; no derivative through the solver. Its accuracy is that of the
@@ -149,7 +150,12 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     budget runs out) or ends where the mechanism does not assemble (it passed a lock-up: the
     run does not stop at one unless ``check_assembly=True``) has no q(T): called as it is,
     this raises :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``,
-    ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run."""
+    ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run.
+
+    With joint friction, a start from rest (``omega0`` = 0) is a kink in ``omega0``: the
+    Coulomb signs follow the direction the mechanism starts in, so the derivative in
+    ``omega0`` there is the one-sided one, on the side the loads start it (central
+    differences across 0 average the two sides)."""
     _check_start(scene, q0, omega0, t1, adjoint)
     adjoint = _adjoint_for_modes("final_state", adjoint, scene, q0, omega0, t1, settings)
     if adjoint in SENSITIVITY_ROUTES:
