@@ -11,8 +11,10 @@ solver's own steps are saved with them, so fast changes are sampled where the so
 resolves them) or configurations (kinematics). Peak reactions and driving efforts are
 located on the solver's dense output, not read off those samples.
 
-Exit status: 0 success, 2 bad input (scene, file, arguments), 1 anything else.
-Errors print one line; ``--debug`` shows the traceback.
+Exit status: 0 success, 2 bad input (scene, file, arguments), 1 anything else: an
+internal error, or a run whose solver failed (its files written, its lines saying the
+motion is not to be trusted; a standstill, a lock-up, a user event and a friction jam
+end a motion physically: 0). Errors print one line; ``--debug`` shows the traceback.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from pathlib import Path
 DEFAULT_SCENE = "watt_sixbar"
 SCENE_HELP = "a scene file (.toml) or a bundled scene's name (see 'assurjax scenes')"
 USER_ERROR, INTERNAL_ERROR = 2, 1
+RUN_FAILED = 1  # a run whose solver failed (not a lock-up, standstill, event or friction jam): files written, lines warn
 RUN_SAMPLES = 2001  # output times of run/reactions unless the scene's [simulation] samples says otherwise
 SWEEP_SAMPLES = 721  # configurations of a kinematic sweep: half-degree steps over a crank turn
 PATH_SAMPLES = 1441  # configurations behind a traced path: smooth curves, no polyline corners
@@ -72,7 +75,9 @@ def _driver_kind(mechanism) -> str:
 
 
 def _write_csv(path: Path, columns: dict) -> Path:
-    """One column per entry (equal lengths); numbers written with full precision."""
+    """One column per entry (equal lengths); numbers written with full precision, NaN (no
+    value: where the mechanism does not assemble, or a ratio at a singular configuration)
+    as an empty cell."""
     import numpy as np
 
     names = list(columns)
@@ -80,7 +85,7 @@ def _write_csv(path: Path, columns: dict) -> Path:
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(names)
-        writer.writerows([[repr(float(x)) for x in row] for row in data])
+        writer.writerows([["" if math.isnan(x) else repr(float(x)) for x in row] for row in data])
     return path
 
 
@@ -134,13 +139,19 @@ def cmd_validate(args) -> int:
         print(f"  note: {note}")
     if massless_members(mech).size:
         print("  note: no link has a mass or a moment of inertia: kinematics and statics only (`run` needs masses)")
+    lo, hi = _sweep_range(scene, None, None)
+    print("  over the driving range: " + _assembly_text(mech, np.linspace(lo, hi, VALIDATE_SAMPLES)).replace("\n", "\n  "))
+    return 0
+
+
+def _assembly_text(mech, q) -> str:
+    """Where the mechanism assembles over the driving coordinates ``q``, and where each group
+    that fails on its own does not, with the condition it violates (lines; see
+    ``assurjax.structure.assembly_report``)."""
     from assurjax.structure import assembly_report
 
-    lo, hi = _sweep_range(scene, None, None)
     unit = "m" if _driver_kind(mech) == "slider" else "rad"
-    report = str(assembly_report(mech, np.linspace(lo, hi, VALIDATE_SAMPLES))).replace("samples of q", f"samples of q ({unit})")
-    print("  over the driving range: " + report.replace("\n", "\n  "))
-    return 0
+    return str(assembly_report(mech, q)).replace("samples of q", f"samples of q ({unit})")
 
 
 # ---------------------------------------------------------------------------- kinematics
@@ -201,29 +212,60 @@ def cmd_kinematics(args) -> int:
         raise UserError(f"{scene.name}: the mechanism assembles nowhere in q = [{lo:.6g}, {hi:.6g}]")
     points = list(scene.outputs["points"]) or [p for p in mech.point_names if p not in mech.ground]
     units = _units(_driver_kind(mech))
-    cols = {"q": q, "ok": frames.ok}
-    for p in points:
-        cols |= {f"x_{p}": frames.points[p][:, 0], f"y_{p}": frames.points[p][:, 1]}
-        cols |= {f"dx_{p}/dq": frames.velocities[p][:, 0], f"dy_{p}/dq": frames.velocities[p][:, 1]}
-    for link in mech.links:
-        cols |= {f"theta_{link}": frames.angles[link], f"dtheta_{link}/dq": frames.angular_velocities[link]}
-    files = [_write_csv(out / "kinematics.csv", cols)]
+    files = [_write_csv(out / "kinematics.csv", _kinematics_columns(mech, frames, points))]
     ax = viz.plot_coupler_curves(frames, points)
     files.append(_savefig(ax.figure, out / "coupler_curves.png"))
     ax = viz.plot_angular_velocities(frames, driver_kind=_driver_kind(mech))
     ax.set_ylabel(f"angular velocity per unit driving speed\n(rad/s per {units['omega']})")
     files.append(_savefig(ax.figure, out / "angular_velocities.png"))
-    q_show = float(q[np.flatnonzero(frames.ok)[np.argmin(np.abs(q[frames.ok] - scene.state["q0"]))]])
-    drawing = viz.draw_mechanism(mech, q_show, velocities=points[:3], trace=points, trace_q=q)
+    drawing = viz.draw_mechanism(mech, _shown_q(frames, points[:3], scene.state["q0"]), velocities=points[:3], trace=points,
+                                 trace_q=q)
     files.append(_savefig(drawing.ax.figure, out / "mechanism.png"))
-    ok_q = q[frames.ok]
     print(f"{scene.name}: {args.samples} configurations of q in [{lo:.6g}, {hi:.6g}] {units['q']} in {elapsed:.2f} s")
-    print(f"  assembles at {int(frames.ok.sum())} of them (q from {ok_q.min():.6g} to {ok_q.max():.6g})")
+    if frames.ok.all():
+        print("  assembles at every one of them")
+    else:  # where it does not, in intervals: one range from the first to the last would hide the gaps
+        print("  " + _assembly_text(mech, q).replace("\n", "\n  "))
     for link in mech.links:
-        w = frames.angular_velocities[link][frames.ok]
-        print(f"  dtheta_{link}/dq in [{w.min():.4g}, {w.max():.4g}]")
+        print(f"  dtheta_{link}/dq {_range_text(frames.angular_velocities[link][frames.ok])}")
     _print_files(files)
     return 0
+
+
+def _kinematics_columns(mech, frames, points) -> dict:
+    """kinematics.csv's columns: q, ok, and every value NaN (an empty cell) where the mechanism
+    does not assemble (there the numbers mean nothing)."""
+    from .viz._frames import masked
+
+    cols = {"q": frames.q, "ok": frames.ok}
+    for p in points:
+        cols |= {f"x_{p}": frames.points[p][:, 0], f"y_{p}": frames.points[p][:, 1]}
+        cols |= {f"dx_{p}/dq": frames.velocities[p][:, 0], f"dy_{p}/dq": frames.velocities[p][:, 1]}
+    for link in mech.links:
+        cols |= {f"theta_{link}": frames.angles[link], f"dtheta_{link}/dq": frames.angular_velocities[link]}
+    return {k: v if k in ("q", "ok") else masked(v, frames.ok) for k, v in cols.items()}
+
+
+def _shown_q(frames, points, q0: float) -> float:
+    """The driving coordinate drawn: the assembled sample nearest q0, one where the velocity
+    ratios of ``points`` are defined (not NaN at a singular configuration) if there is one."""
+    import numpy as np
+
+    defined = frames.ok & np.all([np.isfinite(frames.velocities[p]).all(axis=1) for p in points], axis=0)
+    pick = np.flatnonzero(defined if defined.any() else frames.ok)
+    return float(frames.q[pick[np.argmin(np.abs(frames.q[pick] - q0))]])
+
+
+def _range_text(values) -> str:
+    """'in [least, largest]' of a ratio's values, NaN-aware: at a singular configuration a
+    ratio is undefined (NaN), and how many are is said."""
+    import numpy as np
+
+    undefined = int(np.count_nonzero(np.isnan(values)))
+    if undefined == len(values):
+        return f"undefined (NaN) at all {undefined} samples where it assembles"
+    text = f"in [{np.nanmin(values):.4g}, {np.nanmax(values):.4g}]"
+    return text + (f", undefined (NaN) at {undefined} sample{'s' * (undefined > 1)} (singular configurations)" if undefined else "")
 
 
 # ---------------------------------------------------------------------------- run
@@ -483,7 +525,15 @@ def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) 
     return cols
 
 
-def _history_figure(scene, sol, forces, units):
+def _without_legend(*axes) -> None:
+    """Remove the legends of single-line panels whose title and axis label already name the
+    line: a legend there only hides part of it (strandbeest's 'omega' sat on its curve)."""
+    for ax in axes:
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+
+
+def _history_figure(scene, sol, forces, units, failed: bool = False):
     import textwrap
 
     import matplotlib.pyplot as plt
@@ -495,6 +545,7 @@ def _history_figure(scene, sol, forces, units):
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), layout="constrained")
     viz.plot_time_histories(sol.t, {"q": sol.q}, ylabel=f"driving coordinate q ({units['q']})", ax=axes[0, 0], title="driving coordinate")
     viz.plot_time_histories(sol.t, {"omega": sol.omega}, ylabel=f"driving velocity ({units['omega']})", ax=axes[0, 1], title="driving velocity")
+    _without_legend(axes[0, 0], axes[0, 1])  # one line each, named by its title and axis label
     if getattr(sol, "kinetic", None) is not None:
         lost = getattr(sol, "dissipated", None)
         lost = lost if lost is not None and np.max(np.abs(lost)) > 0 else None  # no flat zero line
@@ -511,7 +562,8 @@ def _history_figure(scene, sol, forces, units):
         axes[1, 1].text(0.5, 0.5, "no reactions requested ([outputs] reactions)", ha="center", transform=axes[1, 1].transAxes)
         axes[1, 1].axis("off")
     # a jam's or a failure's status is a paragraph: wrapped to the figure, not cut at its edges
-    fig.suptitle("\n".join(textwrap.wrap(f"{scene.name}: {sol.status}", width=110)), fontsize="medium")
+    warning = " (FAILED: not to be trusted)" if failed else ""
+    fig.suptitle("\n".join(textwrap.wrap(f"{scene.name}{warning}: {sol.status}", width=110)), fontsize="medium")
     return fig
 
 
@@ -546,6 +598,7 @@ def _reduced_figure(scene):
     tau = np.where(ok, np.asarray(red.force), np.nan)  # the drive (a motor's torque, a drive law) with the loads
     kind = _driver_kind(scene.mechanism)
     axes = viz.plot_reduced(q, j, tau, driver_kind=kind)
+    _without_legend(*axes)
     period = "the slider's stroke" if kind == "slider" else "one crank turn"
     loads = scene.loads
     notes = [what for what, present in (("the drive included", bool(np.any(np.asarray(red.effort) != 0))),
@@ -564,10 +617,12 @@ def _path_frames(scene, sol, quiet: bool):
 
     from . import viz
 
-    lo, hi = float(np.min(sol.q)), float(np.max(sol.q))
+    visited = np.asarray(sol.q, dtype=float)
+    visited = visited[np.isfinite(visited)]  # a failed run may end on a value that ran away
+    lo, hi = float(np.min(visited)), float(np.max(visited))
     if _driver_kind(scene.mechanism) != "slider" and hi - lo >= 2 * np.pi:
         lo, hi = lo, lo + 2 * np.pi
-    q = np.linspace(lo, hi, PATH_SAMPLES) if hi > lo else np.asarray(sol.q, dtype=float)
+    q = np.linspace(lo, hi, PATH_SAMPLES) if hi > lo else visited
     return viz.frames_from_kinematics(sweep_kinematics(scene.mechanism, q, quiet=quiet))
 
 
@@ -579,17 +634,22 @@ def _paths_figure(scene, frames, points):
     return ax.figure
 
 
-def _animation(scene, sol, out: Path, frames: int, trace_q, quiet: bool) -> list[Path]:
-    """animation.gif, and animation.mp4 when ffmpeg is on the PATH, from one rendering."""
+def _animation(scene, sol, out: Path, frames: int, trace_q, quiet: bool, failed: bool = False) -> list[Path]:
+    """animation.gif, and animation.mp4 when ffmpeg is on the PATH, from one rendering
+    (a failed run's samples only where a drawing takes them: it may have run away before it stopped)."""
     import matplotlib.pyplot as plt
     import numpy as np
 
     from . import viz
+    from ._values import MAGNITUDE_LIMIT
 
-    t = np.linspace(float(sol.t[0]), float(sol.t[-1]), frames)
-    q, w = np.interp(t, sol.t, sol.q), np.interp(t, sol.t, sol.omega)
+    drawable = (np.abs(sol.q) <= MAGNITUDE_LIMIT) & (np.abs(sol.omega) <= MAGNITUDE_LIMIT)  # False for NaN too
+    ts, qs, ws = (np.asarray(v)[drawable] for v in (sol.t, sol.q, sol.omega))
+    t = np.linspace(float(ts[0]), float(ts[-1]), frames)
+    q, w = np.interp(t, ts, qs), np.interp(t, ts, ws)
     points = list(scene.outputs["points"])
-    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=trace_q, velocities=points[:3])
+    title = f"{scene.name} (FAILED run, not to be trusted)" if failed else None
+    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=trace_q, velocities=points[:3], title=title)
     with _progress(frames, "animation", quiet) as bar:
         images = viz.render_frames(anim, progress=lambda i, n: bar.update(1))
     plt.close(anim._fig)
@@ -645,6 +705,72 @@ def _lockup_approach(sol):
     before = np.asarray(sol.t) < float(sol.t_final) - window
     balance = np.abs(np.asarray(sol.balance))
     return float(np.max(balance[before], initial=0.0)), window, float(np.max(balance[~before]))
+
+
+def _solver_failed(sol) -> bool:
+    """Whether the solver did not finish as asked: it neither reached t1 nor stopped at an
+    event, nor where the joint friction jams the mechanism (a physical end that its status
+    names: ``dynamics._results.jam_text``, whose result is the solver's NaN ahead)."""
+    from .dynamics._results import jam_text
+
+    if sol.successful:
+        return False
+    return sol.status != jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final))
+
+
+def _failure_lines(scene, sol, units: dict) -> list[str]:
+    """What a failed run's files hold, in words: nothing to trust; with constant steps (no
+    error estimate) not even the samples before the failure."""
+    import numpy as np
+
+    t_end, t1 = float(sol.t_final), float(scene.state.get("t1", 1.0))
+    lines = [f"  FAILED: the solver stopped at t = {t_end:.6g} s, short of t1 = {t1:.6g} s: the motion is not to be trusted "
+             "(exit status 1)"]
+    constant = _constant_steps(scene)
+    if constant:
+        fastest = float(np.nanmax(np.abs(np.asarray(sol.omega)), initial=0.0))
+        given = ", ".join(f"{k} = {v:g}" + (" s" if k == "dt" else "") for k, v in constant.items())
+        lines.append(f"    with constant steps ({given}) no step's error is estimated: the samples before t = {t_end:.6g} s "
+                     f"may be unresolved too (|omega| up to {fastest:.3g} {units['omega']}); compare with adaptive steps "
+                     f"(no {' or '.join(constant)} in [simulation])")
+    else:
+        lines.append(f"    the samples before t = {t_end:.6g} s kept the solver's tolerances (adaptive steps); nothing after it")
+    if _ran_away(sol):
+        from ._values import MAGNITUDE_LIMIT
+
+        lines.append(f"    its q, omega or dw/dt ran past {MAGNITUDE_LIMIT:g} (or to NaN) before it stopped: no reactions are "
+                     "computed along it")
+    return lines
+
+
+def _constant_steps(scene) -> dict:
+    """The scene's dt or steps: constant steps, without an error estimate."""
+    return {k: scene.simulation[k] for k in ("dt", "steps") if k in scene.simulation}
+
+
+def _balance_note(scene) -> str:
+    """What a failed run's energy balance measures: nothing with constant steps (the motion
+    itself may be unresolved), the motion up to the failure with adaptive ones."""
+    return " (of the failed run: no measure of its accuracy)" if _constant_steps(scene) else " (until the solver failed)"
+
+
+def _ran_away(sol) -> bool:
+    """Whether some sample of q, omega or dw/dt is NaN or beyond MAGNITUDE_LIMIT, which the
+    reactions refuse (a failed run's may be: it can run away before the solver stops)."""
+    import numpy as np
+
+    from ._values import MAGNITUDE_LIMIT
+
+    values = [v for v in (sol.q, sol.omega, getattr(sol, "domega", None)) if v is not None]
+    return not all(np.all(np.abs(np.asarray(v)) <= MAGNITUDE_LIMIT) for v in values)
+
+
+def _say_failed(scene, sol, wrote: bool = True) -> int:
+    """The one line on stderr of a run whose solver failed, and its exit status."""
+    files = "its files are written for inspection, " if wrote else ""
+    print(f"assurjax: error: {scene.name}: the solver failed at t = {float(sol.t_final):.6g} s (see the status above); "
+          f"{files}the motion is not to be trusted", file=sys.stderr)
+    return RUN_FAILED
 
 
 def _standstill_line(scene, sol) -> str:
@@ -713,7 +839,8 @@ def cmd_run(args) -> int:
         if not len(sol.t):  # nothing to write or plot
             raise UserError(f"{scene.name}: {sol.status} (it stopped before its first sample)")
         bar.update(1)
-        joints = scene.outputs["reactions"]
+        failed = _solver_failed(sol)
+        joints = () if failed and _ran_away(sol) else scene.outputs["reactions"]  # none the analysis takes
         forces, driving, rx_time, peaks, along = {}, None, None, None, None
         if joints:
             along = _reactions_along(scene, sol, joints)
@@ -721,7 +848,7 @@ def cmd_run(args) -> int:
             peaks = _peaks(scene, sol, samples, joints, along)
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
-        files.append(_savefig(_history_figure(scene, sol, forces, units), out / "histories.png"))
+        files.append(_savefig(_history_figure(scene, sol, forces, units, failed), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene), out / "reduced.png"))
         points = list(scene.outputs["points"])
@@ -730,10 +857,11 @@ def cmd_run(args) -> int:
             files.append(_savefig(_paths_figure(scene, path_frames, points), out / "coupler_curves.png"))
         bar.update(1)
         if not args.no_animation:
-            files += _animation(scene, sol, out, args.frames, None if path_frames is None else path_frames.q, args.quiet)
+            files += _animation(scene, sol, out, args.frames, None if path_frames is None else path_frames.q, args.quiet,
+                                failed)
             bar.update(1)
     summary = dict(
-        scene=scene.name, status=sol.status, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
+        scene=scene.name, status=sol.status, solver_failed=failed, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
         t_final=float(sol.t[-1]), q_final=float(sol.q[-1]), timings_s=dict(load=load_time, simulate_first_call=first, simulate_compiled=second, reactions=rx_time),
         units=dict(t="s", **units, energies="J", positions="m", angles="rad", forces="N"),
     )
@@ -750,12 +878,15 @@ def cmd_run(args) -> int:
     files.append(out / "summary.json")
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"{scene.name}: {sol.status}")
+    for line in _failure_lines(scene, sol, units) if failed else ():
+        print(line)
     print(_standstill_line(scene, sol))
     rest = _rest_line(scene, sol)
     if rest is not None:
         print(rest)
     if drift is not None:
-        print(f"  energy balance: max |T + V - W - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest energy; "
+        print(f"  energy balance{_balance_note(scene) if failed else ''}: "
+              f"max |T + V - W - E(0)| = {drift[0]:.3e} J ({drift[1]:.2e} of the largest energy; "
               "W: the work of the loads outside V)")
         if approach is not None:
             print(f"    {approach[0]:.3e} J until {approach[1]:.3g} s before the lock-up, {approach[2]:.3e} J after: at a limit "
@@ -780,7 +911,7 @@ def cmd_run(args) -> int:
     print(f"  timings: load {load_time:.2f} s, simulate {first:.2f} s (first call, with compilation), {compiled}"
           + (f", reactions {rx_time:.2f} s" if rx_time is not None else ""))
     _print_files(files)
-    return 0
+    return _say_failed(scene, sol) if failed else 0
 
 
 # ---------------------------------------------------------------------------- reactions
@@ -811,6 +942,12 @@ def cmd_reactions(args) -> int:
     samples = _samples(args, scene)
     # once: this command reports no simulation timings
     sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
+    failed = _solver_failed(sol)
+    if failed and _ran_away(sol):  # no reactions along it: nothing to write
+        print(f"{scene.name}: {sol.status}")
+        for line in _failure_lines(scene, sol, units):
+            print(line)
+        return _say_failed(scene, sol, wrote=False)
     along = _reactions_along(scene, sol, joints)
     forces, driving, elapsed = along.forces, along.driving, along.seconds
     peaks = _peaks(scene, sol, samples, joints, along)
@@ -824,6 +961,7 @@ def cmd_reactions(args) -> int:
     fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), layout="constrained")
     viz.plot_reactions(sol.t, forces, ax=axes[0])
     viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
+    _without_legend(axes[1])
     if _driving_is_round_off(peaks, scene, units):  # as the summary says: not magnified into a curve of noise
         axes[1].set_ylim(-1.0, 1.0)
         axes[1].set_title("driving effort needed: none (round-off)")
@@ -832,6 +970,8 @@ def cmd_reactions(args) -> int:
                                 ax=axes[2], title="power lost to friction")
     files.append(_savefig(fig, out / "reactions.png"))
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
+    for line in _failure_lines(scene, sol, units) if failed else ():
+        print(line)
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
@@ -839,7 +979,7 @@ def cmd_reactions(args) -> int:
     for line in _friction_lines(scene, sol, along, peaks):
         print(line)
     _print_files(files)
-    return 0
+    return _say_failed(scene, sol) if failed else 0
 
 
 def _band_line(lower: float, upper: float, units: dict) -> str:

@@ -26,9 +26,10 @@ from scene_texts import ROUGH_ARM  # noqa: E402
 
 
 def read_csv(path):
+    """Columns by name; an empty cell (no value) is NaN."""
     with open(path) as f:
         rows = list(csv.reader(f))
-    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+    return {name: np.array([float(r[i]) if r[i] else np.nan for r in rows[1:]]) for i, name in enumerate(rows[0])}
 
 
 @pytest.fixture(scope="module")
@@ -487,3 +488,181 @@ def test_a_long_first_run_is_not_integrated_again_to_time_it(monkeypatch):
     monkeypatch.setattr(cli, "RERUN_LIMIT", 1e9)
     assert cli._simulate(scene, 11)[2] > 0
     assert cli._covered([(0.0, 2.0), (1.0, 3.0), (5.0, 6.0), (1.5, 1.75)]) == 4.0  # nested and side by side spans once
+
+
+def _bundled(name):
+    import importlib.resources
+
+    return (importlib.resources.files("assurjax") / "scenes" / f"{name}.toml").read_text()
+
+
+def test_a_run_whose_solver_fails_exits_1_and_says_the_motion_is_not_to_be_trusted(tmp_path, capsys):
+    """The slider-crank under gravity alone conserves T + V (physics). With constant steps of
+    dt = 0.5 s the solver stops early (NaN ahead) after samples that break that law by
+    orders of magnitude: exit status 1, the files written for inspection, and the lines say
+    the motion is not to be trusted, the samples before the failure included. The same scene
+    with adaptive steps reaches t1, conserves T + V and exits 0."""
+    import json
+
+    coarse = tmp_path / "coarse.toml"
+    coarse.write_text(_bundled("slider_crank") + "[simulation]\ndt = 0.5\n")
+    out = tmp_path / "coarse"
+    assert main(["run", str(coarse), "--out", str(out), "--no-animation", "--quiet"]) == 1
+    printed, err = capsys.readouterr()
+    cols = read_csv(out / "solution.csv")
+    assert cols["t"][-1] < 2.0  # short of t1
+    assert np.max(np.abs(cols["E"] - cols["E"][0])) > 1e3 * abs(cols["E"][0])  # nothing like the conserved T + V
+    assert json.loads((out / "summary.json").read_text())["solver_failed"] is True
+    assert "FAILED" in printed and "not to be trusted" in printed
+    assert "the samples before t = " in printed and "may be unresolved too" in printed and "(no dt in [simulation])" in printed
+    assert "energy balance (of the failed run: no measure of its accuracy)" in printed
+    assert err.startswith("assurjax: error: slider_crank: the solver failed at t = ") and len(err.strip().splitlines()) == 1
+    # the reactions along that motion: the same failure, the same status
+    assert main(["reactions", str(coarse), "--out", str(tmp_path / "rx"), "--quiet"]) == 1
+    assert "not to be trusted" in capsys.readouterr().out
+    fine = tmp_path / "fine"
+    assert main(["run", "slider_crank", "--out", str(fine), "--no-animation", "--quiet"]) == 0
+    cols = read_csv(fine / "solution.csv")
+    assert cols["t"][-1] == pytest.approx(2.0) and np.max(np.abs(cols["E"] - cols["E"][0])) < 1e-6 * np.max(cols["T"])
+    assert json.loads((fine / "summary.json").read_text())["solver_failed"] is False
+    assert "FAILED" not in capsys.readouterr().out
+
+
+def test_physical_ends_are_no_solver_failure():
+    """Exit status 0 for the ends of a motion that physics gives: t1, a standstill, a
+    lock-up, a user event (the solver's result is successful) and a friction jam (the
+    solver's NaN ahead, named by the jam's status); 1 for NaN ahead, a used-up budget."""
+    from types import SimpleNamespace
+
+    from assurjax.cli import _solver_failed
+    from assurjax.dynamics._results import jam_text
+
+    def run(successful, status="solver stopped at t = 0.2 s: ..."):
+        return SimpleNamespace(successful=successful, status=status, t_final=0.2, q_final=1.2, omega_final=1.7)
+
+    assert not _solver_failed(run(True, "standstill at t = 0.2 s"))
+    assert not _solver_failed(run(True, "group 'dyad' can no longer assemble at t = 0.2 s (lock-up / limit position)"))
+    assert not _solver_failed(run(False, jam_text(0.2, 1.2, 1.7)))
+    assert _solver_failed(run(False)) and _solver_failed(run(False, jam_text(0.3, 1.2, 1.7)))  # another run's jam
+
+
+STEEP_SLIDER = """
+[scene]
+name = "steep_slider"
+gravity = [0.0, 0.0]
+[ground]
+O = [0.0, 0.0]
+[links.crank]
+points = { O = [0.0, 0.0], A = [0.1, 0.0] }
+inertia = 0.001
+[links.rod]
+points = { A = [0.0, 0.0], B = [0.105, 0.0] }
+[links.slider]
+points = { B = [0.0, 0.0] }
+mass = 1.0
+[[formation]]
+group = "crank"
+link = "crank"
+pivot = "O"
+[[formation]]
+group = "RRP"
+links = ["rod", "slider"]
+joints = ["A", "B"]
+guide_point = "O"
+direction = [1.0, 0.0]
+mode = "forward"
+[[loads]]
+type = "drive"
+value = 1.0
+[[loads]]
+type = "slide_friction"
+pair = "slider/ground"
+coefficient = 0.5
+length = 0.05
+[state]
+q0 = 1.0
+omega0 = 0.5
+t1 = 0.5
+"""
+
+
+@pytest.mark.slow  # ~30 s: a slider-crank with friction and its jam test compiled
+def test_a_run_that_jams_by_friction_exits_0(write_scene, tmp_path, capsys):
+    """The crank drives the slider through a rod steeper than the friction allows: it jams
+    where ex = mu |ey| (hand-solved: sin q = l / (r sqrt(1 + mu^2))), a physical end, not a
+    failure of the solver."""
+    import json
+
+    out = tmp_path / "out"
+    assert main(["run", str(write_scene(STEEP_SLIDER)), "--out", str(out), "--no-animation", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("the joint friction jams the mechanism") and summary["solver_failed"] is False
+    assert summary["q_final"] == pytest.approx(math.asin(0.105 / (0.1 * math.sqrt(1.0 + 0.5**2))), abs=1e-6)
+    assert "FAILED" not in capsys.readouterr().out
+
+
+def test_kinematics_leaves_empty_cells_and_names_the_gaps_where_it_does_not_assemble(tmp_path, capsys):
+    """The tangent drive: x_J = h cot q (h = 0.2 m); its guides are parallel at q = 0 and pi
+    (closed form), where it does not assemble: every value of those rows is an empty cell,
+    and the printed lines list those gaps instead of one range from the first to the last."""
+    assert main(["kinematics", "tangent_drive", "--out", str(tmp_path), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    cols = read_csv(tmp_path / "kinematics.csv")
+    q, ok = cols["q"], cols["ok"] == 1
+    parallel = np.abs(np.sin(q)) < 1e-12
+    assert parallel.sum() == 2 and np.array_equal(~ok, parallel)
+    for name, values in cols.items():
+        if name not in ("q", "ok"):
+            assert np.all(np.isnan(values[~ok])), name
+            assert np.all(np.isfinite(values[ok])), name
+    np.testing.assert_allclose(cols["x_J"][ok], 0.2 / np.tan(q[ok]), rtol=1e-9)
+    np.testing.assert_allclose(cols["dx_J/dq"][ok], -0.2 / np.sin(q[ok]) ** 2, rtol=1e-9)
+    assert "assembles at 719 of 721 samples of q (rad)" in printed
+    assert "cannot assemble for q in [0, 0], [3.14159, 3.14159]" in printed and "q from" not in printed
+
+
+def test_kinematics_ranges_and_drawing_take_undefined_ratios(tmp_path, monkeypatch, capsys):
+    """At a singular configuration a velocity ratio is undefined (NaN): the printed ranges
+    are those of the defined values (the slider-crank's rod: dtheta/dq = r cos q / (l cos phi),
+    closed form, within [-1/3, 1/3]) and say how many are not; the CSV leaves those cells
+    empty, and the drawing shows a sample where they are defined."""
+    import equinox as eqx
+
+    from assurjax import cli
+
+    real = cli.sweep_kinematics
+
+    def with_a_nan(mechanism, q, **kw):
+        kin = real(mechanism, q, **kw)
+        rod = np.array(kin.angular_velocities["rod"], copy=True)
+        b = np.array(kin.velocities["B"], copy=True)
+        k = int(np.argmin(np.abs(q - 0.5)))  # the scene's q0: the drawing's first choice
+        rod[k], b[k] = np.nan, np.nan
+        return eqx.tree_at(lambda k: (k.angular_velocities["rod"], k.velocities["B"]), kin, (rod, b))
+
+    monkeypatch.setattr(cli, "sweep_kinematics", with_a_nan)
+    assert main(["kinematics", "slider_crank", "--out", str(tmp_path), "--samples", "73", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    low, high = (float(v) for v in re.search(r"dtheta_rod/dq in \[([-0-9.e]+), ([-0-9.e]+)\]", printed).groups())
+    q = np.delete(np.linspace(0.5 - np.pi, 0.5 + np.pi, 73), 36)  # the samples but the undefined one
+    ratio = 0.1 * np.cos(q) / np.sqrt(0.3**2 - (0.1 * np.sin(q)) ** 2)  # |dtheta_rod/dq| up to its sign
+    assert low == pytest.approx(-ratio.max(), rel=1e-3) and high == pytest.approx(ratio.max(), rel=1e-3)
+    assert "undefined (NaN) at 1 sample (singular configurations)" in printed
+    cols = read_csv(tmp_path / "kinematics.csv")
+    assert np.isnan(cols["dtheta_rod/dq"]).sum() == 1 and np.isnan(cols["dx_B/dq"]).sum() == 1
+    assert (tmp_path / "mechanism.png").stat().st_size > 0
+
+
+def test_single_line_panels_carry_no_legend():
+    """The driving coordinate's and velocity's panels hold one line each, named by their
+    titles and axis labels: a legend there only hid part of the curve."""
+    from types import SimpleNamespace
+
+    from assurjax.cli import _history_figure
+
+    t = np.linspace(0.0, 1.0, 11)
+    sol = SimpleNamespace(t=t, q=t, omega=np.ones(11), kinetic=None, status="reached t1 = 1 s")
+    fig = _history_figure(SimpleNamespace(name="x"), sol, {}, dict(q="rad", omega="rad/s"))
+    q_axes, omega_axes = fig.axes[:2]
+    assert q_axes.get_title() == "driving coordinate" and omega_axes.get_title() == "driving velocity"
+    assert q_axes.get_legend() is None and omega_axes.get_legend() is None

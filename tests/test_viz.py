@@ -367,3 +367,104 @@ def test_an_animation_says_where_the_mechanism_does_not_assemble(roberts_scene):
     assert anim.drawing.ax.get_title().endswith("q = 2.500 rad (does not assemble here)")
     anim.show_frame(0)
     assert anim.drawing.ax.get_title().endswith("q = 0.300 rad")
+
+
+H_TANGENT = 0.2  # the tangent drive's guide height (m): x_J = h cot q
+
+
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # the test before's, collected here
+def test_a_drawing_follows_the_mechanism_not_a_path_that_runs_off():
+    """The tangent drive at q = pi/2: O = (0, 0), K = (0, 0.1), J = H = (0, h) (closed form).
+    Over a turn J's path reaches h cot(pi/360) = 22.9 m beside the parallel guides: the axes
+    follow the mechanism (a few h wide), the path is cut and the x label says how far it
+    reaches; the block is smaller than the 0.1 m crank, and J's arrow (v_J = -h / sin^2 q =
+    -0.2 m/s per rad/s) is a quarter of the mechanism's size h, inside the axes."""
+    mech = assurjax.load_scene("tangent_drive").mechanism
+    q = np.linspace(-np.pi / 2, 3 * np.pi / 2, 721)  # steps of pi/360
+    drawing = viz.draw_mechanism(mech, np.pi / 2, velocities=["J"], trace=["J"], trace_q=q)
+    ax = drawing.ax
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert x1 - x0 < 5 * H_TANGENT and y1 - y0 < 5 * H_TANGENT
+    far = H_TANGENT / np.tan(np.pi / 360)
+    assert f"the path of J is cut at the edge: it reaches x in [{-far:.3g}, {far:.3g}]" in ax.get_xlabel()
+    block, _ = drawing.link_artists["block"]
+    assert np.ptp(block.get_xy(), axis=0).max() < 0.1
+    tail, tip = np.asarray(drawing.arrows["J"].xyann), np.asarray(drawing.arrows["J"].xy)
+    np.testing.assert_allclose(tail, [0.0, H_TANGENT], atol=1e-12)
+    np.testing.assert_allclose(tip - tail, [-0.25 * H_TANGENT, 0.0], atol=1e-9)
+    assert x0 < tip[0] < x1 and y0 < tip[1] < y1
+
+
+def test_a_slot_on_the_crank_carries_its_block_at_every_frame():
+    """The tangent drive's slot runs along the crank through O: drawn at every frame from
+    past O to past J = (h cot q, h) (closed form), so the block at J sits on it."""
+    mech = assurjax.load_scene("tangent_drive").mechanism
+    q = np.linspace(0.3, 2.8, 6)
+    anim = viz.animate(mech, q)
+    [(line, carrier, _, point)] = anim.drawing.slots
+    assert (carrier, point) == ("crank", "J")
+    for i, qi in enumerate(q):
+        anim.show_frame(i)
+        ends = np.column_stack(line.get_data())
+        u = np.array([np.cos(qi), np.sin(qi)])  # the slot's direction: the crank's
+        j = np.array([H_TANGENT / np.tan(qi), H_TANGENT])
+        for p in (np.zeros(2), j):  # on the line
+            d = p - ends[0]
+            assert abs(u[0] * d[1] - u[1] * d[0]) < 1e-12
+        assert abs(ends[0] @ u) < 1e-12 and (j - ends[1]) @ u < 0  # from O to past J
+    viz.render_frames(anim)
+
+
+def test_velocity_arrows_end_inside_the_axes(watt):
+    """Every arrow tip lies within the axes: the slider-crank's A, v_A = r (-sin q, cos q)
+    (closed form, r = 0.1 m), drawn alone and through an animation; and the Watt six-bar's
+    unit crank tip A, v_A = w (-sin q, cos q), in every frame of a turn at w = 2 rad/s."""
+    slider_crank = assurjax.load_scene("slider_crank").mechanism
+    cases = [(viz.draw_mechanism(slider_crank, 0.5, velocities=["A", "B"], trace=["A", "B"]), [0.5], 0.1, 1.0)]
+    q = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    anim = viz.animate(watt, q, 2.0, velocities=["A", "E"], trace=["E"])
+    cases.append((anim.drawing, q, 1.0, 2.0))
+    for drawing, qs, r, w in cases:
+        (x0, x1), (y0, y1) = drawing.ax.get_xlim(), drawing.ax.get_ylim()
+        for i, qi in enumerate(qs):
+            drawing.update(i)
+            a = r * np.array([np.cos(qi), np.sin(qi)])
+            tip = a + drawing.velocity_scale * r * w * np.array([-np.sin(qi), np.cos(qi)])
+            np.testing.assert_allclose(drawing.arrows["A"].xy, tip, atol=1e-9)
+            assert x0 < tip[0] < x1 and y0 < tip[1] < y1, (qi, tip)
+    assert "cut" not in cases[0][0].ax.get_xlabel()
+    viz.render_frames(anim)
+
+
+def test_an_undefined_velocity_draws_no_arrow():
+    """At a singular configuration a velocity ratio is NaN: the drawing shows no arrow
+    there, sizes its arrows by the defined ones, and renders without a warning."""
+    mech = assurjax.load_scene("slider_crank").mechanism
+    import dataclasses
+
+    frames = viz.mechanism_frames(mech, [0.3, 0.6, 0.9], velocities=True)
+    b = np.array(frames.velocities["B"], copy=True)
+    b[1] = np.nan
+    frames = dataclasses.replace(frames, velocities=frames.velocities | {"B": b})
+    fig, ax = plt.subplots()
+    drawing = viz.MechanismDrawing(ax, mech, frames, velocities=["A", "B"])
+    assert np.isfinite(drawing.velocity_scale) and drawing.velocity_scale > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for i in range(3):
+            drawing.update(i)
+            assert drawing.arrows["B"].get_visible() == (i != 1) and drawing.arrows["A"].get_visible()
+            fig.canvas.draw()
+
+
+def test_no_legend_past_the_colour_cycle(tmp_path):
+    """Past the colour cycle (10 colours) lines share colours and a legend entry names none:
+    no legend then (the strandbeest's 49 angular velocities' legend collapsed the layout)."""
+    t = np.linspace(0.0, 1.0, 11)
+    colours = len(plt.rcParams["axes.prop_cycle"].by_key()["color"])
+    for count, legend in ((colours, True), (colours + 1, False)):
+        ax = viz.plot_time_histories(t, {f"x{k}": k * t for k in range(count)}, ylabel="x (m)")
+        assert (ax.get_legend() is not None) == legend
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a collapsed layout warns
+            ax.figure.savefig(tmp_path / f"{count}.png")

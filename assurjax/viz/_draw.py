@@ -59,6 +59,26 @@ def _ground_guides(mechanism: Mechanism) -> list[tuple[np.ndarray, np.ndarray]]:
     return guides
 
 
+def _moving_guides(mechanism: Mechanism) -> list[tuple[str, np.ndarray, str]]:
+    """(link carrying the guide, unit direction in its frame, the point sliding on it) of each
+    prismatic guide a moving link carries (a slot): drawn from frame to frame, as far as
+    the sliding point, so a block there sits on its slot."""
+    owner = dict(mechanism.owner)
+    slots = []
+    for g in mechanism.groups:
+        for (_, carrier, point), (guide_point, direction, _) in zip(g.prismatic_pairs(owner), g.guides()):
+            if carrier == GROUND or (guide_point is not None and owner.get(guide_point) != carrier):
+                continue  # a ground guide (drawn once), or a group whose lists do not pair up
+            u = np.asarray(direction, dtype=float)
+            slots.append((carrier, u / np.hypot(*u), point))
+    return slots
+
+
+def _rotated(u: np.ndarray, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1]])
+
+
 class MechanismDrawing:
     """The artists of one mechanism on one Axes; :meth:`update` moves them to a frame.
 
@@ -70,11 +90,18 @@ class MechanismDrawing:
     - ``trace``: point names whose whole path over ``frames`` is drawn (coupler curves).
     - ``velocities``: point names that get a velocity arrow (needs ``frames.velocities``).
     - ``velocity_scale``: arrow length per unit speed (s: m of drawing per m/s);
-      default: the fastest arrow is a quarter of the drawing's size.
+      default: the fastest arrow (bar the fastest tenth) is a quarter of the mechanism's size.
     - ``unit``: length unit of the axes ("m", "cm" or "mm").
     - ``labels``: write point names next to the joints.
     - ``trace_frames``: configurations for the traced paths, if not ``frames``.
+
+    The axes follow the mechanism at the drawn poses (``size``: its extent, m), widened by
+    the traced paths and velocity arrows up to ``REACH`` sizes beyond it: paths and arrows
+    that reach farther (near a singular position) are cut at the axes' edge, and the x
+    label says so.
     """
+
+    REACH = 1.0  # how far (in mechanism sizes) traced paths and arrow tips may widen the view
 
     def __init__(
         self,
@@ -95,15 +122,15 @@ class MechanismDrawing:
         self.velocity_points = tuple(velocities)
         if self.velocity_points and frames.velocities is None:
             raise ValueError("velocity arrows need frames computed with velocities=True")
-        lo, hi = extent(frames)
-        if trace_frames is not None and trace:
-            t_lo, t_hi = extent(trace_frames, trace)
-            lo, hi = np.minimum(lo, t_lo), np.maximum(hi, t_hi)
+        lo, hi = extent(frames)  # the mechanism at the drawn poses
         self.size = float(np.max(hi - lo)) or 1.0
         self.velocity_scale = velocity_scale if velocity_scale is not None else self._auto_velocity_scale()
-        self._setup_axes(lo, hi, unit)
+        self._setup_axes(*self._widened(lo, hi, tuple(trace)), unit)
+        self._say_clipped(tuple(trace), unit)
         self._draw_ground()
         self._draw_traces(tuple(trace))
+        self.slots = [(self.ax.plot([], [], color=self._link_color(carrier), lw=1.5, alpha=0.7, zorder=2.2)[0], carrier, u, p)
+                      for carrier, u, p in _moving_guides(mechanism)]
         self.link_artists = self._make_links()
         self.joints = ax.plot([], [], "o", ms=6, mfc="white", mec="black", mew=1.5, zorder=5)[0]
         self.labels = {p: ax.annotate(p, (0, 0), xytext=(4, 4), textcoords="offset points", fontsize=8, zorder=6) for p in mechanism.point_names} if labels else {}
@@ -129,13 +156,40 @@ class MechanismDrawing:
     def _auto_velocity_scale(self) -> float:
         if not self.velocity_points:
             return 1.0
-        # a high percentile, not the maximum: speeds blow up near singular positions
+        # a high percentile, not the maximum: speeds blow up near singular positions (and are
+        # NaN exactly at one)
         speeds = np.concatenate([np.hypot(*self.frames.velocities[p][self.frames.ok].T) for p in self.velocity_points])
+        speeds = speeds[np.isfinite(speeds)]
         vmax = float(np.percentile(speeds, 90)) if speeds.size else 0.0
         return 0.25 * self.size / vmax if vmax > 0 else 1.0
 
+    def _arrow_tips(self) -> dict[str, np.ndarray]:
+        """Each velocity arrow's tips (m) over the assembled frames with a finite velocity."""
+        f, tips = self.frames, {}
+        for p in self.velocity_points:
+            xy = f.points[p] + f.velocities[p] * self.velocity_scale
+            tips[p] = xy[f.ok & np.all(np.isfinite(xy), axis=1)]
+        return tips
+
+    def _path_points(self, trace) -> dict[str, np.ndarray]:
+        """Each traced path's points (m) where the mechanism assembles."""
+        f = self.trace_frames
+        paths = {n: f.points[n][f.ok] for n in trace}
+        return {n: xy[np.all(np.isfinite(xy), axis=1)] for n, xy in paths.items()}
+
+    def _widened(self, lo, hi, trace):
+        """The view's corners (m): the mechanism's, widened by the traced paths' points and the
+        arrow tips within REACH sizes of it (those farther are cut at the axes' edge)."""
+        far_lo, far_hi = lo - self.REACH * self.size, hi + self.REACH * self.size
+        for xy in [*self._path_points(trace).values(), *self._arrow_tips().values()]:
+            near = xy[np.all((xy >= far_lo) & (xy <= far_hi), axis=1)]
+            if len(near):
+                lo, hi = np.minimum(lo, near.min(axis=0)), np.maximum(hi, near.max(axis=0))
+        return lo, hi
+
     def _setup_axes(self, lo, hi, unit):
-        pad = 0.12 * self.size
+        self.view = float(np.max(hi - lo)) or self.size  # the view's extent (m)
+        pad = 0.12 * self.view
         ax, s = self.ax, self.scale
         ax.set_xlim((lo[0] - pad) * s, (hi[0] + pad) * s)
         ax.set_ylim((lo[1] - pad) * s, (hi[1] + pad) * s)
@@ -144,13 +198,26 @@ class MechanismDrawing:
         ax.set_ylabel(f"y ({unit})")
         ax.grid(True, lw=0.3, alpha=0.5)
 
+    def _say_clipped(self, trace, unit):
+        """Add to the x label each path and arrow that reaches past the axes (cut at their edge)."""
+        s = self.scale
+        box_lo = np.array([self.ax.get_xlim()[0], self.ax.get_ylim()[0]]) / s
+        box_hi = np.array([self.ax.get_xlim()[1], self.ax.get_ylim()[1]]) / s
+        notes = [_clipped_note(f"path of {n}", (xy.min(axis=0), xy.max(axis=0)), s, unit)
+                 for n, xy in self._path_points(trace).items() if np.any((xy < box_lo) | (xy > box_hi))]
+        for p, xy in self._arrow_tips().items():
+            out = int(np.count_nonzero(np.any((xy < box_lo) | (xy > box_hi), axis=1)))
+            if out:
+                notes.append(_clipped_note(f"velocity arrow of {p}", (out, len(xy)), s, unit))
+        self.ax.set_xlabel("\n".join([self.ax.get_xlabel(), *notes]))
+
     def _draw_ground(self):
         s, h = self.scale, 0.04 * self.size * self.scale
         for name, xy in self.mechanism.ground.items():
             x, y = np.asarray(xy, dtype=float) * s
             self.ax.add_patch(Polygon([[x, y], [x - h, y - 1.5 * h], [x + h, y - 1.5 * h]], closed=True, fc="lightgray", ec="black", hatch="///", zorder=3))
-        for base, u in _ground_guides(self.mechanism):
-            ends = np.array([base - 2 * self.size * u, base + 2 * self.size * u]) * s
+        for base, u in _ground_guides(self.mechanism):  # across the whole view, wherever the base is in it
+            ends = np.array([base - 3 * self.view * u, base + 3 * self.view * u]) * s
             self.ax.plot(ends[:, 0], ends[:, 1], color="gray", lw=1, ls="--", zorder=1)
 
     def _draw_traces(self, names):
@@ -161,13 +228,16 @@ class MechanismDrawing:
             self.ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ls="--", color=trace_color(k), zorder=2,
                          label=f"path of {name}" if named else None)
 
+    def _link_color(self, link: str):
+        return LINK_COLORS[list(self.mechanism.links).index(link) % len(LINK_COLORS)]
+
     def _make_links(self) -> dict:
         # legend entries only while each colour is one link's: past the palette colours repeat,
         # and an entry names nothing (the strandbeest's 49 links overflowed the figure)
         named = len(self.mechanism.links) <= len(LINK_COLORS)
         artists = {}
-        for i, (name, link) in enumerate(self.mechanism.links.items()):
-            color, label = LINK_COLORS[i % len(LINK_COLORS)], name if named else None
+        for name, link in self.mechanism.links.items():
+            color, label = self._link_color(name), name if named else None
             order = _hull_order(link.points)
             if len(order) == 2:  # a bar
                 artist = self.ax.plot([], [], color=color, lw=4, solid_capstyle="round", zorder=3.5, label=label)[0]
@@ -177,9 +247,11 @@ class MechanismDrawing:
             artists[name] = (artist, order)
         return artists
 
+    BLOCK = (0.06, 0.035)  # a slider block's half length and half width, in mechanism sizes
+
     def _block(self, centre, angle):
         """Corners of a slider block centred on ``centre`` and aligned with ``angle``."""
-        a, b = 0.06 * self.size, 0.035 * self.size
+        a, b = self.BLOCK[0] * self.size, self.BLOCK[1] * self.size
         u = np.array([np.cos(angle), np.sin(angle)])
         n = np.array([-u[1], u[0]])
         return np.array([centre + a * u + b * n, centre - a * u + b * n, centre - a * u - b * n, centre + a * u - b * n])
@@ -197,15 +269,38 @@ class MechanismDrawing:
             else:
                 artist.set_xy(np.array([pts[p] for p in order]) * s)
             artist.set_alpha((0.45 if len(order) != 2 else 0.9) if f["ok"] else 0.08)
+        for line, carrier, u, p in self.slots:
+            line.set_data(*(self._slot(f, carrier, u, p) * s).T)
+            line.set_visible(f["ok"])
         xy = np.array([pts[p] for p in self.mechanism.point_names]) * s
         self.joints.set_data(xy[:, 0], xy[:, 1])
         for p, label in self.labels.items():
             label.xy = tuple(pts[p] * s)
         for p, arrow in self.arrows.items():
-            tail = pts[p] * s
-            arrow.xy = tuple(tail + f["velocities"][p] * self.velocity_scale * s)
+            tail, v = pts[p] * s, f["velocities"][p]
+            shown = bool(np.all(np.isfinite(v)))  # none at a singular configuration, where it is undefined (NaN)
+            arrow.xy = tuple(tail + (v * self.velocity_scale * s if shown else 0.0))
             arrow.set_position(tuple(tail))
-        return [a for a, _ in self.link_artists.values()] + [self.joints, *self.labels.values(), *self.arrows.values()]
+            arrow.set_visible(shown)
+        slots = [line for line, *_ in self.slots]
+        return [*slots] + [a for a, _ in self.link_artists.values()] + [self.joints, *self.labels.values(), *self.arrows.values()]
+
+    def _slot(self, f: dict, carrier: str, u: np.ndarray, point: str) -> np.ndarray:
+        """The ends (m) of a slot at frame ``f``: along its line through the sliding point,
+        over the carrier's points and a block's length past the sliding point."""
+        base, along = f["points"][point], _rotated(u, f["angles"][carrier])
+        reach = [(f["points"][n] - base) @ along for n in self.mechanism.links[carrier].points]
+        block = self.BLOCK[0] * self.size
+        return np.array([base + min(*reach, -block) * along, base + max(*reach, block) * along])
+
+
+def _clipped_note(what: str, clipped, scale: float, unit: str) -> str:
+    """The x label's words for a path or an arrow cut at the axes' edge."""
+    if isinstance(clipped[0], int):  # (frames where it does, frames)
+        where = f" in {clipped[0]} of {clipped[1]} frames" if clipped[1] > 1 else ""
+        return f"(the {what} reaches past the edge{where}: cut there)"
+    (x0, y0), (x1, y1) = np.asarray(clipped[0]) * scale, np.asarray(clipped[1]) * scale
+    return f"(the {what} is cut at the edge: it reaches x in [{x0:.3g}, {x1:.3g}], y in [{y0:.3g}, {y1:.3g}] {unit})"
 
 
 def place_legend(ax):

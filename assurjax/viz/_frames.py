@@ -88,7 +88,10 @@ def masked(values: np.ndarray, ok: np.ndarray) -> np.ndarray:
 
 
 def extent(frames: Frames, names: Iterable[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Lower-left and upper-right corners (m) of the points over all assembled frames."""
+    """Lower-left and upper-right corners (m) of the points over all assembled frames
+    (their finite positions; the origin where there are none)."""
     names = list(frames.points) if names is None else list(names)
-    xy = np.concatenate([frames.points[n][frames.ok] for n in names]) if frames.ok.any() else np.zeros((1, 2))
+    xy = np.concatenate([frames.points[n][frames.ok] for n in names]) if frames.ok.any() else np.zeros((0, 2))
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    xy = xy if len(xy) else np.zeros((1, 2))
     return xy.min(axis=0), xy.max(axis=0)

@@ -26,7 +26,11 @@ def place_legend_clear(ax, entries: int):
     """A legend that does not hide data: inside (matplotlib's emptiest corner) for up to
     two entries, outside on the right of the axes for more. Outside, in a figure of several
     axes without a layout engine, the figure gets matplotlib's constrained layout, which
-    makes room for it (without, it lay on the next panel's ticks and title)."""
+    makes room for it (without, it lay on the next panel's ticks and title). None past the
+    colour cycle: colours repeat and an entry names no line (the strandbeest's 49 angular
+    velocities' legend took the figure's whole width)."""
+    if entries > len(plt.rcParams["axes.prop_cycle"].by_key()["color"]):
+        return
     if entries <= 2:
         ax.legend(fontsize=8, loc="best")
         return
