@@ -3,7 +3,7 @@ level, groups of one kind at one level in batches: :mod:`._batches`)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import equinox as eqx
 import jax
@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
+from .._listing import few
 from .._values import check_state_count, check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
@@ -78,6 +79,8 @@ class Reactions(eqx.Module):
     guide on the slider of a prismatic pair (at its sliding point; not part of
     ``forces``, which is normal to the guide); ``friction_power[name]`` (W, <= 0) the
     power it takes out of the motion. Both are empty without friction; at rest the power is 0.
+    Within ~1e-8 (1 + |q|) of where a relative rate changes sign, its Coulomb sign is the one
+    just ahead (the motion's as t -> 0+): the power there can be ~+1e-10 W.
     ``friction_ok``: (...,) False where the joint friction has no consistent solution with
     the motion's Coulomb signs: the friction self-locks the mechanism against that motion
     (no finite drive gives it: the statics' friction law has no root with det(I - S) > 0,
@@ -389,7 +392,7 @@ def _wanted_groups(mechanism: Mechanism, joints) -> tuple[int, ...] | None:
     joints = (joints,) if isinstance(joints, str) else tuple(joints)
     unknown = [j for j in joints if j not in where]
     if unknown:
-        raise AssurjaxError(f"unknown joint(s) {unknown} in mechanism '{mechanism.name}' (joints: {list(where)})")
+        raise AssurjaxError(f"unknown joint(s) {few(unknown)} in mechanism '{mechanism.name}' (joints: {few(where)})")
     return groups_for(mechanism, pairs, {where[j] for j in joints} | {0})
 
 
@@ -401,7 +404,8 @@ def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method
       gravity, loads), or a bare :class:`assurjax.Mechanism` (no loads, no gravity).
     - ``state``: a Solution (its ``t``, ``q``, ``omega``, ``domega``), a dict with
       those keys, or a tuple ``(q, omega, domega[, t])``; arrays of any (common)
-      shape give results with that shape in front.
+      shape give results with that shape in front. A Solution that saved points or
+      links this mechanism lacks is refused (a motion of another mechanism).
     - ``joints``: only these joints (names as in :attr:`Reactions.forces`); only the
       groups they need are solved, plus the driver. Default: all.
     - ``method``: ``"modular"`` (group by group, closed forms and special Assur
@@ -422,7 +426,31 @@ def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method
     >>> r["A"].shape, r.driving.shape
     ((2,), ())
     """
-    return _run(scene, _state(state), joints, method, check, static=False)
+    return _run(scene, _state(state), joints, method, check, static=False, source=state)
+
+
+# A Solution's saved outputs by the kind of name they are keyed by: the only mark of its
+# mechanism it carries (one that saved none passes unchecked)
+SAVED_BY_POINT = ("points", "velocities", "accelerations")
+SAVED_BY_LINK = ("angles", "coms", "com_velocities", "com_accelerations", "angular_velocities", "angular_accelerations")
+
+
+def check_saved_names(mechanism: Mechanism, solution) -> None:
+    """Raise where ``solution`` (a Solution, or an object like one) saved outputs of points or
+    links that ``mechanism`` lacks: it is the motion of another mechanism (the Watt six-bar's
+    reactions along a slider-crank's Solution were computed without a word)."""
+    if isinstance(solution, (dict, tuple, list)):  # a bare state: no names to compare
+        return
+    known = {"point": set(mechanism.point_names), "link": set(mechanism.links)}
+    for kind, fields in (("point", SAVED_BY_POINT), ("link", SAVED_BY_LINK)):
+        for field in fields:
+            saved = getattr(solution, field, None)
+            unknown = [name for name in saved if name not in known[kind]] if isinstance(saved, Mapping) else []
+            if unknown:
+                raise AssurjaxError(f"reactions: the Solution is not a motion of mechanism '{mechanism.name}': it saved "
+                                    f"{field} of the {kind}(s) {few(unknown)}, which that mechanism lacks (simulate this "
+                                    "scene; or, for its reactions along that motion, pass (sol.q, sol.omega, "
+                                    "sol.domega, sol.t))")
 
 
 def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = None, method: str = "modular",
@@ -583,11 +611,14 @@ def static_reactions(scene, q, *, t=0.0, joints=None, check: bool = True) -> Rea
     return _run(scene, (q, 0.0, 0.0, t), joints, "modular", check, static=True)
 
 
-def _run(scene, state, joints, method, check, *, static):
+def _run(scene, state, joints, method, check, *, static, source=None):
+    """The reactions along ``state``; ``source``: what the state was read from (a Solution's
+    saved names are checked against the mechanism)."""
     if method not in METHODS:
         raise AssurjaxError(f"method must be one of {METHODS}, got {method!r}")
     model = as_model(scene)
     mechanism = model.mechanism
+    check_saved_names(mechanism, source)
     groups = _wanted_groups(mechanism, joints)
     shape = _checked_shape(state)
     q = jnp.asarray(state[0], dtype=float)
