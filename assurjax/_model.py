@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -9,9 +11,9 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import AssurjaxError
-from ._loads import check_loads
+from ._loads import AbstractLoad, check_loads
 from ._mechanism import Mechanism
-from ._values import check_value, concrete
+from ._values import check_value, concrete, numbers_problem
 
 
 class Model(eqx.Module):
@@ -19,7 +21,8 @@ class Model(eqx.Module):
     (reduction, simulation, kinetostatics, sensitivities).
 
     ``mechanism``: the :class:`assurjax.Mechanism`; ``gravity``: a 2-vector (m/s^2,
-    default 0); ``loads``: a tuple of loads (:class:`assurjax.Spring`, ...). Every
+    default 0); ``loads``: a sequence of loads (:class:`assurjax.Spring`, ...; one load
+    alone is taken as the only one). Every
     array inside is a traced leaf: a Model can be vmapped and differentiated.
 
     **Example:**
@@ -37,13 +40,25 @@ class Model(eqx.Module):
         self.mechanism = mechanism
         if gravity is None:
             gravity = np.zeros(2)
+        if (problem := numbers_problem(gravity)) is not None:  # before JAX reads "down" and names no field
+            raise AssurjaxError(f"Model: gravity {problem}")
         # an array already (a scene's, or traced) is kept as it is: no device round trip per call
         self.gravity = gravity if isinstance(gravity, jax.Array) else jnp.asarray(gravity, dtype=float)
         if self.gravity.shape != (2,):
             raise AssurjaxError(f"Model: gravity must be a 2-vector (m/s^2), got shape {self.gravity.shape}")
         check_value(AssurjaxError, "Model: gravity", gravity)
-        self.loads = tuple(loads)
+        self.loads = load_tuple(loads)
         check_loads(mechanism, self.loads)
+
+
+def load_tuple(loads) -> tuple:
+    """``loads`` as a tuple; one load alone is the only one (as one point name is a list of one)."""
+    if isinstance(loads, AbstractLoad):
+        return (loads,)
+    if isinstance(loads, (str, bytes, Mapping)) or not isinstance(loads, Iterable):
+        raise AssurjaxError(f"Model: loads must be a sequence of loads (assurjax.Spring, assurjax.JointFriction, ...), "
+                            f"got {type(loads).__name__}")
+    return tuple(loads)
 
 
 def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=None) -> Model:

@@ -40,7 +40,7 @@ from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism, value_fields
 from ._model import Model, check_has_inertia
-from ._values import check_values, value_problem
+from ._values import check_state_count, check_values, value_problem
 
 BATCH_AXIS = "batch"
 MAX_COPIES = 10_000_000  # perturb: a batch of the Watt six-bar this large holds ~2.4 GB of arrays
@@ -302,9 +302,11 @@ def batch_kinematics(
     """Kinematics of a batch of mechanisms (leading axis ``B`` on every array).
 
     ``q`` (rad or m) is shared by every mechanism (any shape), or, with
-    ``q_per_mechanism=True``, has shape ``(B, ...)``: one set per mechanism. Results have shape ``(B,) + q_shape + ...`` as numpy
-    arrays; ``ok`` flags per mechanism, q and group (never raises for a
-    mechanism that cannot assemble). Same conventions as :func:`assurjax.kinematics`.
+    ``q_per_mechanism=True``, has shape ``(B, ...)``: one set per mechanism; at most a
+    million configurations in all (B x those of q), as :func:`assurjax.kinematics` takes.
+    Results have shape ``(B,) + q_shape + ...`` as numpy arrays; ``ok`` flags per
+    mechanism, q and group (never raises for a mechanism that cannot assemble). Same
+    conventions as :func:`assurjax.kinematics`.
 
     **Example:**
     >>> batch = assurjax.perturb(mech, jax.random.key(0), 100, relative=0.02)
@@ -324,6 +326,8 @@ def batch_kinematics(
     q = np.asarray(q, dtype=float)
     if q_per_mechanism and (q.ndim == 0 or q.shape[0] != n):
         raise AssurjaxError(f"q_per_mechanism=True needs q with a leading axis of {n} (the batch size), got shape {q.shape}")
+    # kinematics' bound on one call, over the whole batch: its results are returned at once
+    check_state_count(AssurjaxError, "batch_kinematics", q.shape if q_per_mechanism else (n,) + q.shape)
     q_items = q if q_per_mechanism else np.broadcast_to(q, (n,) + q.shape)
     rates = {}
     for name, value in (("omega", omega), ("alpha", alpha)):
@@ -379,15 +383,19 @@ def batch_simulate(
     scene's ``[simulation]`` and ``[outputs]``. Always the exact reduction (a scene's
     ``reduction`` 'table' or 'auto' too; the keyword ``reduction='table'`` is refused): one
     table per mechanism would not pay off, and each would need its own checks.
+    As :func:`assurjax.simulate`'s batches: at most 100 million saved states (mechanisms x
+    samples) a call, and a fixed step ``dt`` no longer than the span.
     Returns an untrimmed Solution of numpy arrays with the batch axis in front:
     read ``valid``, ``event``, ``t_stop`` and ``result`` per mechanism (a batch
     member that locks up or fails does not stop the others).
     """
-    from .dynamics._settings import check_single_start, fixed_step_from, settings_from
-    from .dynamics._solve import check_steps_request, checked_saveat, simulate_core
+    from .dynamics._settings import check_single_start, check_step_within_span, fixed_step_from, settings_from
+    from .dynamics._solve import check_saved_total, check_steps_request, checked_saveat, refuse_traced, simulate_core
     from .dynamics._solution import batch_summary
     from .dynamics._stick import batch_settings, jammed_members
 
+    refuse_traced("batch_simulate", mechanisms=jax.tree.leaves(mechanisms), q0=q0, omega0=omega0, t1=t1, saveat=saveat,
+                  **settings)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
@@ -411,6 +419,9 @@ def batch_simulate(
         check_steps_request(options, scene.model, saveat, step)
     if saveat is not None:  # as simulate's
         saveat = checked_saveat(saveat, t0, t1)
+    if step is not None:  # as simulate's: a step longer than the span would be clipped to one step of it
+        check_step_within_span(step, t0, t1)
+    check_saved_total(batch_size(mechanisms), "mechanisms", saveat, options)  # as simulate's batches of starts
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)
     key = (options, None if ts is None else tuple(np.asarray(ts).tolist()), float(q0), float(omega0), float(t0), float(t1),
            None if step is None else float(step))

@@ -57,7 +57,7 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
         return problem
     v = _as_numbers(x)
     if v is None:  # a traced value is checked where it is concrete; anything else is no number
-        return None if _traced(x) else f"must be a number or an array of numbers, got {x!r:.60}"
+        return numbers_problem(x)
     shown = x if np.ndim(x) == 0 else v.tolist() if v.size <= 8 else f"an array of shape {v.shape}"
     if not np.all(np.isfinite(v)):
         return f"must be finite, got {shown}"
@@ -70,6 +70,15 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
     if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
         return f"must be a non-zero vector, got {shown}"
     return None
+
+
+def numbers_problem(x) -> str | None:
+    """What is wrong with ``x`` where numbers go (a string, a flag, an object), or None:
+    numbers, and traced values (checked where they are concrete). Called before NumPy or
+    JAX reads ``x``, whose own error ("could not convert string to float") names no field."""
+    if _traced(x) or _as_numbers(x) is not None:
+        return None
+    return f"must be a number or an array of numbers, got {x!r:.60}"
 
 
 # States one analysis call takes (kinematics, reactions, inverse dynamics): each state's

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import NamedTuple
 
 import diffrax
@@ -267,16 +267,49 @@ def settings_from(scene=None, **overrides) -> Settings:
     )
     dt = overrides.pop("dt", None)
     if dt is not None:  # the step itself is traced (fixed_step_from): checked when it is concrete
-        if (problem := value_problem(dt, positive=True)) is not None:
+        if (problem := step_problem(dt)) is not None:
             raise AssurjaxError(f"setting 'dt': {problem}")
         overrides["fixed_step"] = True
     values = {**from_scene, **{k: v for k, v in overrides.items() if v is not None}}
     for key in ("points", "angles", "events", "coms"):
         if key in values:
-            values[key] = tuple(values[key])
+            values[key] = _as_tuple(key, values[key])
     settings = Settings(**values)
     check(settings)
-    return settings
+    return with_python_ints(settings)
+
+
+def step_problem(dt) -> str | None:
+    """What is wrong with a fixed step ``dt`` (s) given as a keyword, or None: the range of
+    the scene field (SIMULATION_KEYS); a traced one is checked by its shape only."""
+    if (problem := value_problem(dt, shape=())) is not None:
+        return problem
+    step = concrete(dt)
+    return None if step is None else setting_problem("dt", float(step))
+
+
+# Settings that must be Python ints: diffrax's max_steps and the shapes of arrays. A NumPy
+# integer passes their checks (an integer) but not equinox's loop ("max_steps must be a
+# Python integer") nor a traced comparison (TracerBoolConversionError).
+INTEGER_SETTINGS = ("max_steps", "samples", "table_nodes", "steps", "segment_steps")
+
+
+def with_python_ints(settings: Settings) -> Settings:
+    """``settings`` with every integer setting (checked already) a Python int."""
+    ints = {key: int(getattr(settings, key)) for key in INTEGER_SETTINGS if getattr(settings, key) is not None}
+    return settings._replace(**ints)
+
+
+def _as_tuple(key: str, value) -> tuple:
+    """A keyword's names (or event functions) as a tuple: a plain string is one name, as
+    ``kinematics`` takes it (``points="AB"`` split into 'A' and 'B' saved two points), and
+    one function one event."""
+    if isinstance(value, str) or (key == "events" and callable(value)):
+        return (value,)
+    what = "functions cond(t, q, omega)" if key == "events" else "names"
+    if isinstance(value, (bytes, Mapping)) or not isinstance(value, Iterable):
+        raise AssurjaxError(f"setting '{key}': expected a sequence of {what}, got {value!r:.60}")
+    return tuple(value)
 
 
 BUDGET_SPAN = 4.0  # s of motion per DEFAULT_MAX_STEPS (bundled mechanisms take ~400 steps/s at the default tolerances)
@@ -288,6 +321,46 @@ def step_budget(t0, t1) -> int:
     span = abs(float(t1) - float(t0))
     doublings = max(0, math.ceil(math.log2(max(span, 1e-300) / BUDGET_SPAN)))
     return DEFAULT_MAX_STEPS * 2 ** min(doublings, 12)
+
+
+LARGEST_BUDGET = WORK_LIMITS["max_steps"][0]  # the default budget of the longest spans (step_budget)
+# Steps per second of motion at the default tolerances: the slowest of the bundled mechanisms
+# in motion (20 s, stop=None: Watt six-bar 54, quick-return 130, slider-crank and triad 178,
+# strandbeest 217, press with friction 686; the tangent drive 4 and the class-IV scene 0.25
+# barely move)
+SLOWEST_STEP_RATE = 50.0
+LONGEST_UNBOUNDED_SPAN = LARGEST_BUDGET / SLOWEST_STEP_RATE  # s: ~3.4e5 (about 4 days of motion)
+
+
+def check_span_covered(t0, t1, settings: Settings) -> None:
+    """Raise naming 't1' where a run with the default step budget (no max_steps given)
+    would run to t1 with nothing to end it sooner (no standstill stop, no events) over a
+    span longer than the largest default budget covers at the bundled mechanisms' step
+    rates (LONGEST_UNBOUNDED_SPAN): such a span (t1 = 1e12) is most likely a mistake, and
+    the run took two minutes to use up its 16.7 million steps. A given max_steps runs it."""
+    span = abs(float(t1) - float(t0))
+    if span <= LONGEST_UNBOUNDED_SPAN or settings.standstill or settings.events:
+        return
+    raise AssurjaxError(
+        f"setting 't1': {span:.6g} s of motion with nothing to end it sooner (stop=None, no events) is more than the "
+        f"largest default step budget ({LARGEST_BUDGET:,} steps) covers: ~{LONGEST_UNBOUNDED_SPAN:.3g} s at "
+        f"{SLOWEST_STEP_RATE:g} steps/s, the slowest of the bundled mechanisms in motion; shorten the span, stop at "
+        "standstill or an event, or give max_steps to run it anyway")
+
+
+def check_step_within_span(dt, t0, t1) -> None:
+    """Raise naming 'dt' where a fixed step (s) is longer than the span t1 - t0: the solver
+    clips its one step to t1 and 'reaches t1' by a step of another length than asked (dt =
+    1e6 over 0.2 s: q = -8.25 rad where the motion reaches -0.98). None (adaptive steps) and
+    traced values pass."""
+    step, start, end = (None if v is None else concrete(v) for v in (dt, t0, t1))
+    if step is None or start is None or end is None:
+        return
+    span = abs(float(end) - float(start))
+    if float(step) > span:
+        raise AssurjaxError(f"setting 'dt': the fixed step {float(step):g} s is longer than the time span t1 - t0 = "
+                            f"{span:g} s (the solver would take one step of the span instead): give a dt within "
+                            "the span, small enough to resolve the motion, or adaptive steps (dt=None)")
 
 
 def fixed_step_from(scene=None, dt=None):

@@ -27,14 +27,15 @@ from .._mechanism import Mechanism, check_values_once, positions
 from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
-from .._values import all_finite
+from .._values import all_finite, numbers_problem
 from .._kinematics import coefficients, singular_groups, singularity_measures
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
 from ._packed import flattened, packed_event, packed_term, packing_of, unpacked
-from ._settings import (BASELINES, SAVED_STEPS_LIMIT, WORK_LIMITS, Settings, adjoint_for, fixed_step_from, settings_from, solver_for,
-                        lockup_controller, state_problem, step_budget, turn_probe)
+from ._settings import (BASELINES, SAVED_STEPS_LIMIT, WORK_LIMITS, Settings, adjoint_for, check_span_covered,
+                        check_step_within_span, fixed_step_from, settings_from, solver_for, lockup_controller,
+                        state_problem, step_budget, turn_probe)
 from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
                         saved_rows, to_host, trim)
@@ -457,20 +458,24 @@ def simulate(
     joint friction; pass 1e-10 or tighter for reference-quality runs; with joint
     friction the friction is solved at each right-hand side to 1e-2 of the tighter of the
     two, not below 1e-12), ``dt`` (a
-    fixed step, s; without error control the steps that close in on a lock-up find its
-    position, and its time and final velocity only as well as they resolve the singular
+    fixed step, s, up to 1000 and at most the span t1 - t0; without error control the
+    steps that close in on a lock-up find its position, and its time and final velocity only as well as they resolve the singular
     motion there: prefer the adaptive steps near limits), ``max_step`` (the longest adaptive step, s; default: no limit -- set it
     where a load varies in time faster than the motion shows, e.g. a short pulse on a
     mechanism held at rest by friction, which longer steps could pass over),
     ``max_steps`` (default: 4096 for up to 4 s of motion, doubled per doubling of the
-    span), ``samples`` from ``[simulation]``; ``points``,
+    span up to 16.7 million steps; a span longer than those cover, ~3.4e5 s at the 50
+    steps/s of the slowest bundled mechanism in motion, with nothing to end it sooner
+    (stop=None, no events) is refused unless ``max_steps`` is given: t1 = 1e12 is likely a
+    mistake, and the run took minutes to use up its budget), ``samples`` from ``[simulation]``; ``points``,
     ``angles``, ``energies`` from ``[outputs]`` (with ``energies`` the Solution also
     carries ``work`` and ``balance``: T + V - W, which closes for driven, damped and
     loaded mechanisms; not with the tabulated reduction, which ``reduction="auto"`` picks
     for 64 starts or more: there ``work`` and ``balance`` are None, pass
     ``reduction="exact"`` for them); ``coms`` (links whose centres of mass to save), ``velocities``,
     ``accelerations`` (True: also the velocities / accelerations of the saved points,
-    centres of mass and link angles). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
+    centres of mass and link angles; for ``points``, ``angles`` and ``coms`` a plain string is one
+    name). ``branch``: ``"fixed"`` (default: the scene's assembly modes)
     or ``"tracked"``: the link angles travel in the ODE state (d theta/dt =
     d theta/dq w, from the same jvp) and every group takes the root nearest to them,
     which keeps the motion on one continuous branch through singular configurations
@@ -496,8 +501,9 @@ def simulate(
     follow the solver where the motion changes fast; up to ``max_steps`` extra samples;
     single runs only, not with joint friction of the exact law). ``events``: functions ``cond(t, q, omega)``;
     the motion stops where one changes sign (with joint friction also past a rest, and
-    while the friction holds the mechanism at rest). ``mechanism``, ``loads``, ``gravity``
-    replace the scene's. ``throw``: raise :class:`assurjax.AssurjaxError` with the
+    while the friction holds the mechanism at rest; one function alone is one event).
+    ``mechanism``, ``loads`` (one load alone is the only one), ``gravity`` replace the
+    scene's. ``throw`` (True or False): raise :class:`assurjax.AssurjaxError` with the
     status when the solver stops early (e.g. the step budget is used up) instead of
     returning a Solution that says so.
 
@@ -506,6 +512,10 @@ def simulate(
     batch axis, untrimmed (read ``valid``; ``t_stop`` is +inf where no event fired).
 
     Returns a :class:`Solution` trimmed to the times reached (a single run).
+
+    Not traceable as a whole (it checks on the host): under ``jax.jit``, ``vmap`` or
+    ``grad`` use :func:`assurjax.simulate_core`, or :func:`assurjax.synthesis.final_state`
+    and :func:`assurjax.synthesis.standstill_time` for derivatives.
 
     What depends only on the scene and the options (the checked settings and model, a
     table) is kept for later calls with the same scene object and equal options; a
@@ -516,6 +526,11 @@ def simulate(
     >>> float(sol.t_stop)   # first standstill after falling from rest (the scene asks for stop = "standstill")
     >>> batch = assurjax.simulate(scene, q0=np.linspace(0, 6, 10_000), stop=None)
     """
+    refuse_traced("simulate", q0=q0, omega0=omega0, t0=t0, t1=t1, dt=dt, saveat=saveat, gravity=gravity, rtol=rtol,
+                  atol=atol, max_step=max_step, bridge=bridge, samples=samples, max_steps=max_steps, steps=steps,
+                  table_nodes=table_nodes)
+    if not isinstance(throw, (bool, np.bool_)):  # a string 'no' read as True
+        raise AssurjaxError(f"setting 'throw': expected True or False, got {throw!r}")
     options = dict(stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
                    events=events, check_assembly=check_assembly, points=points, angles=angles, energies=energies,
                    velocities=velocities, accelerations=accelerations, coms=coms, branch=branch, reduction=reduction,
@@ -547,13 +562,18 @@ def simulate(
                                    standstill=settings.standstill, max_steps=max_steps)
     if settings.steps is not None:
         check_steps_request(settings, model, saveat, step)
+    if step is not None:
+        check_step_within_span(step, t0, t1)
+    if prepared.budget_per_span and settings.steps is None:
+        check_span_covered(t0, t1, settings)
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     saveat = None if saveat is None else checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
-    _check_saved_total(batch, saveat, settings)
+    if batch is not None:
+        check_saved_total(batch[0], "starts", saveat, settings)
     max_steps = step_budget(t0, t1) if prepared.budget_per_span else settings.max_steps  # longer runs get a larger budget
     if settings.save_steps:  # every step is a saved row (with its outputs): the budget is the request for memory
         if prepared.budget_per_span:
@@ -651,11 +671,13 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
 
 
 def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
+    refuse_traced("simulate", scene=jax.tree.leaves(scene), mechanism=jax.tree.leaves(mechanism),
+                  loads=jax.tree.leaves(loads))
     model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
     check_values_once(model.mechanism)
     check_has_inertia(model.mechanism)
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
-    settings = settings_from(scene_or_none, **{**options, "events": tuple(options["events"])})
+    settings = settings_from(scene_or_none, **options)
     _check_outputs(model.mechanism, settings)
     budget_per_span = options["max_steps"] is None and "max_steps" not in simulation_table(scene_or_none)
     return _Prepared(model, scene_or_none, settings, budget_per_span, split_arrays(model))
@@ -671,6 +693,8 @@ def simulation_table(scene) -> dict:
 
 def checked_saveat(saveat, t0, t1) -> np.ndarray:
     """The save times as a 1-D float array, sorted from t0 towards t1 and inside [t0, t1]."""
+    if (problem := numbers_problem(saveat)) is not None:  # before NumPy reads "abc" and names no field
+        raise AssurjaxError(f"saveat {problem}")
     saveat = np.asarray(saveat, dtype=float)
     if saveat.ndim != 1 or not saveat.size:
         raise AssurjaxError(f"saveat must be a 1-D array of at least one time, got shape {saveat.shape}")
@@ -702,18 +726,30 @@ def _batch_shape(q0, omega0):
 
 
 MAX_STARTS = 1_000_000  # starting states per simulate call: each saves its samples
-SAVED_STATES_LIMIT = 100_000_000  # saved states of a batch's call, all starts together (24 bytes each at least)
+SAVED_STATES_LIMIT = 100_000_000  # saved states of a batch's call, all runs together (24 bytes each at least)
 
 
-def _check_saved_total(batch, saveat, settings: Settings) -> None:
-    """Each bound on its own, a batch's starts times its saved states may still not fit in
-    memory (a million starts of 100 000 samples: 745 GiB, a raw MemoryError): bounded too."""
-    if batch is None:
-        return
+def check_saved_total(runs: int, what: str, saveat, settings: Settings) -> None:
+    """Each bound on its own, a batch's runs (``what``: "starts", "mechanisms") times their
+    saved states may still not fit in memory (a million starts of 100 000 samples: 745 GiB, a
+    raw MemoryError; a million mechanisms of 201: RESOURCE_EXHAUSTED after 17 s): bounded too."""
     rows = saveat.size if saveat is not None else settings.steps + 1 if settings.steps is not None else settings.samples
-    if batch[0] * rows > SAVED_STATES_LIMIT:
-        raise AssurjaxError(f"{batch[0]:,} starts x {rows:,} saved states each would hold {batch[0] * rows:,} states "
-                            f"(at most {SAVED_STATES_LIMIT:,} per call): fewer samples, or split the starts over calls")
+    if runs * rows > SAVED_STATES_LIMIT:
+        raise AssurjaxError(f"{runs:,} {what} x {rows:,} saved states each would hold {runs * rows:,} states "
+                            f"(at most {SAVED_STATES_LIMIT:,} per call): fewer samples, or split the {what} over calls")
+
+
+def refuse_traced(where: str, **values) -> None:
+    """Raise naming the first of ``values`` that JAX traces (jax.jit, vmap, grad): ``where``
+    checks its inputs and shapes its result on the host, so it cannot be traced as a whole
+    (a traced q0 met NumPy as TracerArrayConversionError deep inside)."""
+    for name, value in values.items():
+        if any(isinstance(v, jax.core.Tracer) for v in (value if isinstance(value, (list, tuple)) else (value,))):
+            raise AssurjaxError(
+                f"{where} cannot be traced as a whole (under jax.jit, vmap or grad: its '{name}' is traced here): it "
+                "checks its inputs and trims its result on the host. Inside a traced function use "
+                "assurjax.simulate_core (pure and jittable; vmap it with eqx.filter_vmap), or, for derivatives, "
+                "assurjax.synthesis.final_state and assurjax.synthesis.standstill_time")
 
 
 def _resolve_reduction(settings: Settings, table, model: Model, batch):
@@ -776,8 +812,9 @@ def _check_save_steps(settings: Settings, model: Model, batch) -> None:
 def _check_outputs(mechanism: Mechanism, settings: Settings) -> None:
     for p in settings.points:
         if p not in mechanism.point_names:
-            raise AssurjaxError(f"outputs: unknown point '{p}' (known: {sorted(mechanism.point_names)})")
-    for a in settings.angles + settings.coms:
-        if a not in mechanism.links:
-            raise AssurjaxError(f"outputs: unknown link '{a}' (known: {sorted(mechanism.links)})")
+            raise AssurjaxError(f"setting 'points': unknown point '{p}' (known: {sorted(mechanism.point_names)})")
+    for key in ("angles", "coms"):
+        for a in getattr(settings, key):
+            if a not in mechanism.links:
+                raise AssurjaxError(f"setting '{key}': unknown link '{a}' (known: {sorted(mechanism.links)})")
 
