@@ -132,3 +132,14 @@ def test_a_plain_string_is_one_name_for_points_angles_and_coms():
 def test_throw_must_be_a_flag():
     with raises("setting 'throw'", "True or False"):
         assurjax.simulate(SCENE, t1=0.2, throw="yes")
+
+
+def test_final_state_refuses_a_step_past_its_span_and_a_stop():
+    """dt = 1e6 over 0.2 s took one step of the span (omega 1110 rad/s); stop= was dropped."""
+    from assurjax import synthesis
+
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(assurjax.AssurjaxError, match="setting 'dt'"):
+        synthesis.final_state(scene, 0.2, dt=1e6)
+    with pytest.raises(assurjax.AssurjaxError, match="stop='standstill'.*standstill_time"):
+        synthesis.final_state(scene, 0.2, stop="standstill")

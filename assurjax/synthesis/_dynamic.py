@@ -59,7 +59,7 @@ from .._model import check_has_inertia
 from .._positions import assembled
 from ..dynamics._field import arrival_acceleration
 from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
-from ..dynamics._settings import ADJOINTS, check_single_start, fixed_step_from, settings_from
+from ..dynamics._settings import ADJOINTS, check_single_start, check_step_within_span, fixed_step_from, settings_from
 from ..dynamics._stick import jammed_members
 from ..dynamics._table import build_table
 from ..dynamics._solve import simulate_core
@@ -157,6 +157,10 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     ``omega0`` there is the one-sided one, on the side the loads start it (central
     differences across 0 average the two sides)."""
     _check_start(scene, q0, omega0, t1, adjoint)
+    if settings.get("stop") is not None:
+        raise AssurjaxError(f"final_state runs to t1 without stop events (got stop={settings['stop']!r}): for the time "
+                            "of the first standstill use synthesis.standstill_time")
+    check_step_within_span(fixed_step_from(scene, settings.get("dt")), scene.state.get("t0", 0.0), t1)
     adjoint = _adjoint_for_modes("final_state", adjoint, scene, q0, omega0, t1, settings)
     if adjoint in SENSITIVITY_ROUTES:
         q, w, result = final_state_sensitivity(scene, t1, q0=q0, omega0=omega0, **_route(adjoint, settings))
