@@ -40,7 +40,7 @@ from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism, value_fields
 from ._model import Model, check_has_inertia
-from ._values import check_state_count, check_values, value_problem
+from ._values import check_state_count, check_value, check_values, value_problem
 
 BATCH_AXIS = "batch"
 MAX_COPIES = 10_000_000  # perturb: a batch of the Watt six-bar this large holds ~2.4 GB of arrays
@@ -127,7 +127,8 @@ def perturb(
     """
     if not (isinstance(n, numbers.Integral) and 0 < n <= MAX_COPIES):
         raise AssurjaxError(f"perturb: n must be a positive integer, at most {MAX_COPIES}, got {n!r}")
-    check_values(AssurjaxError, "perturb", shape=(), relative=relative, absolute=absolute)
+    for name, spread in (("relative", relative), ("absolute", absolute)):  # half-widths of uniform spreads
+        check_value(AssurjaxError, f"perturb: {name}", spread, shape=(), nonnegative=True)
     if not isinstance(mechanism, Mechanism) and select is None:
         raise AssurjaxError(f"perturb: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
                             f"{type(mechanism).__name__}; other pytrees need a select")

@@ -143,3 +143,10 @@ def test_final_state_refuses_a_step_past_its_span_and_a_stop():
         synthesis.final_state(scene, 0.2, dt=1e6)
     with pytest.raises(assurjax.AssurjaxError, match="stop='standstill'.*standstill_time"):
         synthesis.final_state(scene, 0.2, stop="standstill")
+
+
+@pytest.mark.parametrize("spread", ["relative", "absolute"])
+def test_perturb_spreads_are_half_widths_at_least_zero(spread):
+    scene = assurjax.load_scene("slider_crank")
+    with pytest.raises(assurjax.AssurjaxError, match=f"perturb: {spread}.*negative"):
+        assurjax.perturb(scene.mechanism, jax.random.key(0), 4, **{spread: -1.0})
