@@ -1,6 +1,7 @@
 """assurjax.viz, headless (Agg): what is drawn is checked against closed-form
 positions (tests/joint_reference.py) and central finite differences."""
 
+import gc
 import os
 import re
 import sys
@@ -349,6 +350,25 @@ def test_ground_guides_drawn_through_the_sliding_points():
         (lambda m: viz.animation_html(viz.animate(m, [0.1, 0.2]), fps=0), "fps must be positive"),
         (lambda m: viz.save_gif(viz.animate(m, [0.1, 0.2]), "never.gif", fps=np.inf), "fps must be finite"),
         (lambda m: viz.player(viz.animate(m, [0.1, 0.2]), fps=5000), "fps must be at most 1000"),
+        # each refused by its keyword, before anything is traced or drawn
+        (lambda m: viz.animate(m, [0.1, 0.2], unit="furlong"), "animate: unit must be one of 'm', 'cm', 'mm'"),
+        (lambda m: viz.animate(m, [0.1, 0.2], t=[np.nan, 1.0]), "animate: t must be finite"),
+        (lambda m: viz.animate(m, [0.1, 0.2, 0.3], t=[0.0, 0.2, 0.1]), "animate: t must not decrease from frame to frame"),
+        (lambda m: viz.animate(m, [0.1, 0.2], omega=[1.0, np.inf]), "mechanism_frames: omega must be finite"),
+        (lambda m: viz.animate(m, [0.1, 0.2], trace=["E"], trace_q=[[0.1, 0.2]]), "animate: trace_q must be one value or a 1-D"),
+        (lambda m: viz.animate(m, [0.1, 0.2], trace=["E"], trace_q=[0.1, np.nan]), "animate: trace_q must be finite"),
+        (lambda m: viz.animate(assurjax.load_scene("roberts"), [0.1]), "animate: expected an assurjax.Mechanism"),
+        (lambda m: viz.save_gif("x", "never.gif"), "save_gif: anim must be an animation made by assurjax.viz.animate"),
+        (lambda m: viz.save_gif([np.zeros((4, 4, 3))], "never.gif"), "save_gif: anim's frame 0 must be a (height, width, 3) uint8"),
+        (lambda m: viz.save_gif([np.zeros((4, 4, 3), np.uint8)], "/nonexistent-dir/x.gif"), "save_gif: path's folder"),
+        (lambda m: viz.save_mp4([np.zeros((4, 4, 3), np.uint8)] * 2, "never.gif"), "save_mp4: the path must end in .mp4"),
+        (lambda m: viz.draw_mechanism(m, 0.1, velocities=["E"], velocity_scale=np.nan), "draw_mechanism: velocity_scale must be finite"),
+        (lambda m: viz.draw_mechanism(m, 0.1, velocities=["E"], velocity_scale=0.0), "draw_mechanism: velocity_scale must be positive"),
+        (lambda m: viz.draw_mechanism(m, 0.1, velocities=["E"], velocity_scale=-2.0), "draw_mechanism: velocity_scale must be positive"),
+        (lambda m: viz.draw_mechanism(m, 0.1, unit="in"), "draw_mechanism: unit must be one of"),
+        (lambda m: viz.plot_velocity_polygon({"A": [1.0, 0.0]}, unit="km"), "plot_velocity_polygon: unit must be one of 'm', 'cm', 'mm'"),
+        (lambda m: viz.plot_reduced(np.arange(5.0), np.ones(5), driver_kind="rocket"), "plot_reduced: driver_kind must be one of 'crank', 'slider'"),
+        (lambda m: viz.plot_angular_velocities(viz.mechanism_frames(m, [0.1]), driver_kind="rocket"), "plot_angular_velocities: driver_kind"),
     ],
 )
 @pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # refused before rendering
@@ -359,14 +379,40 @@ def test_animation_requests_are_checked_and_bounded(watt, call, message):
 
 
 @pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # its frames are shown, not rendered
-def test_an_animation_says_where_the_mechanism_does_not_assemble(roberts_scene):
-    """The Roberts linkage's dyad reaches only while |B D| <= 0.30 (closed form): at q = 2.5 it
-    does not; the frame's title says so, beside its faded links (it read as any other frame)."""
-    anim = viz.animate(roberts_scene.mechanism, np.array([0.3, 2.5]))
+def test_an_animation_refuses_frames_that_do_not_assemble(roberts_scene):
+    """The Roberts linkage's dyad reaches only while |B D| <= 0.30 (closed form): at q = pi,
+    |B D| = 0.42 and it does not. animate refuses it by the kinematics' own AssemblyError
+    (naming the group and q), as mechanism_frames does when asked to check; frames that all
+    assemble still animate. With check=False that frame is drawn marked: its title says so,
+    its links faded, no joints, labels nor arrows where no pose puts them."""
+    mech = roberts_scene.mechanism
+    for call in (lambda: viz.animate(mech, [0.0, np.pi]), lambda: viz.mechanism_frames(mech, [0.0, np.pi], check=True)):
+        with pytest.raises(assurjax.AssemblyError, match=r"'dyad43' .* cannot assemble at q = 3\.14159") as caught:
+            call()
+        assert caught.value.group == "dyad43"
+    assert len(viz.render_frames(viz.animate(mech, [0.0, 0.3, 1.0]))) == 3
+    anim = viz.animate(mech, np.array([0.3, 2.5]), velocities=["P"], check=False)
+    drawing = anim.drawing
     anim.show_frame(1)
     assert anim.drawing.ax.get_title().endswith("q = 2.500 rad (does not assemble here)")
+    assert not drawing.joints.get_visible() and not drawing.arrows["P"].get_visible()
+    assert not any(label.get_visible() for label in drawing.labels.values())
+    assert all(artist.get_alpha() < 0.1 for artist, _ in drawing.link_artists.values())
     anim.show_frame(0)
     assert anim.drawing.ax.get_title().endswith("q = 0.300 rad")
+    assert drawing.joints.get_visible() and drawing.arrows["P"].get_visible()
+
+
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # their legends are read, not rendered
+def test_arrows_without_omega_say_they_are_at_unit_speed(watt):
+    """Without omega the arrows are dx/dq (omega = 1 rad/s): the legend says so; draw_mechanism's
+    legend names the omega it was given."""
+    for omega, words in ((None, "velocity at omega = 1 rad/s\n("), ([2.0, 2.0], "velocity (")):
+        drawing = viz.animate(watt, [0.1, 0.2], omega, velocities=["E"]).drawing
+        assert any(label.startswith(words) for label in drawing.ax.get_legend_handles_labels()[1])
+    gc.collect()  # the animations' warning here, not in a later test
+    drawing = viz.draw_mechanism(watt, 0.1, omega=2.5, velocities=["E"])
+    assert any(label.startswith("velocity at omega = 2.5 rad/s\n(") for label in drawing.ax.get_legend_handles_labels()[1])
 
 
 H_TANGENT = 0.2  # the tangent drive's guide height (m): x_J = h cot q

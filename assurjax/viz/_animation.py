@@ -21,12 +21,12 @@ import numpy as np
 from matplotlib.animation import FuncAnimation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from .._errors import AssurjaxError
+from .._errors import AssemblyError, AssurjaxError
 from .._kinematics import point_names
-from .._mechanism import Mechanism
-from .._values import check_value
-from ._draw import MechanismDrawing, place_legend
-from ._frames import mechanism_frames
+from .._mechanism import Mechanism, check_mechanism
+from .._values import check_value, check_values
+from ._draw import VELOCITY_COLOR, MechanismDrawing, place_legend
+from ._frames import check_coordinates, length_scale, mechanism_frames
 
 MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
 
@@ -44,14 +44,22 @@ def animate(
     interval_ms: float = 50.0,
     ax=None,
     title: str | None = None,
+    check: bool = True,
 ) -> FuncAnimation:
     """Animate ``mechanism`` through the driving coordinates ``q`` (rad, or m for a slider).
 
-    ``omega`` (rad/s or m/s per frame, default 1) scales the velocity arrows of
-    ``velocities``; ``t`` (s) is shown in the title when given (a simulation);
-    ``trace`` points get their whole path drawn, over ``trace_q`` when given (e.g.
-    every sample of a simulation: smoother than the frames alone). Frames where the mechanism does
-    not assemble are drawn faded. At most 10,000 frames (each is drawn and rendered).
+    ``omega`` (rad/s or m/s per frame) scales the velocity arrows of ``velocities``;
+    without it they are the velocities at omega = 1 (the kinematic coefficients dx/dq), and
+    their legend entry says so. ``t`` (s, one per frame, finite, never decreasing) is shown
+    in the title when given (a simulation); ``trace`` points get their whole path drawn, over
+    ``trace_q`` when given (e.g. every sample of a simulation: smoother than the frames alone;
+    gaps where it does not assemble). At most 10,000 frames (each is drawn and rendered).
+
+    Every frame must assemble (a simulation's samples do): a q where some group cannot
+    raises :class:`assurjax.AssemblyError` naming the group and q. With ``check=False``
+    (a sweep past a rocker's limit, on purpose) such frames are drawn marked instead: their
+    links faded, no joints, labels nor arrows (their positions are no pose), and the title
+    says it does not assemble there.
 
     Returns a matplotlib ``FuncAnimation``; write it with :func:`save_gif` or
     :func:`save_mp4`, show it in a notebook with :func:`animation_html` or :func:`player`.
@@ -60,27 +68,26 @@ def animate(
     >>> anim = assurjax.viz.animate(mech, np.linspace(0, 2 * np.pi, 60), trace=["E"])
     >>> assurjax.viz.save_gif(anim, "watt.gif")
     """
-    if np.size(q) > MAX_FRAMES:
-        raise AssurjaxError(f"animate: at most {MAX_FRAMES} frames (values of q), got {np.size(q)}: take every k-th sample, q[::k]")
-    check_value(AssurjaxError, "animate: interval_ms", interval_ms, shape=(), positive=True)
+    _check_request(mechanism, q, t, trace_q, unit, interval_ms)
     velocities, trace = point_names(mechanism, velocities, "animate: velocities"), point_names(mechanism, trace, "animate: trace")
-    if t is not None and np.shape(t) != (np.size(q),):
-        raise AssurjaxError(f"animate: t must give one time per value of q ({np.size(q)}), got shape {np.shape(t)}")
-    frames = mechanism_frames(mechanism, q, omega, velocities=bool(velocities))
+    frames = _frames_to_show(mechanism, q, omega, bool(velocities), check)
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     trace_frames = None if trace_q is None or not tuple(trace) else mechanism_frames(mechanism, trace_q)
-    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, trace_frames=trace_frames)
+    q_unit = "m" if mechanism.driver.kind == "slider" else "rad"
+    arrows = "velocity" if omega is not None else f"velocity at omega = 1 {q_unit}/s"
+    drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, trace_frames=trace_frames,
+                               velocity_label=arrows)
     times = None if t is None else np.asarray(t, dtype=float)
     head = title or mechanism.name
-    q_unit = "m" if mechanism.driver.kind == "slider" else "rad"
     place_legend(ax)
 
     def show(i):
         artists = drawing.update(i)
         when = f"t = {times[i]:.3f} s, " if times is not None else ""
-        apart = "" if frames.ok[i] else " (does not assemble here)"  # its links drawn faded
+        apart = "" if frames.ok[i] else " (does not assemble here)"  # its links faded, its joints hidden
         ax.title.set_text(f"{head}: {when}q = {frames.q[i]:.3f} {q_unit}{apart}")
+        ax.title.set_color("black" if frames.ok[i] else VELOCITY_COLOR)
         return [*artists, ax.title]
 
     anim = FuncAnimation(ax.figure, show, frames=len(frames), interval=interval_ms, blit=False)
@@ -88,6 +95,42 @@ def animate(
     anim.show_frame, anim.frame_count = show, len(frames)
     show(drawing._first_ok())
     return anim
+
+
+def _check_request(mechanism, q, t, trace_q, unit, interval_ms) -> None:
+    """Refuse a bad animation request by its keyword, before any kinematics is traced."""
+    check_mechanism(mechanism, "animate")
+    if np.size(q) > MAX_FRAMES:
+        raise AssurjaxError(f"animate: at most {MAX_FRAMES} frames (values of q), got {np.size(q)}: take every k-th sample, q[::k]")
+    check_value(AssurjaxError, "animate: interval_ms", interval_ms, shape=(), positive=True)
+    length_scale(unit, "animate")
+    if trace_q is not None:
+        check_coordinates("animate", "trace_q", trace_q)
+    if t is not None:
+        _check_times(t, np.size(q))
+
+
+def _check_times(t, count: int) -> None:
+    """The frames' times: one finite time per frame, never decreasing."""
+    if np.shape(t) != (count,):
+        raise AssurjaxError(f"animate: t must give one time per value of q ({count}), got shape {np.shape(t)}")
+    check_values(AssurjaxError, "animate", t=t)
+    t = np.asarray(t, dtype=float)
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise AssurjaxError(f"animate: t must not decrease from frame to frame (s), got t[{i}] = {t[i]:.6g} after "
+                            f"t[{i - 1}] = {t[i - 1]:.6g}")
+
+
+def _frames_to_show(mechanism, q, omega, velocities: bool, check: bool):
+    """The frames, refused (AssemblyError, from assurjax.kinematics' own check) where a group
+    cannot assemble, unless ``check`` is False."""
+    try:
+        return mechanism_frames(mechanism, q, omega, velocities=velocities, check=check)
+    except AssemblyError as e:
+        raise AssemblyError(f"animate: {e}; every frame must be a pose (check=False draws such frames marked)",
+                            group=e.group) from e
 
 
 def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
@@ -120,20 +163,49 @@ def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] |
     return images
 
 
-def _images(anim, progress) -> list[np.ndarray]:
+def _images(anim, progress, where: str) -> list[np.ndarray]:
     """Frames rendered from an animation (whose figure is then closed), or given already rendered."""
-    if not isinstance(anim, FuncAnimation):
-        return list(anim)
-    images = render_frames(anim, progress=progress)
-    plt.close(anim._fig)
+    if isinstance(anim, FuncAnimation):
+        images = render_frames(anim, progress=progress)
+        plt.close(anim._fig)
+        return images
+    if not isinstance(anim, (list, tuple, np.ndarray)):  # a string is iterable too: refuse it here
+        raise AssurjaxError(f"{where}: anim must be an animation made by assurjax.viz.animate or the frames "
+                            f"render_frames returned, got {type(anim).__name__}")
+    images = [np.asarray(image) for image in anim]
+    if not images:
+        raise AssurjaxError(f"{where}: no frames to write")
+    _check_images(images, where)
     return images
+
+
+def _check_images(images: list[np.ndarray], where: str) -> None:
+    """Every frame an RGB image of uint8 (what render_frames returns), all of one size."""
+    first = images[0]
+    for i, image in enumerate(images):
+        if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8 or image.shape != first.shape:
+            raise AssurjaxError(f"{where}: anim's frame {i} must be a (height, width, 3) uint8 RGB image of the first "
+                                f"frame's shape {first.shape}, as render_frames returns, got {image.dtype} of shape {image.shape}")
+
+
+def _writable(path: str | Path, suffix: str, where: str) -> Path:
+    """``path`` as a Path ending in ``suffix`` in a folder that exists."""
+    if not isinstance(path, (str, Path)):
+        raise AssurjaxError(f"{where}: path must be a file name (str or Path), got {type(path).__name__}")
+    path = Path(path)
+    if path.suffix.lower() != suffix:  # Pillow would write whatever the suffix names
+        raise AssurjaxError(f"{where}: the path must end in {suffix}, got {str(path)!r}")
+    if not path.parent.is_dir():
+        raise AssurjaxError(f"{where}: path's folder {str(path.parent)!r} does not exist")
+    return path
 
 
 def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, int], None] | None = None) -> Path:
     """Write an :func:`animate` animation as a looping GIF (Pillow) and close its figure.
 
     ``anim`` may also be the frames :func:`render_frames` returned (to write a GIF and an
-    MP4 from one rendering). ``fps``: frames per second; ``progress(i, n)`` is called per
+    MP4 from one rendering: (height, width, 3) uint8 arrays of one shape); anything else is
+    refused. ``path`` ends in .gif, in a folder that exists. ``fps``: frames per second; ``progress(i, n)`` is called per
     frame. All frames share the palette of the first one, so colours do not flicker.
     Returns the path.
 
@@ -143,12 +215,8 @@ def save_gif(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     _check_fps(fps)
     from PIL import Image
 
-    path = Path(path)
-    if path.suffix.lower() != ".gif":  # Pillow would write whatever the suffix names
-        raise AssurjaxError(f"save_gif: the path must end in .gif, got {str(path)!r}")
-    images = _images(anim, progress)
-    if not len(images):
-        raise AssurjaxError("save_gif: no frames to write")
+    path = _writable(path, ".gif", "save_gif")
+    images = _images(anim, progress, "save_gif")
     colours = Image.fromarray(images[0]).quantize(colors=255, method=Image.Quantize.MEDIANCUT).getpalette()
     frames = []
     for indices in _nearest_colours(images, np.asarray(colours, dtype=np.int32).reshape(-1, 3)):
@@ -191,18 +259,19 @@ def save_mp4(anim, path: str | Path, *, fps: int = 20, progress: Callable[[int, 
     """Write an :func:`animate` animation (or frames from :func:`render_frames`) as an
     H.264 MP4 through ``ffmpeg`` and close its figure.
 
-    Raises ``FileNotFoundError`` when ffmpeg is not on the PATH (see :func:`ffmpeg_available`).
+    ``path`` ends in .mp4, in a folder that exists. Raises ``FileNotFoundError`` when ffmpeg
+    is not on the PATH (see :func:`ffmpeg_available`).
 
     **Example:**
     >>> if assurjax.viz.ffmpeg_available():
     ...     assurjax.viz.save_mp4(anim, "mech.mp4")
     """
     _check_fps(fps)
+    path = _writable(path, ".mp4", "save_mp4")
     exe = shutil.which("ffmpeg")
     if exe is None:
         raise FileNotFoundError("ffmpeg is not on the PATH: cannot write an MP4 (save_gif needs no external program)")
-    path = Path(path)
-    images = _images(anim, progress)
+    images = _images(anim, progress, "save_mp4")
     h, w = images[0].shape[:2]
     cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps), "-i", "-",
            "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p", str(path)]

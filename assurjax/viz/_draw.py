@@ -14,9 +14,9 @@ from matplotlib.patches import Polygon
 from .._errors import AssurjaxError
 from .._kinematics import point_names
 from .._mechanism import Mechanism
-from .._values import check_values
+from .._values import check_value, check_values
 from ..groups import GROUND
-from ._frames import Frames, extent, length_scale, mechanism_frames
+from ._frames import Frames, check_coordinates, extent, length_scale, mechanism_frames
 
 LINK_COLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 VELOCITY_COLOR = "crimson"
@@ -89,11 +89,15 @@ class MechanismDrawing:
       and the velocity scale).
     - ``trace``: point names whose whole path over ``frames`` is drawn (coupler curves).
     - ``velocities``: point names that get a velocity arrow (needs ``frames.velocities``).
-    - ``velocity_scale``: arrow length per unit speed (s: m of drawing per m/s);
+    - ``velocity_scale``: arrow length per unit speed (s: m of drawing per m/s), positive;
       default: the fastest arrow (bar the fastest tenth) is a quarter of the mechanism's size.
+    - ``velocity_label``: the arrows' legend entry (what they show; their scale is added).
     - ``unit``: length unit of the axes ("m", "cm" or "mm").
     - ``labels``: write point names next to the joints.
     - ``trace_frames``: configurations for the traced paths, if not ``frames``.
+
+    A frame where the mechanism does not assemble (``frames.ok`` False) shows its links
+    faded and no joints, labels nor arrows: its positions are no pose.
 
     The axes follow the mechanism at the drawn poses (``size``: its extent, m), widened by
     the traced paths and velocity arrows up to ``REACH`` sizes beyond it: paths and arrows
@@ -115,13 +119,15 @@ class MechanismDrawing:
         unit: str = "m",
         labels: bool = True,
         trace_frames: Frames | None = None,
+        velocity_label: str = "velocity",
     ):
         self.ax, self.mechanism, self.frames = ax, mechanism, frames
         self.trace_frames = frames if trace_frames is None else trace_frames
-        self.scale = length_scale(unit)
+        self.scale = length_scale(unit, "MechanismDrawing")
+        check_velocity_scale("MechanismDrawing", velocity_scale)
         self.velocity_points = tuple(velocities)
         if self.velocity_points and frames.velocities is None:
-            raise ValueError("velocity arrows need frames computed with velocities=True")
+            raise AssurjaxError("MechanismDrawing: velocity arrows need frames computed with velocities=True")
         lo, hi = extent(frames)  # the mechanism at the drawn poses
         self.size = float(np.max(hi - lo)) or 1.0
         self.velocity_scale = velocity_scale if velocity_scale is not None else self._auto_velocity_scale()
@@ -136,7 +142,9 @@ class MechanismDrawing:
         self.labels = {p: ax.annotate(p, (0, 0), xytext=(4, 4), textcoords="offset points", fontsize=8, zorder=6) for p in mechanism.point_names} if labels else {}
         self.arrows = {p: self._velocity_arrow() for p in self.velocity_points}
         if self.velocity_points:  # a legend entry saying how long the arrows are
-            ax.plot([], [], color=VELOCITY_COLOR, lw=1.5, label=f"velocity ({self.velocity_scale * self.scale:.3g} {unit} per m/s)")
+            gap = " " if velocity_label == "velocity" else "\n"  # a longer one on two lines: the legend's width is cut off
+            length = f"({self.velocity_scale * self.scale:.3g} {unit} per m/s)"
+            ax.plot([], [], color=VELOCITY_COLOR, lw=1.5, label=f"{velocity_label}{gap}{length}")
         self.update(self._first_ok())
 
     def _first_ok(self) -> int:
@@ -274,11 +282,13 @@ class MechanismDrawing:
             line.set_visible(f["ok"])
         xy = np.array([pts[p] for p in self.mechanism.point_names]) * s
         self.joints.set_data(xy[:, 0], xy[:, 1])
+        self.joints.set_visible(f["ok"])  # where it does not assemble the joints sit where no pose puts them
         for p, label in self.labels.items():
             label.xy = tuple(pts[p] * s)
+            label.set_visible(f["ok"])
         for p, arrow in self.arrows.items():
             tail, v = pts[p] * s, f["velocities"][p]
-            shown = bool(np.all(np.isfinite(v)))  # none at a singular configuration, where it is undefined (NaN)
+            shown = f["ok"] and bool(np.all(np.isfinite(v)))  # none at a singular configuration, where it is undefined (NaN)
             arrow.xy = tuple(tail + (v * self.velocity_scale * s if shown else 0.0))
             arrow.set_position(tuple(tail))
             arrow.set_visible(shown)
@@ -301,6 +311,21 @@ def _clipped_note(what: str, clipped, scale: float, unit: str) -> str:
         return f"(the {what} reaches past the edge{where}: cut there)"
     (x0, y0), (x1, y1) = np.asarray(clipped[0]) * scale, np.asarray(clipped[1]) * scale
     return f"(the {what} is cut at the edge: it reaches x in [{x0:.3g}, {x1:.3g}], y in [{y0:.3g}, {y1:.3g}] {unit})"
+
+
+def check_velocity_scale(where: str, velocity_scale) -> None:
+    """None (chosen from the speeds) or a positive, finite arrow length per unit speed (s)."""
+    if velocity_scale is not None:
+        check_value(AssurjaxError, f"{where}: velocity_scale", velocity_scale, shape=(), positive=True)
+
+
+def _check_drawing_request(q, omega, trace_q, unit, velocity_scale) -> None:
+    """Refuse a bad draw_mechanism request by its keyword, before any kinematics is traced."""
+    check_values(AssurjaxError, "draw_mechanism", shape=(), q=q, omega=omega)
+    check_velocity_scale("draw_mechanism", velocity_scale)
+    length_scale(unit, "draw_mechanism")
+    if trace_q is not None:
+        check_coordinates("draw_mechanism", "trace_q", trace_q)
 
 
 def place_legend(ax):
@@ -326,7 +351,8 @@ def draw_mechanism(
     """Draw ``mechanism`` at driving coordinate ``q`` (rad or m).
 
     ``velocities``: points that get velocity arrows for the driving speed ``omega``
-    (rad/s or m/s). ``trace``: points whose paths over ``trace_q`` (an array of
+    (rad/s or m/s; the legend says which), ``velocity_scale`` long per m/s (s, positive;
+    default: from the speeds). ``trace``: points whose paths over ``trace_q`` (an array of
     driving coordinates; default a full turn around q) are drawn dashed, one colour per point.
     Returns the :class:`MechanismDrawing` (its ``ax`` is the Axes).
 
@@ -335,7 +361,7 @@ def draw_mechanism(
     """
     velocities = point_names(mechanism, velocities, "draw_mechanism: velocities")
     trace = point_names(mechanism, trace, "draw_mechanism: trace")
-    check_values(AssurjaxError, "draw_mechanism", shape=(), q=q, omega=omega)
+    _check_drawing_request(q, omega, trace_q, unit, velocity_scale)
     own_figure = ax is None
     if own_figure:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
@@ -344,11 +370,13 @@ def draw_mechanism(
     if trace:
         trace_q = np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)
         trace_frames = mechanism_frames(mechanism, trace_q)
+    q_unit = "m" if mechanism.driver.kind == "slider" else "rad"
     drawing = MechanismDrawing(ax, mechanism, frames, trace=trace, velocities=velocities, unit=unit, labels=labels,
-                               velocity_scale=velocity_scale, trace_frames=trace_frames)
+                               velocity_scale=velocity_scale, trace_frames=trace_frames,
+                               velocity_label=f"velocity at omega = {float(omega):.4g} {q_unit}/s")
     drawing.update(0)
     unassembled = "" if frames.ok[0] else " (it does not assemble there: the drawing means nothing)"
-    ax.set_title(f"{mechanism.name} at q = {float(q):.4g} {'m' if mechanism.driver.kind == 'slider' else 'rad'}{unassembled}")
+    ax.set_title(f"{mechanism.name} at q = {float(q):.4g} {q_unit}{unassembled}")
     place_legend(ax)
     if own_figure:  # wide enough for an equal-aspect drawing beside its labels and legend (a wide one was clipped)
         (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()

@@ -15,11 +15,21 @@ from .._values import check_values
 LENGTH_UNITS = {"m": 1.0, "cm": 1e2, "mm": 1e3}
 
 
-def length_scale(unit: str) -> float:
-    """Factor from metres to ``unit`` ("m", "cm" or "mm")."""
-    if unit not in LENGTH_UNITS:
-        raise ValueError(f"unknown length unit {unit!r}; use one of {sorted(LENGTH_UNITS)}")
+def length_scale(unit: str, where: str = "length_scale") -> float:
+    """Factor from metres to ``unit`` ("m", "cm" or "mm"); ``where`` names the caller in the error."""
+    if not isinstance(unit, str) or unit not in LENGTH_UNITS:  # a list is no dict key: test the type first
+        raise AssurjaxError(f"{where}: unit must be one of {', '.join(map(repr, LENGTH_UNITS))} (the axes' length unit), "
+                            f"got {unit!r:.60}")
     return LENGTH_UNITS[unit]
+
+
+def check_coordinates(where: str, name: str, q) -> np.ndarray:
+    """``q`` as a 1-D float array of at least one finite driving coordinate, or an error naming ``name``."""
+    check_values(AssurjaxError, where, **{name: q})
+    q = np.atleast_1d(np.asarray(q, dtype=float))
+    if q.ndim != 1 or not q.size:
+        raise AssurjaxError(f"{where}: {name} must be one value or a 1-D array of at least one, got shape {q.shape}")
+    return q
 
 
 @dataclass(frozen=True)
@@ -64,19 +74,23 @@ def frames_from_kinematics(kin: Kinematics) -> Frames:
     )
 
 
-def mechanism_frames(mechanism: Mechanism, q, omega=None, *, velocities: bool = False) -> Frames:
-    """Kinematics of ``mechanism`` at every q in ``q`` (configurations that do not
-    assemble are kept and flagged in ``Frames.ok``). ``omega`` (rad/s or m/s) scales
-    the velocities; it defaults to 1, i.e. velocities are kinematic coefficients."""
+def mechanism_frames(mechanism: Mechanism, q, omega=None, *, velocities: bool = False, check: bool = False) -> Frames:
+    """Kinematics of ``mechanism`` at every q in ``q``. ``omega`` (rad/s or m/s) scales
+    the velocities; it defaults to 1, i.e. velocities are kinematic coefficients.
+
+    Configurations that do not assemble are kept and flagged False in ``Frames.ok`` (a
+    sweep over a whole turn of a rocker: its coupler curves have gaps there); their
+    positions are not a pose of the mechanism, whatever numbers they hold. With ``check=True``
+    such a configuration raises :class:`assurjax.AssemblyError` naming the first group that
+    cannot assemble and its q, as ``assurjax.kinematics`` does."""
     check_mechanism(mechanism, "mechanism_frames")
-    check_values(AssurjaxError, "mechanism_frames", q=q)
-    q = np.atleast_1d(np.asarray(q, dtype=float))
-    if q.ndim != 1 or not q.size:
-        raise AssurjaxError(f"mechanism_frames: q must be one value or a 1-D array of at least one, got shape {q.shape}")
-    if omega is not None and not broadcasts_to(np.shape(omega), q.shape):
-        raise AssurjaxError(f"mechanism_frames: omega of shape {np.shape(omega)} does not match q's {q.shape}")
+    q = check_coordinates("mechanism_frames", "q", q)
+    if omega is not None:
+        check_values(AssurjaxError, "mechanism_frames", omega=omega)
+        if not broadcasts_to(np.shape(omega), q.shape):
+            raise AssurjaxError(f"mechanism_frames: omega of shape {np.shape(omega)} does not match q's {q.shape}")
     omega = np.ones_like(q) if omega is None else np.broadcast_to(np.asarray(omega, dtype=float), q.shape)
-    kin = kinematics(mechanism, q, omega, order=1 if velocities else 0, check=False)
+    kin = kinematics(mechanism, q, omega, order=1 if velocities else 0, check=bool(check))
     return frames_from_kinematics(kin)
 
 

@@ -40,6 +40,16 @@ def place_legend_clear(ax, entries: int):
         fig.set_layout_engine("constrained")
 
 
+DRIVER_KINDS = ("crank", "slider")
+
+
+def check_driver_kind(where: str, driver_kind) -> None:
+    """``driver_kind`` is a mechanism's ``driver.kind``: "crank" or "slider"."""
+    if not isinstance(driver_kind, str) or driver_kind not in DRIVER_KINDS:
+        raise AssurjaxError(f"{where}: driver_kind must be one of {', '.join(map(repr, DRIVER_KINDS))} "
+                            f"(mechanism.driver.kind), got {driver_kind!r:.60}")
+
+
 def driving_label(frames_or_kind) -> str:
     """Axis label of the driving coordinate: a crank angle (rad) or a slider position (m)."""
     kind = frames_or_kind if isinstance(frames_or_kind, str) else "crank"
@@ -58,7 +68,8 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
     >>> frames = assurjax.viz.mechanism_frames(mech, np.linspace(0, 2 * np.pi, 721))
     >>> assurjax.viz.plot_coupler_curves(frames, ["E"], unit="mm")
     """
-    ax, s = _axes(ax), length_scale(unit)
+    s = length_scale(unit, "plot_coupler_curves")
+    ax = _axes(ax)
     names = [points] if isinstance(points, str) else list(points if points is not None else frames.points)
     unknown = [n for n in names if n not in frames.points]
     if unknown:
@@ -108,8 +119,9 @@ def plot_angular_velocities(frames: Frames, links: Iterable[str] | None = None, 
 
     With the frames computed for omega = 1 these are the kinematic coefficients
     d(theta)/dq (Fanghella et al. 2019, Fig. 3, use w2 = 1 rad/s and deg/s)."""
+    check_driver_kind("plot_angular_velocities", driver_kind)
     if frames.angular_velocities is None:
-        raise ValueError("angular velocities need frames computed with velocities=True")
+        raise AssurjaxError("plot_angular_velocities: angular velocities need frames computed with velocities=True")
     k = np.degrees(1.0) if degrees else 1.0
     names = [links] if isinstance(links, str) else list(links) if links is not None else list(frames.angular_velocities)
     unknown = [n for n in names if n not in frames.angular_velocities]
@@ -172,7 +184,9 @@ def plot_reduced(q, j_red, tau_red=None, *, axes=None, driver_kind: str = "crank
 
     Pass one period of q (one crank turn, or the slider's stroke): the curves repeat after it.
     ``ok``: where the mechanism assembles (e.g. ``Reduction.ok.all(axis=-1)``); elsewhere the
-    values mean nothing and are left out (gaps)."""
+    values mean nothing and are left out (gaps). ``driver_kind``: "crank" or "slider"
+    (``mechanism.driver.kind``)."""
+    check_driver_kind("plot_reduced", driver_kind)
     if ok is not None:
         j_red = masked(j_red, ok)
         tau_red = None if tau_red is None else masked(tau_red, ok)
@@ -196,14 +210,15 @@ def plot_velocity_polygon(velocities: Mapping[str, np.ndarray], *, ax=None, unit
     pole, relative velocities v_ab = v_a - v_b joining their tips.
 
     ``velocities``: point -> (2,) velocity (m/s); ``relative``: pairs (a, b) for
-    which v_ab is drawn. Lengths in ``unit``/s."""
+    which v_ab is drawn. Lengths in ``unit``/s ("m", "cm" or "mm")."""
+    s = length_scale(unit, "plot_velocity_polygon")
     if not velocities:
         raise AssurjaxError("plot_velocity_polygon: no velocities given (point -> (2,) velocity, m/s)")
     for name, v in velocities.items():
         v = np.asarray(v, dtype=float)
         if v.shape != (2,) or not np.all(np.isfinite(v)):
             raise AssurjaxError(f"plot_velocity_polygon: the velocity of '{name}' must be 2 finite numbers (m/s), got {v.tolist()}")
-    ax, s = _axes(ax, (5, 5)), length_scale(unit)
+    ax = _axes(ax, (5, 5))
     tips = {}
     for i, (name, v) in enumerate(velocities.items()):
         v = np.asarray(v, dtype=float) * s
