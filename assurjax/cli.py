@@ -649,7 +649,8 @@ def _animation(scene, sol, out: Path, frames: int, trace_q, quiet: bool, failed:
     q, w = np.interp(t, ts, qs), np.interp(t, ts, ws)
     points = list(scene.outputs["points"])
     title = f"{scene.name} (FAILED run, not to be trusted)" if failed else None
-    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=trace_q, velocities=points[:3], title=title)
+    anim = viz.animate(scene.mechanism, q, w, t=t, trace=points, trace_q=trace_q, velocities=points[:3], title=title,
+                       check=not failed)  # a failed run may have left the poses that assemble: drawn marked
     with _progress(frames, "animation", quiet) as bar:
         images = viz.render_frames(anim, progress=lambda i, n: bar.update(1))
     plt.close(anim._fig)
