@@ -15,10 +15,23 @@ def _bar(a: str, b: str) -> dict:
     return {"points": {a: [0.0, 0.0], b: [1.0, 0.0]}, "com": [0.5, 0.0], "mass": 1.0, "inertia": 1.0 / 12.0}
 
 
+# Sizes of the generated mechanisms: 25 times what the benchmarks and tests build (the
+# N-four-bar of bench_scaling.py and test_stress.py up to N = 40; the bundled strandbeest's
+# 4 pairs). At the bounds a scene builds in ~1.5 s; past them the build alone ran for minutes.
+MAX_WINDOWS = 1000
+MAX_PAIRS = 100
+
+
+def _count(value, what: str, where: str, at_most: int) -> int:
+    """A positive integer count up to ``at_most``, checked before anything is built."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= at_most:
+        raise AssurjaxError(f"{where}: the number of {what} must be an integer from 1 to {at_most}, got {value!r}")
+    return value
+
+
 def n_four_bar_dict(n: int, *, t1: float = 20.0) -> dict:
     """The scene tables of :func:`n_four_bar` (to edit before ``scene_from_dict``)."""
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise AssurjaxError(f"n_four_bar: the number of windows N must be a positive integer, got {n!r}")
+    n = _count(n, "windows N", "n_four_bar", MAX_WINDOWS)
     ground = {f"O{i}": [float(i), 0.0] for i in range(n + 1)}
     links = {f"rocker{i}": _bar(f"O{i}", f"B{i}") for i in range(n + 1)}
     links.update({f"coupler{i}": _bar(f"B{i}", f"B{i + 1}") for i in range(n)})
@@ -54,6 +67,8 @@ def n_four_bar(n: int, *, t1: float = 20.0) -> Scene:
     configurations per revolution (rockers along +x: every dyad's external joints
     coincide; along -x: every dyad is stretched). The fixed mode "left" is wrong
     past them: simulate with branch tracking (``near`` predictors).
+
+    N is at most 1000 (``MAX_WINDOWS``: 25 times the 40 windows the benchmarks use).
 
     >>> scene = assurjax.n_four_bar(2)
     >>> scene.mechanism.group_names
@@ -133,8 +148,7 @@ def strandbeest_dict(pairs: int = 4, *, t1: float = 2.0) -> dict:
     """The scene tables of :func:`strandbeest`."""
     import numpy as np
 
-    if isinstance(pairs, bool) or not isinstance(pairs, int) or pairs < 1:
-        raise AssurjaxError(f"strandbeest: the number of leg pairs must be a positive integer, got {pairs!r}")
+    pairs = _count(pairs, "leg pairs", "strandbeest", MAX_PAIRS)
     n = {k: v / 100.0 for k, v in JANSEN.items()}
     crank_mass, crank_radius = 2.0, n["m"]
     ground = {"O": [0.0, 0.0], "ZL": [-n["a"], -n["l"]], "ZR": [n["a"], -n["l"]]}
@@ -190,7 +204,8 @@ def strandbeest(pairs: int = 4, *, t1: float = 2.0) -> Scene:
     Pair p has its crank pin at phase 2 pi p / pairs and drives a left leg and its
     mirror image (pivot at (+a, -l)). Bars of 2 kg/m; the crank is a 2 kg disc of
     radius m. q is the crank angle (rad); the bundled scene ``strandbeest`` is
-    ``strandbeest(4)``: 8 legs, 25 groups, 49 links.
+    ``strandbeest(4)``: 8 legs, 25 groups, 49 links. ``pairs`` is at most 100
+    (``MAX_PAIRS``: 25 times the bundled scene's).
 
     >>> scene = assurjax.strandbeest(1)
     >>> scene.mechanism.group_names[:3]

@@ -40,6 +40,7 @@ from jaxtyping import Array
 from ._errors import MechanismError
 from ._values import check_value, concrete
 from ._geometry import cross, dot, perp, rotation
+from ._listing import few
 from ._jit import moved_leaves, region, stays_unthreaded
 from ._kinematics import by_name
 from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
@@ -100,10 +101,15 @@ class AbstractFriction(AbstractLoad):
 
     def check(self, mechanism: Mechanism) -> None:
         pairs = pairs_by_name(mechanism)
-        what = "revolute joint" if self.kind == "R" else "prismatic pair"
         if self.pair not in pairs or pairs[self.pair].kind != self.kind:
             known = sorted(name for name, p in pairs.items() if p.kind == self.kind)
-            raise MechanismError(f"{type(self).__name__}: '{self.pair}' is not a {what} of the mechanism (its {what}s: {known})")
+            raise MechanismError(f"{type(self).__name__}: '{self.pair}' is not a {self.what} of the mechanism (its "
+                                 f"{self.what}s: {few(known)})")
+
+    @property
+    def what(self) -> str:
+        """The kind of pair, in words."""
+        return "revolute joint" if self.kind == "R" else "prismatic pair"
 
     def wrenches(self, mechanism, kin, t):
         return []  # needs the reactions: see friction_wrenches

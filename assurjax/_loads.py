@@ -32,6 +32,7 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
+import inspect
 import weakref
 from typing import Any, ClassVar
 
@@ -43,6 +44,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
+from ._listing import few
 from ._values import check_value, concrete, found_words, shape_words
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import COM_PREFIX, Mechanism, Pose
@@ -217,12 +219,27 @@ def _has_time_form(value, *, functions: bool = False) -> bool:
 
 
 def _as_value(v, where: str, shape: tuple[int, ...] = ()):
-    """A load value: a function or form as it is (what it returns is checked by
-    :func:`check_loads`), a number (or 2-vector, ``shape``) checked finite."""
+    """A load value: a function or form as it is (its arguments checked here, what it
+    returns by :func:`check_loads`), a number (or 2-vector, ``shape``) checked finite."""
     if callable(v):
+        _check_arguments(v, where)
         return v
     check_value(MechanismError, where, v, shape=shape)
     return jnp.asarray(v, dtype=float)
+
+
+def _check_arguments(fn, where: str) -> None:
+    """Raise naming ``where`` when ``fn`` cannot be called as f(q, omega, t) (``lambda q: ...``
+    failed later, inside JAX's trace, with a bare TypeError naming no load)."""
+    try:
+        signature = inspect.signature(fn)
+    except (TypeError, ValueError):  # no signature to read (a builtin): its call is checked by check_loads
+        return
+    try:
+        signature.bind(0.0, 0.0, 0.0)
+    except TypeError:
+        raise MechanismError(f"{where}: a function must take (q, omega, t), the driving coordinate, its velocity "
+                             f"and the time, as f(q, omega, t); the one given takes {signature}") from None
 
 
 # a function's output shape, traced once per function (tracing it costs ~1 ms, at every call
@@ -340,14 +357,14 @@ def point_problem(mechanism: Mechanism, point: str) -> str | None:
     link = _com_link(point)
     if link is not None:
         if link not in mechanism.links:
-            return f"unknown link '{link}' in '{point}' (a centre of mass is 'com:<moving link>'; links: {sorted(mechanism.links)})"
+            return f"unknown link '{link}' in '{point}' (a centre of mass is 'com:<moving link>'; links: {few(sorted(mechanism.links))})"
         return None
     if point in mechanism.point_names:
         return None
     hint = ""
     if "com" in point.lower() or "centre" in point.lower() or "center" in point.lower():
         hint = f"; a link's centre of mass is written 'com:<link>', e.g. 'com:{next(iter(mechanism.links))}'"
-    return f"unknown point '{point}' (known: {sorted(mechanism.point_names)}){hint}"
+    return f"unknown point '{point}' (known: {few(sorted(mechanism.point_names))}){hint}"
 
 
 def carrier_problem(mechanism: Mechanism, point: str, link: str | None) -> str | None:
@@ -357,7 +374,7 @@ def carrier_problem(mechanism: Mechanism, point: str, link: str | None) -> str |
         return None
     carriers = _carriers(mechanism, point)
     if link != GROUND and link not in mechanism.links:
-        return f"unknown link '{link}' (known: {sorted(mechanism.links)})"
+        return f"unknown link '{link}' (known: {few(sorted(mechanism.links))})"
     if link not in carriers:
         return f"link '{link}' does not carry point '{point}' (carried by {carriers})"
     return None
@@ -451,7 +468,7 @@ class PointForce(AbstractLoad):
 
     def __init__(self, point: str, force, *, link: str | None = None, velocity_dependent: bool | None = None):
         self.point, self.link = point, _carrier_argument(link)
-        self.force = _as_value(force, "PointForce: force", (2,))
+        self.force = _as_value(force, f"PointForce on point '{point}': force", (2,))
         self.velocity_dependent = _velocity_dependent(force, flag=velocity_dependent)
 
     value_shape: ClassVar[tuple[int, ...]] = (2,)
@@ -484,7 +501,7 @@ class Couple(AbstractLoad):
 
     def __init__(self, link: str, moment, *, velocity_dependent: bool | None = None):
         self.link = link
-        self.moment = _as_value(moment, "Couple: moment")
+        self.moment = _as_value(moment, f"Couple on link '{link}': moment")
         self.velocity_dependent = _velocity_dependent(moment, flag=velocity_dependent)
 
     def _values(self):
@@ -492,7 +509,7 @@ class Couple(AbstractLoad):
 
     def check(self, mechanism):
         if self.link not in mechanism.links:
-            raise MechanismError(f"couple: unknown link '{self.link}' (known: {sorted(mechanism.links)})")
+            raise MechanismError(f"couple: unknown link '{self.link}' (known: {few(sorted(mechanism.links))})")
 
     def wrenches(self, mechanism, kin, t):
         return [(self.link, jnp.zeros(2), evaluate(self.moment, kin.q, kin.omega, t))]
@@ -695,14 +712,24 @@ class MotorLine(AbstractLoad):
 
 
 def check_loads(mechanism: Mechanism, loads) -> None:
-    """Raise :class:`MechanismError` for a load on an unknown point or link."""
+    """Raise :class:`MechanismError` for a load on an unknown point or link, and a function
+    value that cannot be called as f(q, omega, t) or returns the wrong shape."""
     for i, load in enumerate(loads):
         if not isinstance(load, AbstractLoad):
             raise MechanismError(f"load #{i + 1}: expected an assurjax load (PointForce, Couple, Spring, ...), got {type(load).__name__}")
         load.check(mechanism)
         for name, value in type(load)._values(load).items():  # through the class: no bound-method module
-            if (problem := _output_problem(value, load.value_shape)) is not None:
-                raise MechanismError(f"{type(load).__name__}: {name}, {problem}")
+            if (problem := _called_problem(value, load.value_shape)) is not None:
+                raise MechanismError(f"load #{i + 1} ({type(load).__name__}): {name}, {problem}")
+
+
+def _called_problem(value, shape: tuple[int, ...]) -> str | None:
+    """:func:`_output_problem`, with a function that fails when called as f(q, omega, t) (one
+    whose signature could not be read where it was given) reported instead of raising."""
+    try:
+        return _output_problem(value, shape)
+    except TypeError as e:
+        return f"a function of (q, omega, t), fails when called as f(q, omega, t): {e}"
 
 
 def _check_inputs(mechanism: Mechanism, loads, *, gravity=None) -> None:

@@ -11,6 +11,7 @@ when the group cannot assemble. Values are kept finite (never NaN) even then.
 from __future__ import annotations
 
 import abc
+from collections.abc import Mapping
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
@@ -51,6 +52,7 @@ class Link(eqx.Module):
     inertia: Array
 
     def __init__(self, points, com=None, mass=0.0, inertia=0.0):
+        _check_points(points, com)
         # Python numbers become arrays: a float leaf would be static under filter_jit
         self.points = {k: _as_array(v) for k, v in points.items()}
         if com is None:
@@ -60,6 +62,19 @@ class Link(eqx.Module):
         self.com = jnp.mean(jnp.stack(list(self.points.values())), axis=0) if com is None else _as_array(com)
         self.mass = _as_array(mass)
         self.inertia = _as_array(inertia)
+
+
+def _check_points(points, com) -> None:
+    """A mapping of point names to points, and one point at least where the centre of mass is
+    their centroid (else JAX's "Need at least one array to stack", or an AttributeError)."""
+    if not isinstance(points, Mapping):
+        raise MechanismError(f"Link: points must map point names to [x, y] (m), e.g. {{'A': [0.0, 0.0]}}, got "
+                             f"{type(points).__name__} {points!r:.60}")
+    if not all(isinstance(k, str) for k in points):
+        raise MechanismError(f"Link: point names must be strings, got {[k for k in points if not isinstance(k, str)]!r:.60}")
+    if not points and com is None:
+        raise MechanismError("Link: points is empty; a link needs at least one named point (its centre of mass "
+                             "defaults to their centroid)")
 
 
 def _as_array(x):

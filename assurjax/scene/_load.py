@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError, MechanismError, SceneError
+from .._listing import few
 from .._values import value_problem
 from ..dynamics._settings import OUTPUT_KEYS, check_simulation_table, state_problem
 from .._mechanism import Mechanism
@@ -23,6 +24,10 @@ from ..groups import _class4, _newton, _triad
 from ._scene import Scene, Settings
 
 BUNDLED = "assurjax.scenes"
+# Entries of one table ([ground], [links], [[formation]], a link's points): 30 times the 81
+# links of the largest mechanism the benchmarks build (the N-four-bar with N = 40), room for
+# assurjax.n_four_bar(1000). Such a scene builds in ~1.5 s; 10^5 links ran for minutes.
+MAX_ENTRIES = 2500
 
 
 def bundled_scenes() -> list[str]:
@@ -156,7 +161,24 @@ class Fields:
 def _points(fields: Fields, key: str) -> dict[str, np.ndarray]:
     where = f"[{key}]" if fields.where == "the top level" else f"{fields.where}.{key}"
     table = Fields(fields.raw(key), where, fields.source)
+    _check_entries(table.table, where, fields.source)
     return {name: table.vector(name) for name in table.table}
+
+
+TABLES = {"ground": "[ground]", "links": "[links]", "formation": "[[formation]]", "loads": "[[loads]]"}
+
+
+def _check_sizes(data, source: str) -> None:
+    """The scene's tables of many entries bounded before anything is read."""
+    for key, where in TABLES.items():
+        if isinstance(data, dict) and isinstance(data.get(key), (dict, list, tuple)):
+            _check_entries(data[key], where, source)
+
+
+def _check_entries(table, where: str, source: str) -> None:
+    """A table or array of at most MAX_ENTRIES entries, checked before any is read."""
+    if len(table) > MAX_ENTRIES:
+        raise SceneError(f"{source}: {where} has {len(table)} entries; at most {MAX_ENTRIES}")
 
 
 def _link(name: str, table, source: str) -> Link:
@@ -274,6 +296,7 @@ def _group(index: int, table, source: str):
 def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     """Build a Scene from the parsed TOML tables (see docs/scene-format.md); built in
     Python, NumPy numbers, tuples and arrays are taken as TOML's numbers and lists."""
+    _check_sizes(data, source)
     top = Fields(_as_toml(data), "the top level", source)
     top.reject_unknown({"scene", "ground", "links", "formation", "state", "simulation", "outputs", "loads", "sketch"})
     head = Fields(top.raw("scene", {}), "[scene]", source)
@@ -310,6 +333,7 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
     out_values = _outputs(outputs, mechanism)
 
     loads = ()
+    _check_load_types(top.raw("loads", []), source)
     for parse in LOAD_PARSER:
         loads = parse(top.raw("loads", []), mechanism, source)
     if top.has("loads") and not LOAD_PARSER:
@@ -326,6 +350,16 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         source=source,
         notes=notes,
     )
+
+
+def _check_load_types(raw, source: str) -> None:
+    """Each [[loads]] entry gives its type (else the parser read a missing one as the unknown
+    type None)."""
+    if not isinstance(raw, list):  # the parser says what it must be
+        return
+    for i, table in enumerate(raw):
+        if isinstance(table, dict) and "type" not in table:
+            Fields(table, f"[[loads]] #{i + 1}", source).raw("type")  # raises: missing field 'type'
 
 
 def _explicit_mechanism(top: Fields, name: str, source: str) -> Mechanism:
@@ -350,11 +384,11 @@ def _outputs(f: Fields, mechanism: Mechanism) -> dict:
     known_points = set(mechanism.point_names)
     for p in points:
         if p not in known_points:
-            f.fail("points", f"unknown point '{p}' (known: {sorted(known_points)})")
+            f.fail("points", f"unknown point '{p}' (known: {few(sorted(known_points))})")
     angles = f.names("angles") if f.has("angles") else ()
     for a in angles:
         if a not in mechanism.links:
-            f.fail("angles", f"unknown link '{a}' (known: {sorted(mechanism.links)})")
+            f.fail("angles", f"unknown link '{a}' (known: {few(sorted(mechanism.links))})")
     reactions = f.names("reactions") if f.has("reactions") else ()
     if reactions:
         from .._kinetostatics import joint_names  # imported only when a scene asks for reactions
@@ -362,11 +396,11 @@ def _outputs(f: Fields, mechanism: Mechanism) -> dict:
         known_joints = joint_names(mechanism)
         for j in reactions:
             if j not in known_joints:
-                f.fail("reactions", f"unknown joint '{j}' (joints: {list(known_joints)})")
+                f.fail("reactions", f"unknown joint '{j}' (joints: {few(known_joints)})")
     coms = f.names("coms") if f.has("coms") else ()
     for link in coms:
         if link not in mechanism.links:
-            f.fail("coms", f"unknown link '{link}' (known: {sorted(mechanism.links)})")
+            f.fail("coms", f"unknown link '{link}' (known: {few(sorted(mechanism.links))})")
     values = dict(points=points, angles=angles, reactions=reactions, energies=f.boolean("energies", True))
     extra = {k: v for k, v in f.table.items() if k not in values}  # velocities, accelerations, coms: type-checked above
     return {**values, **extra}

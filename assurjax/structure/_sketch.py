@@ -9,12 +9,17 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import MechanismError
+from .._listing import few
 from .._mechanism import check_point_names
 from .._values import check_value
 from ..groups import GROUND
 
 LINK_FIELDS = ("joints", "mass", "inertia", "com", "density")
 MIN_EXTENT = 1e-100  # m: below it the squares of the drawing's lengths underflow
+# A sketch's size: 12 times the 81 links of bench_decomposition.py's 40-group chain. Its
+# decomposition grows with the square of the links: ~1.5 s at the bound, 5 s at 2000 links.
+MAX_LINKS = 1000
+MAX_JOINTS = 2 * MAX_LINKS  # a chain has about one joint a link; plates have more
 
 
 class Slide(NamedTuple):
@@ -58,7 +63,8 @@ class Sketch:
     Lengths, link frames, guide offsets, the formation sequence, every group's assembly
     mode and the iterative groups' starting guesses all follow from the drawing
     (:meth:`mechanism`). Bad drawings raise :class:`MechanismError` naming the joints
-    or links at fault.
+    or links at fault. A sketch has at most 1000 links and 2000 joints (``MAX_LINKS``,
+    ``MAX_JOINTS``: over ten times the largest the benchmarks decompose).
 
     Example (a four-bar)::
 
@@ -71,8 +77,10 @@ class Sketch:
     def __init__(self, joints: Mapping, links: Mapping, *, ground: Iterable[str] = (), slides: Iterable = (),
                  driver: str, q0: float | None = None, name: str = "sketch"):
         self.name = str(name)
-        self.joints = {str(k): _point(v, f"joint '{k}'") for k, v in dict(joints).items()}
-        self.links = {str(k): _link_spec(k, v) for k, v in dict(links).items()}
+        joints, links = dict(joints), dict(links)
+        _check_size(joints, links)  # before any is read: 10^5 links ran for minutes
+        self.joints = {str(k): _point(v, f"joint '{k}'") for k, v in joints.items()}
+        self.links = {str(k): _link_spec(k, v) for k, v in links.items()}
         self.ground = _names(ground, "ground")
         self.slides = tuple(_slide(s) for s in slides)
         self.driver = driver
@@ -123,6 +131,13 @@ class Sketch:
 
     def __repr__(self):
         return f"Sketch('{self.name}': {len(self.joints)} joints, {len(self.links)} links, {len(self.slides)} slides, driver '{self.driver}')"
+
+
+def _check_size(joints: dict, links: dict) -> None:
+    for what, table, limit in (("links", links, MAX_LINKS), ("joints", joints, MAX_JOINTS)):
+        if len(table) > limit:
+            raise MechanismError(f"the sketch has {len(table)} {what}; at most {limit} (its decomposition's "
+                                 "work grows with the square of its size)")
 
 
 def _number(v, what: str) -> float:
@@ -186,6 +201,15 @@ def _slide(s) -> Slide:
     return Slide(str(s.link), str(s.on), (float(u[0]), float(u[1])))
 
 
+def _coincident(sk: Sketch, joints: tuple[str, ...], tol: float) -> tuple[str, str] | None:
+    """The first two of a link's ``joints`` drawn within ``tol`` of each other, or None (every
+    pair at once: a plate of 2000 joints has 2e6 pairs, seconds one by one)."""
+    x = np.array([sk.joints[j] for j in joints])
+    gap = np.hypot(*np.moveaxis(x[:, None] - x[None], -1, 0))
+    first, second = np.nonzero(np.triu(gap <= tol, 1))
+    return None if first.size == 0 else (joints[first[0]], joints[second[0]])
+
+
 def _validate(sk: Sketch) -> None:
     if not sk.links:
         raise MechanismError("the sketch has no links")
@@ -199,31 +223,29 @@ def _validate(sk: Sketch) -> None:
     check_point_names(sk.joints)
     for j in sk.ground:
         if j not in sk.joints:
-            raise MechanismError(f"ground joint '{j}' is not among the joints {sorted(sk.joints)}")
+            raise MechanismError(f"ground joint '{j}' is not among the joints {few(sorted(sk.joints))}")
     if len(set(sk.ground)) != len(sk.ground):
-        raise MechanismError(f"a ground joint is listed twice: {list(sk.ground)}")
+        raise MechanismError(f"a ground joint is listed twice: {few(sk.ground)}")
     tol = 1e-9 * sk.scale() + sk.roundoff()
     for name, spec in sk.links.items():
         unknown = [j for j in spec.joints if j not in sk.joints]
         if unknown:
-            raise MechanismError(f"link '{name}' uses joint(s) {unknown} that are not drawn (joints: {sorted(sk.joints)})")
+            raise MechanismError(f"link '{name}' uses joint(s) {few(unknown)} that are not drawn (joints: {few(sorted(sk.joints))})")
         if len(set(spec.joints)) != len(spec.joints):
-            raise MechanismError(f"link '{name}' lists a joint twice: {list(spec.joints)}")
-        for i, a in enumerate(spec.joints):
-            for b in spec.joints[i + 1:]:
-                if np.hypot(*(sk.joints[a] - sk.joints[b])) <= tol:
-                    raise MechanismError(f"link '{name}': joints '{a}' and '{b}' coincide in the drawing (a link cannot carry "
-                                         f"two joints at one place; within {tol:.3g} m, 1e-9 of the drawing's extent "
-                                         f"{sk.scale():.3g} m)")
+            raise MechanismError(f"link '{name}' lists a joint twice: {few(spec.joints)}")
+        if (pair := _coincident(sk, spec.joints, tol)) is not None:
+            raise MechanismError(f"link '{name}': joints '{pair[0]}' and '{pair[1]}' coincide in the drawing (a link cannot "
+                                 f"carry two joints at one place; within {tol:.3g} m, 1e-9 of the drawing's extent "
+                                 f"{sk.scale():.3g} m)")
     used = {j for spec in sk.links.values() for j in spec.joints} | set(sk.ground)
     unused = [j for j in sk.joints if j not in used]
     if unused:
-        raise MechanismError(f"joint(s) {unused} belong to no link and not to the ground")
+        raise MechanismError(f"joint(s) {few(unused)} belong to no link and not to the ground")
     pairs = set()
     for s in sk.slides:
         for end in (s.link, s.on):
             if end != GROUND and end not in sk.links:
-                raise MechanismError(f"slide of '{s.link}' on '{s.on}': unknown link '{end}' (links: {list(sk.links)})")
+                raise MechanismError(f"slide of '{s.link}' on '{s.on}': unknown link '{end}' (links: {few(sk.links)})")
         if s.link == s.on:
             raise MechanismError(f"slide of '{s.link}' on itself")
         key = frozenset((s.link, s.on))
@@ -231,4 +253,4 @@ def _validate(sk: Sketch) -> None:
             raise MechanismError(f"two slides between '{s.link}' and '{s.on}' (over-constrained)")
         pairs.add(key)
     if not isinstance(sk.driver, str) or sk.driver not in sk.links:
-        raise MechanismError(f"driver {sk.driver!r} is not one of the links {list(sk.links)}")
+        raise MechanismError(f"driver {sk.driver!r} is not one of the links {few(sk.links)}")

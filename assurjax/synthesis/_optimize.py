@@ -457,6 +457,8 @@ def optimize(
         raise AssurjaxError(f"optimize: batch must be 'auto', 'vmap' or 'sequential', got {batch!r}")
     if compile_mode not in COMPILE_MODES:
         raise AssurjaxError(f"optimize: compile_mode must be 'auto', 'quick' or 'optimized', got {compile_mode!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:  # NumPy's seeds
+        raise AssurjaxError(f"optimize: seed must be a non-negative integer, got {seed!r}")
     started = time.perf_counter()
     numeric, static = _split_options(optimizer, options)
     problem = _Problem(design=design, objective=by_structure(objective), feasible=by_structure(feasible), method=optimizer,
@@ -538,9 +540,9 @@ def _stages(schedule):
         return {"_": jnp.zeros(1)}
     if not isinstance(schedule, dict) or not schedule:
         raise AssurjaxError("optimize: schedule must be a non-empty dict {parameter name: one value per stage}")
+    for name, values in schedule.items():  # a NaN stage ended as "the starting design cannot assemble"
+        check_value(AssurjaxError, f"optimize: schedule '{name}'", values)  # before JAX reads "x" as a float
     stages = {k: jnp.atleast_1d(jnp.asarray(v, dtype=float)) for k, v in schedule.items()}
-    for name, values in stages.items():  # a NaN stage ended as "the starting design cannot assemble"
-        check_value(AssurjaxError, f"optimize: schedule '{name}'", values)
     lengths = {k: v.shape[0] for k, v in stages.items()}
     if len(set(lengths.values())) != 1 or any(v.ndim != 1 for v in stages.values()):
         raise AssurjaxError(f"optimize: every schedule entry must be one value per stage, same count; got lengths {lengths}")
