@@ -227,6 +227,17 @@ class SlideFriction(AbstractFriction):
 # ---------------------------------------------------------------------------- helpers
 
 
+def repeated_pair(loads) -> tuple[int, int, str] | None:
+    """(i, j, what is wrong) where element j of ``loads`` is a second friction element on the
+    pair element i already has (both acted, their friction added up), or None."""
+    first: dict[str, int] = {}
+    for j, load in enumerate(loads):
+        if isinstance(load, AbstractFriction) and (i := first.setdefault(load.pair, j)) != j:
+            return i, j, (f"two friction elements on the {load.what} '{load.pair}' ({type(loads[i]).__name__} and "
+                          f"{type(load).__name__}): both would act, their friction adding up; give each pair one element")
+    return None
+
+
 def pairs_by_name(mechanism: Mechanism) -> dict:
     from ._kinetostatics._layout import group_pairs  # the kinetostatics imports the loads
 

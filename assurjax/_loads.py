@@ -712,8 +712,12 @@ class MotorLine(AbstractLoad):
 
 
 def check_loads(mechanism: Mechanism, loads) -> None:
-    """Raise :class:`MechanismError` for a load on an unknown point or link, and a function
-    value that cannot be called as f(q, omega, t) or returns the wrong shape."""
+    """Raise :class:`MechanismError` for a load on an unknown point or link, a function value
+    that cannot be called as f(q, omega, t) or returns the wrong shape, and two friction
+    elements on one pair."""
+    from ._friction import repeated_pair  # the friction module imports this one
+
+    loads = tuple(loads)  # read twice
     for i, load in enumerate(loads):
         if not isinstance(load, AbstractLoad):
             raise MechanismError(f"load #{i + 1}: expected an assurjax load (PointForce, Couple, Spring, ...), got {type(load).__name__}")
@@ -721,6 +725,9 @@ def check_loads(mechanism: Mechanism, loads) -> None:
         for name, value in type(load)._values(load).items():  # through the class: no bound-method module
             if (problem := _called_problem(value, load.value_shape)) is not None:
                 raise MechanismError(f"load #{i + 1} ({type(load).__name__}): {name}, {problem}")
+    if (repeated := repeated_pair(loads)) is not None:
+        first, second, problem = repeated
+        raise MechanismError(f"loads #{first + 1} and #{second + 1}: {problem}")
 
 
 def _called_problem(value, shape: tuple[int, ...]) -> str | None:

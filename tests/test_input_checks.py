@@ -113,6 +113,26 @@ def test_reactions_refuse_a_solution_of_another_mechanism():
                  "'crank'")
 
 
+# 4. two friction elements on one pair
+
+
+@pytest.mark.parametrize("loads, pair", [
+    ((assurjax.JointFriction("A", 0.1, radius=0.01), assurjax.JointFriction("O", 0.1, radius=0.01),
+      assurjax.JointFriction("A", 0.2, radius=0.02)), "revolute joint 'A'"),
+    ((assurjax.SlideFriction("slider/ground", 0.1, length=0.05),
+      assurjax.SlideFriction("slider/ground", 0.1, length=0.05, viscous=1.0)), "prismatic pair 'slider/ground'"),
+], ids=["joint", "slide"])
+def test_one_friction_element_per_pair(slider_crank, loads, pair):
+    refused(lambda: slider_crank.with_loads(loads), MechanismError, pair)
+
+
+def test_one_friction_element_per_pair_in_a_scene():
+    data = bundled_tables("slider_crank")
+    data["loads"] = [{"type": "joint_friction", "joint": "O", "coefficient": c, "radius": 0.01} for c in (0.15, 0.3)]
+    refused(lambda: assurjax.scene_from_dict(data, source="dup.toml"), SceneError, "dup.toml: [[loads]] #1 and #2",
+                 "revolute joint 'O'")
+
+
 # 5. a link's points
 
 

@@ -338,6 +338,7 @@ def scene_from_dict(data: dict, *, source: str = "<scene>") -> Scene:
         loads = parse(top.raw("loads", []), mechanism, source)
     if top.has("loads") and not LOAD_PARSER:
         raise SceneError(f"{source}: [[loads]] are not supported by this installation")
+    _check_one_friction_per_pair(loads, source)
     return Scene(
         mechanism=mechanism,
         gravity=jnp.asarray(gravity),
@@ -360,6 +361,14 @@ def _check_load_types(raw, source: str) -> None:
     for i, table in enumerate(raw):
         if isinstance(table, dict) and "type" not in table:
             Fields(table, f"[[loads]] #{i + 1}", source).raw("type")  # raises: missing field 'type'
+
+
+def _check_one_friction_per_pair(loads, source: str) -> None:
+    from .._friction import repeated_pair
+
+    if (repeated := repeated_pair(loads)) is not None:
+        first, second, problem = repeated
+        raise SceneError(f"{source}: [[loads]] #{first + 1} and #{second + 1}: {problem}")
 
 
 def _explicit_mechanism(top: Fields, name: str, source: str) -> Mechanism:
