@@ -94,7 +94,7 @@ def _savefig(fig, path: Path) -> Path:
 
     if fig.get_layout_engine() is None:
         fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # a legend placed beside the axes is kept whole
     plt.close(fig)
     return path
 
