@@ -7,6 +7,7 @@ a = d2x/dq2 w^2 + dx/dq alpha. There is no second hand-written velocity code pat
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable, Mapping
 
 import equinox as eqx
@@ -62,33 +63,75 @@ def _stack(values: list) -> Array | None:
     return jnp.stack(values) if values else None
 
 
-def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tuple[bool, bool], names: dict) -> Callable:
-    """q -> ((points (n, 2), coms (m, 2), angles (m,)), ok), each kind stacked into one
-    array: the vmapped function has a few outputs instead of one per name, and the
-    dicts are built after the vmap. The names in stacking order are recorded in
-    ``names`` at trace time."""
-    want_coms, want_angles = what
+def _coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tuple[bool, bool], names: dict,
+                 flag_singular: bool = False) -> tuple[Callable, Callable]:
+    """(q -> ((points (n, 2), coms (m, 2), angles (m,)), (ok, reads)), (x, reads) -> singular).
+
+    Each kind is stacked into one array: the vmapped function has a few outputs instead of
+    one per name, and the dicts are built after the vmap. The names in stacking order are
+    recorded in ``names`` at trace time. ``ok``: the groups' flags. ``singular`` (with
+    ``flag_singular``): whether a group the outputs depend on sits exactly at a singular
+    configuration (:func:`exactly_singular`; None where no such group declares a measure),
+    from the positions ``reads``, outside the jvps (traced once)."""
+    declared = _declared_needed(mechanism, points) if flag_singular else []
     materialize = _many_outputs(mechanism, points, what)
+    if points is None and materialize:
+        return _every_coordinates(mechanism, what, names, declared)
+    return _some_coordinates(mechanism, points, what, names, declared, materialize)
 
-    def every(q):  # every point: the stacked analysis, no per-name arrays in between
-        (xp, xc, xa, _), ok, (names["points"], links) = stacked_positions(mechanism, q)
-        names["coms"] = links if want_coms else ()
-        names["angles"] = links if want_angles else ()
-        return (xp, xc if want_coms else None, xa if want_angles else None), ok
 
-    def coords(q):
-        pose = positions(mechanism, q, points=points, materialize=materialize)
-        names["points"] = tuple(pose.points)
-        names["coms"] = tuple(pose.coms) if want_coms else ()
-        names["angles"] = tuple(pose.angles) if want_angles else ()
-        x = (
-            _stack([pose.points[k] for k in names["points"]]),
-            _stack([pose.coms[k] for k in names["coms"]]),
-            _stack([pose.angles[k] for k in names["angles"]]),
-        )
-        return x, pose.ok
+def _every_coordinates(mechanism: Mechanism, what: tuple[bool, bool], names: dict, declared: list[int]):
+    """:func:`_coordinates` of every point: the stacked analysis, no per-name arrays in between."""
+    joints, turned = _measure_inputs(mechanism, declared)
 
-    return every if points is None and materialize else coords
+    def coordinates(q):
+        (xp, xc, xa, rot), ok, (names["points"], names["links"]) = stacked_positions(mechanism, q)
+        names["coms"] = names["links"] if what[0] else ()
+        names["angles"] = names["links"] if what[1] else ()
+        return (xp, xc if what[0] else None, xa if what[1] else None), (ok, rot)
+
+    def singular_at(x, rot):
+        row = {k: i for i, k in enumerate(names["points"])}
+        turn = {k: rot[i] for i, k in enumerate(names["links"]) if k in turned}
+        return exactly_singular(mechanism, declared, {j: x[0][row[j]] for j in joints}, turn)
+
+    return coordinates, singular_at
+
+
+def _some_coordinates(mechanism: Mechanism, points: tuple[str, ...] | None, what: tuple[bool, bool], names: dict,
+                      declared: list[int], materialize: bool):
+    """:func:`_coordinates` of ``points`` (None: all): only the groups they need, and the
+    joints the measures of those groups read."""
+    joints, turned = _measure_inputs(mechanism, declared)
+    extra = () if points is None else tuple(j for j in joints if j not in points)
+
+    def coordinates(q):
+        pose = positions(mechanism, q, points=None if points is None else points + extra, materialize=materialize)
+        names["points"] = tuple(pose.points) if points is None else points
+        names["coms"] = tuple(pose.coms) if what[0] else ()
+        names["angles"] = tuple(pose.angles) if what[1] else ()
+        x = tuple(_stack([named[k] for k in names[kind]])
+                  for named, kind in ((pose.points, "points"), (pose.coms, "coms"), (pose.angles, "angles")))
+        return x, (pose.ok, (pose.points, pose.angles))
+
+    def singular_at(x, reads):
+        points, angles = reads
+        turn = {k: rotation(angles[k]) for k in turned}  # a Pose has angles only
+        return exactly_singular(mechanism, declared, points, turn)
+
+    return coordinates, singular_at
+
+
+def _declared_needed(mechanism: Mechanism, points: tuple[str, ...] | None) -> list[int]:
+    """The groups declaring a singularity measure that ``points`` (None: all) depend on."""
+    needed = None if points is None else set(mechanism.groups_needed(points))
+    return [i for i in singular_groups(mechanism) if needed is None or i in needed]
+
+
+def _measure_inputs(mechanism: Mechanism, groups: list[int]) -> tuple[tuple[str, ...], set[str]]:
+    """What the measures of ``groups`` may read: their joints' positions and their links' (cos, sin)."""
+    joints = tuple(dict.fromkeys(j for i in groups for j in mechanism.groups[i].joints))
+    return joints, {k for i in groups for k in mechanism.groups[i].links}
 
 
 def taylor(fn: Callable, q, order: int):
@@ -223,6 +266,36 @@ def singular_groups(mechanism: Mechanism) -> list[int]:
     return [i for i, g in enumerate(mechanism.groups) if type(g).singularity is not AbstractGroup.singularity]
 
 
+# |singularity measure| (a sine or cosine) below which a closed form sits on its square
+# root's clamp: there its coefficients are finite but not the motion's (a simulation
+# refuses to start there; kinematics and reduce give NaN rates)
+START_SINGULAR_MEASURE = 1e-9
+
+
+def exactly_singular(mechanism: Mechanism, groups: list[int], x: Mapping, turn: Mapping) -> Array:
+    """True where one of ``groups`` (indices declaring a measure) sits exactly at a
+    singular configuration: |measure| <= START_SINGULAR_MEASURE, read from the points
+    ``x`` and the links' (cos, sin) ``turn`` (their derivatives are not needed). None
+    without ``groups``."""
+    if not groups:
+        return None
+    zero = jnp.zeros(2)
+    dx, dturn = (dict.fromkeys(named, zero) for named in (x, turn))
+    at = [jnp.abs(mechanism.groups[i].singularity(x, dx, turn, dturn)[0]) <= START_SINGULAR_MEASURE for i in groups]
+    return functools.reduce(jnp.logical_or, at)
+
+
+def nan_where(flag, tree):
+    """``tree`` (leaves with the flag's shape in front) with NaN where ``flag`` (None:
+    unchanged), elsewhere bit for bit (times 1)."""
+    if flag is None:
+        return tree
+    # a quotient XLA computes once per sample; a select it would copy, with the measures
+    # behind the flag, into the loop of every output element
+    one = 1.0 / jnp.where(flag, jnp.nan, 1.0)
+    return jax.tree.map(lambda v: v * one.reshape(one.shape + (1,) * (v.ndim - one.ndim)), tree)
+
+
 def singularity_measures(mechanism: Mechanism, coeffs: Coefficients, groups) -> Array:
     """(measure, its q-derivative) of each of ``groups`` (indices; see
     :func:`singular_groups`) at the coefficients' q: (len(groups), 2); of order-0
@@ -312,10 +385,12 @@ def branch_coefficients(mechanism: Mechanism, q, *, near=None, bridge: float = 0
 def _stacked_single(mechanism: Mechanism, q, omega, alpha, points, order: int, what=(True, True)):
     """Positions, velocities and accelerations at one q as stacked arrays, and their names."""
     names: dict = {}
-    x, dx, d2x, ok = taylor(_coordinates(mechanism, points, what, names), q, order)
+    coordinates, singular_at = _coordinates(mechanism, points, what, names, flag_singular=order > 0)
+    x, dx, d2x, (ok, reads) = taylor(coordinates, q, order)
+    singular = singular_at(x, reads)
     vel = None if dx is None else jax.tree.map(lambda d: d * omega, dx)
     acc = None if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
-    return names, dict(q=q, omega=omega, alpha=alpha, x=x, v=vel, a=acc, ok=ok)
+    return names, dict(q=q, omega=omega, alpha=alpha, x=x, v=vel, a=acc, ok=ok, singular=singular)
 
 
 def _unstack(names: dict, arrays: dict, batch_ndim: int) -> Kinematics:
@@ -333,6 +408,10 @@ def _unstack(names: dict, arrays: dict, batch_ndim: int) -> Kinematics:
         return split(triple[0], "points"), split(triple[1], "coms"), split(triple[2], "angles")
 
     x, v, a = fields(arrays["x"]), fields(arrays["v"]), fields(arrays["a"])
+    # exactly at a singular configuration the rates are unbounded (the driving coordinate does
+    # not carry the motion); masked name by name: on the stacked arrays XLA fuses the whole
+    # analysis differently, and slower
+    v, a = nan_where(arrays["singular"], (v, a))
     return Kinematics(
         q=arrays["q"], omega=arrays["omega"], alpha=arrays["alpha"],
         points=x[0], velocities=v[0], accelerations=a[0],
@@ -388,9 +467,19 @@ def kinematics(
     - ``check``: outside jit, raise :class:`AssemblyError` naming the group that
       cannot assemble; inside jit read ``Kinematics.ok`` instead.
 
+    **Singular configurations:** exactly at a dead centre of a group the outputs depend
+    on (an RRR dyad stretched or folded, an RRP/PRR rod square to its guide, an RPR guide
+    square to the line of its pins: the group's ``singularity`` measure within 1e-9 of
+    zero, where :func:`assurjax.simulate` refuses to start) the rates are unbounded: the
+    driving coordinate does not carry the motion there. Every velocity and acceleration
+    of such a sample is NaN; its positions are right and ``ok`` stays True. A step away
+    they are finite and large (a stretched dyad's ~1/sqrt of the distance in q). With
+    ``points``, only the groups those points need count: a point on the crank keeps its
+    velocity.
+
     **Example:**
     >>> mech = assurjax.load_scene("roberts").mechanism
-    >>> kin = assurjax.kinematics(mech, jnp.linspace(1.0, 1.5, 5))  # it assembles for |q| < 1.58 rad
+    >>> kin = assurjax.kinematics(mech, jnp.linspace(1.0, 1.5, 5))  # it assembles up to pi/2, its dyad stretched there
     >>> kin.points["P"].shape
     (5, 2)
     """

@@ -23,6 +23,8 @@ J_red(q) dw/dt + 0.5 dJ_red/dq w^2 = tau + tau_red(q, w, t)
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -31,7 +33,8 @@ from jaxtyping import Array
 
 from ._errors import AssurjaxError
 from ._jit import jit
-from ._kinematics import Coefficients, Kinematics, branch_coefficients, coefficients
+from ._kinematics import (Coefficients, Kinematics, branch_coefficients, coefficients, exactly_singular, nan_where,
+                          singular_groups)
 from ._loads import any_velocity_dependent, check_loads, driver_effort
 from ._mechanism import Mechanism
 from ._values import check_state_count, check_values
@@ -186,10 +189,23 @@ def reduce_coefficients(mechanism: Mechanism, gravity, loads, coeffs: Coefficien
     return reduction, kin
 
 
+# What is unbounded exactly at a singular configuration (where the driving coordinate does not carry the motion)
+REDUCED_FIELDS = ("inertia", "dinertia", "torque", "group_inertia", "group_dinertia", "group_torque")
+
+
+@jit
+def _reduce_public(mechanism, gravity, loads, q, omega, t) -> Reduction:
+    """:func:`reduce_single` with NaN J_red, dJ_red/dq and torques exactly at a singular
+    configuration (:func:`reduce`'s; a simulation reads the plain one, and refuses to start there)."""
+    red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t)
+    singular = exactly_singular(mechanism, singular_groups(mechanism), kin.points, kin.rotations)
+    return dataclasses.replace(red, **nan_where(singular, {name: getattr(red, name) for name in REDUCED_FIELDS}))
+
+
 @jit
 def _reduce_batch(mechanism, gravity, loads, q, omega, t):
     shape = q.shape
-    single = lambda q, w, t: reduce_single(mechanism, gravity, loads, q, w, t)  # noqa: E731
+    single = lambda q, w, t: _reduce_public(mechanism, gravity, loads, q, w, t)  # noqa: E731
     flat = jax.vmap(single)(q.reshape(-1), omega.reshape(-1), t.reshape(-1))
     return jax.tree.map(lambda v: v.reshape(shape + v.shape[1:]), flat)
 
@@ -207,6 +223,12 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
     Returns a :class:`Reduction`; also usable under ``jax.vmap`` / ``jax.jit``. Joint
     friction is left out of ``torque``: it depends on the reactions, so on dw/dt, and the
     simulation and :func:`assurjax.inverse_dynamics` solve it.
+
+    Exactly at a singular configuration of a group (a dead centre, see
+    :func:`assurjax.kinematics`) the kinematic coefficients are unbounded, as the driving
+    coordinate does not carry the motion there: ``inertia``, ``dinertia``, ``torque`` and
+    the group terms are NaN at such a q (``effort`` and ``ok`` stay); a step away they are
+    finite and large.
 
     **Example:**
     >>> scene = assurjax.load_scene("watt_sixbar")
@@ -226,7 +248,7 @@ def reduce(scene_or_mechanism, q, omega=0.0, t=0.0, *, loads=None, gravity=None)
                             f"{jnp.shape(t)}") from None
     q, omega, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q, omega, t))
     if not shape:
-        return reduce_single(mechanism, gravity, loads, q, omega, t)  # jitted inside (_reduce_with_kinematics)
+        return _reduce_public(mechanism, gravity, loads, q, omega, t)
     return _reduce_batch(mechanism, gravity, loads, q, omega, t)
 
 

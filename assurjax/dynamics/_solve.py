@@ -28,7 +28,7 @@ from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from .._values import all_finite, numbers_problem
-from .._kinematics import coefficients, singular_groups, singularity_measures
+from .._kinematics import START_SINGULAR_MEASURE, coefficients, singular_groups, singularity_measures
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
@@ -155,9 +155,6 @@ def _checked_start(sol: Solution, ok_start) -> Solution:
     return eqx.tree_at(lambda s: (s.result, s.failed_group_index), sol,
                        (RESULTS.where(bad, RESULTS.start_not_assembled, sol.result),
                         jnp.where(bad, jnp.argmin(ok_start), sol.failed_group_index)))
-
-
-START_SINGULAR_MEASURE = 1e-9  # |singularity measure| (a sine or cosine) below which a closed form sits on its square root's clamp
 
 
 def _checked_regular_start(sol: Solution, mechanism, measures, declared) -> Solution:
