@@ -570,6 +570,7 @@ def inverse_kinematics(
     elif not callable(quantity):
         raise AssurjaxError(f"inverse kinematics: quantity must be (point, 'x' | 'y') or a function of the pose, got {quantity!r}")
     check_values(AssurjaxError, "inverse kinematics", shape=(), value=value, q0=q0)
+    _check_newton_settings(rtol=rtol, atol=atol, max_steps=max_steps)
     value = jnp.asarray(value, dtype=float)
     q, ok = _inverse_jit(mechanism, by_structure(quantity), value, jnp.asarray(q0, dtype=float), rtol, atol, max_steps)
     if isinstance(ok, jax.core.Tracer):  # under jit, vmap or grad: no error can be raised, the result says it
@@ -581,6 +582,22 @@ def inverse_kinematics(
             "(out of reach on this assembly branch, or a group cannot assemble on the way)"
         )
     return q, pose_at(mechanism, q)
+
+
+NEWTON_STEPS_LIMIT = 10_000  # Newton meets its target in tens of steps; 10^9 steps ran over 12 min out of reach
+
+
+def _check_newton_settings(**settings) -> None:
+    """rtol and atol as simulate's (positive, finite, below 1); max_steps a positive integer up
+    to NEWTON_STEPS_LIMIT (0 ended as 'out of reach')."""
+    from .dynamics._settings import SIMULATION_KEYS, setting_problem  # dynamics imports this module
+
+    for key, value in settings.items():
+        problem = setting_problem(key, value) if key != "max_steps" else None
+        if key == "max_steps" and not (SIMULATION_KEYS[key][0](value) and value <= NEWTON_STEPS_LIMIT):
+            problem = f"expected a positive integer, at most {NEWTON_STEPS_LIMIT}, got {value!r}"
+        if problem is not None:
+            raise AssurjaxError(f"inverse kinematics: keyword '{key}': {problem}")
 
 
 class _PointCoordinate(eqx.Module):
