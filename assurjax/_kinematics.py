@@ -484,7 +484,8 @@ def kinematics(
     (5, 2)
     """
     if order not in (0, 1, 2):
-        raise AssurjaxError(f"order must be 0, 1 or 2, got {order}")
+        raise AssurjaxError(f"kinematics: order must be 0, 1 or 2, got {order!r}")
+    check_mechanism(mechanism, "kinematics")
     check_values(AssurjaxError, "kinematics", q=q, omega=omega, alpha=alpha)
     check_state_count(AssurjaxError, "kinematics", np.shape(q))
     q = jnp.asarray(q, dtype=float)

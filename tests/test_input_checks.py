@@ -178,3 +178,9 @@ def objective(mechanism):
 def test_optimize_checks_seed_and_schedule(design, keywords, fragment):
     refused(lambda: synthesis.optimize(design, objective, optax.adam, 5, options={"learning_rate": 0.01}, **keywords),
                  AssurjaxError, f"optimize: {fragment}")
+
+
+def test_kinematics_names_a_scene_given_for_a_mechanism_and_a_string_order():
+    scene = assurjax.load_scene("slider_crank")
+    refused(lambda: assurjax.kinematics(scene, 0.1), MechanismError, "kinematics", "scene.mechanism", "Scene")
+    refused(lambda: assurjax.kinematics(scene.mechanism, 0.1, order="2"), AssurjaxError, "order", "'2'")
