@@ -388,6 +388,8 @@ def _stacked_single(mechanism: Mechanism, q, omega, alpha, points, order: int, w
     coordinates, singular_at = _coordinates(mechanism, points, what, names, flag_singular=order > 0)
     x, dx, d2x, (ok, reads) = taylor(coordinates, q, order)
     singular = singular_at(x, reads)
+    if singular is not None:  # where a group cannot assemble its clamped closed form reads as singular: ok says so already
+        singular = singular & jnp.all(ok)
     vel = None if dx is None else jax.tree.map(lambda d: d * omega, dx)
     acc = None if d2x is None else jax.tree.map(lambda dd, d: dd * omega**2 + d * alpha, d2x, dx)
     return names, dict(q=q, omega=omega, alpha=alpha, x=x, v=vel, a=acc, ok=ok, singular=singular)

@@ -199,6 +199,8 @@ def _reduce_public(mechanism, gravity, loads, q, omega, t) -> Reduction:
     configuration (:func:`reduce`'s; a simulation reads the plain one, and refuses to start there)."""
     red, kin = reduce_with_kinematics(mechanism, gravity, loads, q, omega, t)
     singular = exactly_singular(mechanism, singular_groups(mechanism), kin.points, kin.rotations)
+    if singular is not None:  # not where a group cannot assemble (its clamped closed form reads as singular)
+        singular = singular & jnp.all(kin.ok)
     return dataclasses.replace(red, **nan_where(singular, {name: getattr(red, name) for name in REDUCED_FIELDS}))
 
 
