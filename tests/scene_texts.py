@@ -39,6 +39,44 @@ mode = "left"
 q0 = 0.2
 """
 
+# a slider-driven slider-crank: the piston B, driven along the x axis through O, turns the
+# crank O-A (0.1 m) through the rod A-B (0.3 m). Unlike SLIDER_DRIVEN (a rod and a rocker on
+# a second ground pivot) its dyad stretches and folds on the guide: dead centres at
+# q = 0.4 m (rod + crank) and 0.2 m (rod - crank)
+SLIDER_DRIVEN_CRANK = """
+[scene]
+name = "stroke"
+gravity = [0.0, -9.81]
+[ground]
+O = [0.0, 0.0]
+[links.piston]
+points = { B = [0.0, 0.0] }
+mass = 0.8
+inertia = 0.0
+[links.crank]
+points = { O = [0.0, 0.0], A = [0.1, 0.0] }
+com = [0.05, 0.0]
+mass = 0.5
+inertia = 0.001
+[links.rod]
+points = { A = [0.0, 0.0], B = [0.3, 0.0] }
+com = [0.15, 0.0]
+mass = 1.0
+inertia = 0.0075
+[[formation]]
+group = "slider"
+link = "piston"
+point = "B"
+guide_point = "O"
+direction = [1.0, 0.0]
+[[formation]]
+group = "RRR"
+name = "crank_rod"
+links = ["crank", "rod"]
+joints = ["O", "B", "A"]
+mode = "left"
+"""
+
 # the quick-return of tests/joint_reference.py (quick_return): an RPR dyad whose block slides
 # on the rotating rocker (a prismatic pair with a moving guide)
 QUICK_RETURN = """

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import assurjax
+from scene_texts import SLIDER_DRIVEN_CRANK
 
 LD = np.longdouble
 DELTA = 1e-6  # rad or m before the singular point: finite, large rates
@@ -27,39 +28,7 @@ L_AB, L_BC, L_DC = 0.18, 0.12, 0.18
 P_LOCAL = np.array([0.06, -0.16970562748477142])  # in link4's frame: x along B -> C
 Q_STRETCHED = np.pi / 2
 
-SLIDER_CRANK = """
-[scene]
-name = "stroke"
-gravity = [0.0, -9.81]
-[ground]
-O = [0.0, 0.0]
-[links.piston]
-points = { B = [0.0, 0.0] }
-mass = 0.8
-inertia = 0.0
-[links.crank]
-points = { O = [0.0, 0.0], A = [0.1, 0.0] }
-com = [0.05, 0.0]
-mass = 0.5
-inertia = 0.001
-[links.rod]
-points = { A = [0.0, 0.0], B = [0.3, 0.0] }
-com = [0.15, 0.0]
-mass = 1.0
-inertia = 0.0075
-[[formation]]
-group = "slider"
-link = "piston"
-point = "B"
-guide_point = "O"
-direction = [1.0, 0.0]
-[[formation]]
-group = "RRR"
-name = "crank_rod"
-links = ["crank", "rod"]
-joints = ["O", "B", "A"]
-mode = "left"
-"""
+# the slider-driven slider-crank (scene_texts.SLIDER_DRIVEN_CRANK): its lengths, masses and inertias
 CRANK, ROD = 0.1, 0.3
 MASS, INERTIA = dict(piston=0.8, crank=0.5, rod=1.0), dict(crank=0.001, rod=0.0075)
 
@@ -160,7 +129,7 @@ def roberts_kin(roberts, roberts_q):
 
 @pytest.fixture(scope="module")
 def stroke():
-    return assurjax.scene_from_dict(tomllib.loads(SLIDER_CRANK), source="stroke")
+    return assurjax.scene_from_dict(tomllib.loads(SLIDER_DRIVEN_CRANK), source="stroke")
 
 
 def test_roberts_dyad_is_stretched_at_pi_over_2():
