@@ -213,7 +213,7 @@ def cmd_kinematics(args) -> int:
     points = list(scene.outputs["points"]) or [p for p in mech.point_names if p not in mech.ground]
     units = _units(_driver_kind(mech))
     files = [_write_csv(out / "kinematics.csv", _kinematics_columns(mech, frames, points))]
-    ax = viz.plot_coupler_curves(frames, points)
+    ax = viz.plot_coupler_curves(frames, points, mechanism=mech)  # framed on the mechanism: a path may run off
     files.append(_savefig(ax.figure, out / "coupler_curves.png"))
     ax = viz.plot_angular_velocities(frames, driver_kind=_driver_kind(mech))
     ax.set_ylabel(f"angular velocity per unit driving speed\n(rad/s per {units['omega']})")
@@ -629,7 +629,7 @@ def _path_frames(scene, sol, quiet: bool):
 def _paths_figure(scene, frames, points):
     from . import viz
 
-    ax = viz.plot_coupler_curves(frames, points)
+    ax = viz.plot_coupler_curves(frames, points, mechanism=scene.mechanism)  # framed on the mechanism: a path may run off
     ax.set_title(f"{scene.name}: paths of the output points during the motion")
     return ax.figure
 

@@ -621,6 +621,38 @@ def test_kinematics_leaves_empty_cells_and_names_the_gaps_where_it_does_not_asse
     assert "cannot assemble for q in [0, 0], [3.14159, 3.14159]" in printed and "q from" not in printed
 
 
+def test_coupler_curves_frame_the_mechanism_not_a_path_that_runs_off(tmp_path, monkeypatch):
+    """The tangent drive (O = (0, 0) and H = (0, h) on the ground, h = 0.2 m, a 0.1 m crank:
+    its links reach x in [-0.1, 0.1], y in [-0.1, 0.3]): over the kinematics' turn J = (h cot q, h)
+    runs to h cot(pi/360) = 22.9 m beside the parallel guides. coupler_curves.png, of the
+    sweep and of a run's paths, holds the mechanism's reach, a few of its sizes wide (it spanned
+    46 m), and its x label says the path is cut."""
+    import matplotlib.pyplot as plt
+
+    from assurjax import cli, viz
+
+    shown = {}
+    real = cli._savefig
+
+    def keep_axes(fig, path):
+        ax = fig.axes[0]
+        shown[path.name] = (ax.get_xlim(), ax.get_ylim(), ax.get_xlabel())
+        return real(fig, path)
+
+    monkeypatch.setattr(cli, "_savefig", keep_axes)
+    assert main(["kinematics", "tangent_drive", "--out", str(tmp_path), "--quiet"]) == 0
+    scene = assurjax.load_scene("tangent_drive")
+    q = np.linspace(-np.pi / 2, 3 * np.pi / 2, 721)  # the sweep's q: the compiled kinematics again
+    paths = cli._paths_figure(scene, viz.frames_from_kinematics(cli.sweep_kinematics(scene.mechanism, q)), ["J"])
+    ax = paths.axes[0]
+    shown["run"] = (ax.get_xlim(), ax.get_ylim(), ax.get_xlabel())
+    plt.close(paths)
+    for (x0, x1), (y0, y1), label in (shown["coupler_curves.png"], shown["run"]):
+        assert x0 <= -0.1 and x1 >= 0.1 and y0 <= -0.1 and y1 >= 0.3
+        assert x1 - x0 <= 4 * 0.4 and y1 - y0 <= 4 * 0.4
+        assert "the path of J is cut at the edge: it reaches x in [-22.9, 22.9]" in label
+
+
 def test_kinematics_ranges_and_drawing_take_undefined_ratios(tmp_path, monkeypatch, capsys):
     """At a singular configuration a velocity ratio is undefined (NaN): the printed ranges
     are those of the defined values (the slider-crank's rod: dtheta/dq = r cos q / (l cos phi),

@@ -369,6 +369,8 @@ def test_ground_guides_drawn_through_the_sliding_points():
         (lambda m: viz.plot_velocity_polygon({"A": [1.0, 0.0]}, unit="km"), "plot_velocity_polygon: unit must be one of 'm', 'cm', 'mm'"),
         (lambda m: viz.plot_reduced(np.arange(5.0), np.ones(5), driver_kind="rocket"), "plot_reduced: driver_kind must be one of 'crank', 'slider'"),
         (lambda m: viz.plot_angular_velocities(viz.mechanism_frames(m, [0.1]), driver_kind="rocket"), "plot_angular_velocities: driver_kind"),
+        (lambda m: viz.plot_coupler_curves(viz.mechanism_frames(m, [0.1]), mechanism=assurjax.load_scene("watt_sixbar")),
+         "plot_coupler_curves: expected an assurjax.Mechanism"),
     ],
 )
 @pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # refused before rendering
@@ -514,3 +516,44 @@ def test_no_legend_past_the_colour_cycle(tmp_path):
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # a collapsed layout warns
             ax.figure.savefig(tmp_path / f"{count}.png")
+
+
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")  # an earlier test's, collected here
+def test_coupler_curves_frame_the_mechanism_not_a_path_that_runs_off():
+    """The tangent drive: O = (0, 0) and H = (0, h) on the ground, a 0.1 m crank: its links
+    reach x in [-0.1, 0.1], y in [-0.1, h + 0.1] (0.4 m). Over a turn that steps over the
+    parallel guides (q = 0, pi) J = (h cot q, h) runs to h cot(pi/720) = 45.8 m: the axes
+    frame the mechanism (they hold its reach, a few of its sizes wide), J's path runs to
+    their edge and is cut there, no segment crosses them between two samples outside (one
+    from -45.8 m to 45.8 m across the singular position), and the x label says how far it reaches."""
+    mech = assurjax.load_scene("tangent_drive").mechanism
+    q = np.linspace(-np.pi / 2, 3 * np.pi / 2, 721) + np.pi / 720  # no sample where the guides are parallel
+    frames = viz.mechanism_frames(mech, q)
+    assert frames.ok.all()
+    ax = viz.plot_coupler_curves(frames, ["J"], mechanism=mech)
+    ax.figure.canvas.draw()  # the limits as drawn, after the equal aspect is applied
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    crank, size = 0.1, H_TANGENT + 2 * 0.1
+    assert x0 <= -crank and x1 >= crank and y0 <= -crank and y1 >= H_TANGENT + crank
+    assert x1 - x0 <= 4 * size and y1 - y0 <= 4 * size
+    far = H_TANGENT / np.tan(np.pi / 720)
+    assert f"the path of J is cut at the edge: it reaches x in [{-far:.3g}, {far:.3g}]" in ax.get_xlabel()
+    x = ax.lines[0].get_xdata()
+    assert np.nanmin(x) < x0 and np.nanmax(x) > x1  # it runs on past both edges
+    inside = (x >= x0) & (x <= x1)
+    drawn = np.isfinite(x[:-1]) & np.isfinite(x[1:])
+    assert not np.any(drawn & ~inside[:-1] & ~inside[1:])
+
+
+def test_coupler_curves_that_stay_near_the_mechanism_are_drawn_whole(watt, watt_frames):
+    """The Watt six-bar's paths of A, B, E stay within its links' reach: given the mechanism,
+    each is drawn whole, at the closed-form positions, inside the axes, and nothing is said cut."""
+    ax = viz.plot_coupler_curves(watt_frames, ["A", "B", "E"], mechanism=watt)
+    ax.figure.canvas.draw()
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert ax.get_xlabel() == "x (m)"
+    for line, name in zip(ax.lines, ("A", "B", "E")):
+        expected = np.array([jr.watt_sixbar_points(qi)[0][name] for qi in Q_WATT])
+        np.testing.assert_allclose(np.column_stack(line.get_data()), expected, atol=1e-12)
+        assert np.all((x0 < expected[:, 0]) & (expected[:, 0] < x1) & (y0 < expected[:, 1]) & (expected[:, 1] < y1))
+

@@ -211,12 +211,12 @@ class MechanismDrawing:
         s = self.scale
         box_lo = np.array([self.ax.get_xlim()[0], self.ax.get_ylim()[0]]) / s
         box_hi = np.array([self.ax.get_xlim()[1], self.ax.get_ylim()[1]]) / s
-        notes = [_clipped_note(f"path of {n}", (xy.min(axis=0), xy.max(axis=0)), s, unit)
+        notes = [clipped_note(f"path of {n}", (xy.min(axis=0), xy.max(axis=0)), s, unit)
                  for n, xy in self._path_points(trace).items() if np.any((xy < box_lo) | (xy > box_hi))]
         for p, xy in self._arrow_tips().items():
             out = int(np.count_nonzero(np.any((xy < box_lo) | (xy > box_hi), axis=1)))
             if out:
-                notes.append(_clipped_note(f"velocity arrow of {p}", (out, len(xy)), s, unit))
+                notes.append(clipped_note(f"velocity arrow of {p}", (out, len(xy)), s, unit))
         self.ax.set_xlabel("\n".join([self.ax.get_xlabel(), *notes]))
 
     def _draw_ground(self):
@@ -304,12 +304,14 @@ class MechanismDrawing:
         return np.array([base + min(*reach, -block) * along, base + max(*reach, block) * along])
 
 
-def _clipped_note(what: str, clipped, scale: float, unit: str) -> str:
+def clipped_note(what: str, clipped, scale: float, unit: str) -> str:
     """The x label's words for a path or an arrow cut at the axes' edge."""
     if isinstance(clipped[0], int):  # (frames where it does, frames)
         where = f" in {clipped[0]} of {clipped[1]} frames" if clipped[1] > 1 else ""
         return f"(the {what} reaches past the edge{where}: cut there)"
-    (x0, y0), (x1, y1) = np.asarray(clipped[0]) * scale, np.asarray(clipped[1]) * scale
+    corners = np.array([clipped[0], clipped[1]], dtype=float) * scale
+    corners[np.abs(corners) <= 1e-12 * np.abs(corners).max()] = 0.0  # round-off, not a place (h cot(pi/2) = 1.2e-17 m)
+    (x0, y0), (x1, y1) = corners
     return f"(the {what} is cut at the edge: it reaches x in [{x0:.3g}, {x1:.3g}], y in [{y0:.3g}, {y1:.3g}] {unit})"
 
 

@@ -109,3 +109,20 @@ def extent(frames: Frames, names: Iterable[str] | None = None) -> tuple[np.ndarr
     xy = xy[np.all(np.isfinite(xy), axis=1)]
     xy = xy if len(xy) else np.zeros((1, 2))
     return xy.min(axis=0), xy.max(axis=0)
+
+
+def _link_size(points) -> float:
+    """The largest extent (m) of a link's points in its own frame; 0 for a single point."""
+    xy = np.array([np.asarray(p, dtype=float) for p in points.values()]).reshape(-1, 2)
+    return float(np.ptp(xy, axis=0).max()) if len(xy) else 0.0
+
+
+def reach_box(mechanism: Mechanism) -> tuple[np.ndarray, np.ndarray]:
+    """Lower-left and upper-right corners (m) of the region the mechanism spans about its
+    ground: the box of its ground points widened on every side by its longest link. From its
+    geometry alone: a path that runs off near a singular position does not widen it, as it
+    widens the points' extent."""
+    ground = np.array([np.asarray(xy, dtype=float) for xy in mechanism.ground.values()]).reshape(-1, 2)
+    ground = ground if len(ground) else np.zeros((1, 2))
+    longest = max((_link_size(link.points) for link in mechanism.links.values()), default=0.0)
+    return ground.min(axis=0) - longest, ground.max(axis=0) + longest

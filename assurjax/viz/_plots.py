@@ -12,8 +12,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._errors import AssurjaxError
-from ._draw import trace_color
-from ._frames import Frames, length_scale, masked
+from .._mechanism import Mechanism, check_mechanism
+from ._draw import clipped_note, trace_color
+from ._frames import Frames, length_scale, masked, reach_box
 
 
 def _axes(ax, figsize=(6, 4)):
@@ -56,7 +57,11 @@ def driving_label(frames_or_kind) -> str:
     return "driving coordinate q (m)" if kind == "slider" else "crank angle q (rad)"
 
 
-def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, ax=None, unit: str = "m", equal: bool = True):
+VIEW_REACH = 1.0  # how far (in mechanism sizes) beyond the mechanism the coupler curves' view reaches
+
+
+def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, ax=None, unit: str = "m", equal: bool = True,
+                        mechanism: Mechanism | None = None):
     """Paths of ``points`` (default: all) over the configurations of ``frames``.
 
     Gaps show driving coordinates where the mechanism does not assemble; each point
@@ -64,9 +69,16 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
     independently (Fanghella et al. 2019, Fig. 2b, where y_P is the straight-line error).
     For smooth curves pass enough configurations (e.g. 721 over a turn).
 
+    ``mechanism`` (the frames' own): the paths are shown within a view a mechanism's size
+    beyond it (its ground points widened by its longest link, on every side). Near a singular
+    position a point can run off far beyond the mechanism (the tangent drive's J to 23 m from
+    a 0.3 m mechanism over a turn): then the axes frame the mechanism and what stays in the
+    view, such a path is cut at their edge and the x label says how far it reaches. Paths
+    that stay in the view are drawn as without ``mechanism``.
+
     **Example:**
     >>> frames = assurjax.viz.mechanism_frames(mech, np.linspace(0, 2 * np.pi, 721))
-    >>> assurjax.viz.plot_coupler_curves(frames, ["E"], unit="mm")
+    >>> assurjax.viz.plot_coupler_curves(frames, ["E"], unit="mm", mechanism=mech)
     """
     s = length_scale(unit, "plot_coupler_curves")
     ax = _axes(ax)
@@ -74,20 +86,74 @@ def plot_coupler_curves(frames: Frames, points: Iterable[str] | None = None, *, 
     unknown = [n for n in names if n not in frames.points]
     if unknown:
         raise AssurjaxError(f"plot_coupler_curves: unknown point(s) {unknown}; the frames have {sorted(frames.points)}")
+    box = view = None
+    if mechanism is not None:
+        check_mechanism(mechanism, "plot_coupler_curves")
+        box = reach_box(mechanism)
+        view = _view(*box)
     for k, name in enumerate(names):
-        xy = masked(frames.points[name], frames.ok) * s
+        xy = masked(frames.points[name], frames.ok)
+        if view is not None:
+            xy = _broken_outside(xy, *view)
         shown = np.asarray(frames.points[name])[np.asarray(frames.ok)]
         still = shown.size > 0 and np.ptp(shown, axis=0).max() == 0.0
-        ax.plot(xy[:, 0], xy[:, 1], "o" if still else "-", color=trace_color(k),
+        ax.plot(xy[:, 0] * s, xy[:, 1] * s, "o" if still else "-", color=trace_color(k),
                 label=f"{name} (at rest)" if still else f"path of {name}")
-    if equal:
-        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(f"x ({unit})")
     ax.set_ylabel(f"y ({unit})")
+    framed = view is not None and _frame_mechanism(ax, {n: _assembled(frames, n) for n in names}, box, view, s, unit)
+    if equal:  # the limits a framed view set are kept; otherwise matplotlib widens one of them for the aspect
+        ax.set_aspect("equal", adjustable="box" if framed else "datalim")
     ax.set_title("coupler curves")
     ax.grid(True, lw=0.3)
     place_legend_clear(ax, len(names))
     return ax
+
+
+def _view(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (m) of the coupler curves' view: the mechanism's reach box (``lo``, ``hi``,
+    see ``reach_box``), VIEW_REACH of its size farther on every side."""
+    size = float(np.max(hi - lo)) or 1.0
+    return lo - VIEW_REACH * size, hi + VIEW_REACH * size
+
+
+def _inside(xy: np.ndarray, lo, hi) -> np.ndarray:
+    return np.all((xy >= lo) & (xy <= hi), axis=1)
+
+
+def _broken_outside(xy: np.ndarray, lo, hi) -> np.ndarray:
+    """``xy`` with a gap (a NaN row) between two samples that are both outside the view: their
+    segment, where a path runs off to one side and comes back from the other, would otherwise
+    cross the view as a straight line. A segment from inside to outside is kept (cut at the
+    axes' edge)."""
+    out = ~_inside(xy, lo, hi)
+    return np.insert(xy, np.flatnonzero(out[:-1] & out[1:]) + 1, np.nan, axis=0)
+
+
+def _assembled(frames: Frames, name: str) -> np.ndarray:
+    """A point's finite positions (m) where the mechanism assembles."""
+    xy = np.asarray(frames.points[name])[np.asarray(frames.ok)]
+    return xy[np.all(np.isfinite(xy), axis=1)]
+
+
+def _frame_mechanism(ax, paths: dict[str, np.ndarray], box, view, scale: float, unit: str) -> bool:
+    """Where a path leaves the ``view``: axes around the mechanism's reach ``box`` and the
+    paths' points within the view, each path that leaves cut at their edge and named in the x
+    label with how far it reaches; True. Otherwise False: matplotlib's own limits, around the
+    whole paths."""
+    lo, hi = view
+    leaving = {n: xy for n, xy in paths.items() if not _inside(xy, lo, hi).all()}
+    if not leaving:
+        return False
+    near = np.concatenate([np.array(box), *[xy[_inside(xy, lo, hi)] for xy in paths.values()]])
+    a, b = near.min(axis=0), near.max(axis=0)
+    pad = 0.05 * float(np.max(b - a))
+    a, b = np.maximum(a - pad, lo), np.minimum(b + pad, hi)  # not past the view: a path leaving it runs to the axes' edge
+    ax.set_xlim(a[0] * scale, b[0] * scale)
+    ax.set_ylim(a[1] * scale, b[1] * scale)
+    notes = [clipped_note(f"path of {n}", (xy.min(axis=0), xy.max(axis=0)), scale, unit) for n, xy in leaving.items()]
+    ax.set_xlabel("\n".join([ax.get_xlabel(), *notes]))
+    return True
 
 
 def plot_against(x, series: Mapping[str, np.ndarray], *, xlabel: str, ylabel: str, ax=None, title: str | None = None, ok=None, styles: Mapping[str, str] | None = None):
