@@ -557,3 +557,18 @@ def test_coupler_curves_that_stay_near_the_mechanism_are_drawn_whole(watt, watt_
         np.testing.assert_allclose(np.column_stack(line.get_data()), expected, atol=1e-12)
         assert np.all((x0 < expected[:, 0]) & (expected[:, 0] < x1) & (y0 < expected[:, 1]) & (expected[:, 1] < y1))
 
+
+def test_a_drawing_refuses_a_q_that_does_not_assemble(roberts_scene):
+    """The Roberts linkage at q = pi: |B D| = 0.42 m > BC + DC = 0.30 m (closed form), its dyad
+    'dyad43' does not assemble. draw_mechanism refuses it as animate does (the kinematics'
+    AssemblyError naming the group and q), before opening a figure; with check=False it draws
+    it marked: its title says so, its links faded, no joints nor labels."""
+    mech = roberts_scene.mechanism
+    with pytest.raises(assurjax.AssemblyError, match=r"draw_mechanism: group 'dyad43' .* cannot assemble at q = 3\.14159") as caught:
+        viz.draw_mechanism(mech, np.pi)
+    assert caught.value.group == "dyad43" and "check=False" in str(caught.value)
+    assert not plt.get_fignums()
+    drawing = viz.draw_mechanism(mech, np.pi, check=False)
+    assert "it does not assemble there" in drawing.ax.get_title()
+    assert not drawing.joints.get_visible() and not any(label.get_visible() for label in drawing.labels.values())
+    assert all(artist.get_alpha() < 0.1 for artist, _ in drawing.link_artists.values())

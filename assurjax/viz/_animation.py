@@ -21,11 +21,11 @@ import numpy as np
 from matplotlib.animation import FuncAnimation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from .._errors import AssemblyError, AssurjaxError
+from .._errors import AssurjaxError
 from .._kinematics import point_names
 from .._mechanism import Mechanism, check_mechanism
 from .._values import check_value, check_values
-from ._draw import VELOCITY_COLOR, MechanismDrawing, place_legend
+from ._draw import VELOCITY_COLOR, MechanismDrawing, place_legend, posed_frames
 from ._frames import check_coordinates, length_scale, mechanism_frames
 
 MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
@@ -70,7 +70,8 @@ def animate(
     """
     _check_request(mechanism, q, t, trace_q, unit, interval_ms)
     velocities, trace = point_names(mechanism, velocities, "animate: velocities"), point_names(mechanism, trace, "animate: trace")
-    frames = _frames_to_show(mechanism, q, omega, bool(velocities), check)
+    frames = posed_frames("animate", mechanism, q, omega, velocities=bool(velocities), check=check,
+                          hint="every frame must be a pose (check=False draws such frames marked)")
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     trace_frames = None if trace_q is None or not tuple(trace) else mechanism_frames(mechanism, trace_q)
@@ -121,16 +122,6 @@ def _check_times(t, count: int) -> None:
         i = int(back[0]) + 1
         raise AssurjaxError(f"animate: t must not decrease from frame to frame (s), got t[{i}] = {t[i]:.6g} after "
                             f"t[{i - 1}] = {t[i - 1]:.6g}")
-
-
-def _frames_to_show(mechanism, q, omega, velocities: bool, check: bool):
-    """The frames, refused (AssemblyError, from assurjax.kinematics' own check) where a group
-    cannot assemble, unless ``check`` is False."""
-    try:
-        return mechanism_frames(mechanism, q, omega, velocities=velocities, check=check)
-    except AssemblyError as e:
-        raise AssemblyError(f"animate: {e}; every frame must be a pose (check=False draws such frames marked)",
-                            group=e.group) from e
 
 
 def render_frames(anim: FuncAnimation, *, progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Polygon
 
-from .._errors import AssurjaxError
+from .._errors import AssemblyError, AssurjaxError
 from .._kinematics import point_names
 from .._mechanism import Mechanism
 from .._values import check_value, check_values
@@ -330,6 +330,16 @@ def _check_drawing_request(q, omega, trace_q, unit, velocity_scale) -> None:
         check_coordinates("draw_mechanism", "trace_q", trace_q)
 
 
+def posed_frames(where: str, mechanism: Mechanism, q, omega, *, velocities: bool, check: bool, hint: str) -> Frames:
+    """The frames at ``q``, refused where a group cannot assemble (the kinematics' own
+    AssemblyError, naming the group and q, prefixed by ``where`` and followed by ``hint``)
+    unless ``check`` is False: then such frames are kept, flagged in ``Frames.ok``."""
+    try:
+        return mechanism_frames(mechanism, q, omega, velocities=velocities, check=check)
+    except AssemblyError as e:
+        raise AssemblyError(f"{where}: {e}; {hint}", group=e.group) from e
+
+
 def place_legend(ax):
     """The legend outside the drawing, on its right, so it never hides the mechanism; none
     where nothing is named (see ``MechanismDrawing._make_links``)."""
@@ -349,6 +359,7 @@ def draw_mechanism(
     unit: str = "m",
     labels: bool = True,
     velocity_scale: float | None = None,
+    check: bool = True,
 ):
     """Draw ``mechanism`` at driving coordinate ``q`` (rad or m).
 
@@ -358,16 +369,22 @@ def draw_mechanism(
     driving coordinates; default a full turn around q) are drawn dashed, one colour per point.
     Returns the :class:`MechanismDrawing` (its ``ax`` is the Axes).
 
+    ``q`` must be a pose, as every frame of :func:`animate`: a q where some group cannot
+    assemble raises :class:`assurjax.AssemblyError` naming the group and q. With
+    ``check=False`` it is drawn marked instead: its links faded, no joints, labels nor arrows
+    (its positions are no pose), and the title says it does not assemble there.
+
     **Example:**
     >>> drawing = assurjax.viz.draw_mechanism(mech, 1.0, velocities=["P"], trace=["P"], unit="mm")
     """
     velocities = point_names(mechanism, velocities, "draw_mechanism: velocities")
     trace = point_names(mechanism, trace, "draw_mechanism: trace")
     _check_drawing_request(q, omega, trace_q, unit, velocity_scale)
+    frames = posed_frames("draw_mechanism", mechanism, [q], omega, velocities=bool(velocities), check=check,
+                          hint="q must be a pose (check=False draws it faded)")  # before a figure is opened
     own_figure = ax is None
     if own_figure:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
-    frames = mechanism_frames(mechanism, [q], omega, velocities=bool(velocities))
     trace_frames = None
     if trace:
         trace_q = np.asarray(trace_q if trace_q is not None else q + np.linspace(-np.pi, np.pi, 361), dtype=float)
