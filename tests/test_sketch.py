@@ -12,6 +12,7 @@ References, independent of the code under test:
 from __future__ import annotations
 
 import re
+import time
 import tomllib
 
 import equinox as eqx
@@ -441,6 +442,80 @@ def test_undecomposable_topology_is_rejected_with_its_links():
     sk = Sketch(pts | {}, links | {}, ground=["O", "E2", "P"], slides=[Slide("block", "ground", (0.2, 1.0))], driver="crank")
     with pytest.raises(MechanismError, match="links L1, T, L2, block cannot be decomposed"):
         sk.mechanism()
+
+
+def four_bar_chain(n: int) -> tuple[dict, dict]:
+    """Joints and links of n four-bar windows in a row (IFToMM A02's N-four-bar, rockers pulled
+    aside in turn): rockers O_i -> B_i on the ground pivots O_i, couplers B_i -> B_i+1."""
+    joints = {f"O{i}": (float(i), 0.0) for i in range(n + 1)} | {f"B{i}": (i + 0.1 * (-1) ** i, 0.98) for i in range(n + 1)}
+    links = {f"rocker{i}": [f"O{i}", f"B{i}"] for i in range(n + 1)} | {f"coupler{i}": [f"B{i}", f"B{i + 1}"] for i in range(n)}
+    return joints, links
+
+
+def triad_chain(n: int) -> tuple[dict, dict, list]:
+    """Joints, links and ground joints of a crank and n class-III triads, each hung on the one
+    before: plate k (P, Q, R) on arm k from the previous plate's P (the crank's A for the first)
+    and on upper k, lower k from the ground joints E, F."""
+    joints, links, ground, last = {"O": (0.0, 0.0), "A": (0.3, 0.1)}, {"crank": ["O", "A"]}, ["O"], "A"
+    for k in range(n):
+        joints |= {f"E{k}": (k + 1.0, 0.5), f"F{k}": (k + 1.0, -0.5), f"P{k}": (k + 0.35, 0.05), f"Q{k}": (k + 0.65, 0.25),
+                   f"R{k}": (k + 0.65, -0.2)}
+        links |= {f"plate{k}": [f"P{k}", f"Q{k}", f"R{k}"], f"arm{k}": [last, f"P{k}"], f"upper{k}": [f"E{k}", f"Q{k}"],
+                  f"lower{k}": [f"F{k}", f"R{k}"]}
+        ground += [f"E{k}", f"F{k}"]
+        last = f"P{k}"
+    return joints, links, ground
+
+
+def test_an_under_constrained_chain_is_named_in_a_few_words():
+    # 300 windows without rocker1: only the crank is placed, and Gruebler's count is 2 (a bar
+    # less: 3 coordinates and 2 pairs fewer). The message counts the links and joints left and
+    # names the first few (it listed all 599 links)
+    n = 300
+    joints, links = four_bar_chain(n)
+    del links["rocker1"], joints["O1"]
+    sk = Sketch(joints, links, ground=[j for j in joints if j.startswith("O")], driver="rocker0")
+    with pytest.raises(MechanismError) as info:
+        decompose(sk)
+    message = str(info.value)
+    left = [name for name in links if name != "rocker0"]
+    assert "= 2, expected 1: 1 degree(s) of freedom left" in message
+    assert f"{len(left)} of the {len(links)} links are in no group" in message
+    assert f"links {', '.join(left[:8])} and {len(left) - 8} more" in message
+    assert f"joints {', '.join(f'B{i}' for i in range(1, 9))} and {n - 8} more not determined" in message
+    assert len(message) < 600
+
+
+def test_a_chain_at_the_size_bound_decomposes_window_by_window_and_fast():
+    # 999 links (the bound is 1000) in a random order: each window hangs on the one before, so
+    # window i (coupler i, rocker i+1) is the group after window i-1, whatever the order
+    n = 499
+    joints, links = four_bar_chain(n)
+    names = list(links)
+    order = [names[i] for i in np.random.default_rng(0).permutation(len(names))]
+    sk = Sketch(joints, {k: links[k] for k in order}, ground=[f"O{i}" for i in range(n + 1)], driver="rocker0")
+    start = time.perf_counter()
+    dec = decompose(sk)
+    assert time.perf_counter() - start < 1.0
+    assert [g.kind for g in dec.groups] == ["crank"] + ["RRR"] * n
+    assert [set(g.links) for g in dec.groups[1:]] == [{f"coupler{i}", f"rocker{i + 1}"} for i in range(n)]
+
+
+def test_a_chain_of_triads_at_the_size_bound_decomposes_in_order_and_fast():
+    # 249 triads (997 links) listed last first: the search that looked at every link again each
+    # round took ~30 s; only the triad hung on the last one placed can come next
+    n = 249
+    joints, links, ground = triad_chain(n)
+    order = ["crank"] + [k for k in reversed(links) if k != "crank"]
+    sk = Sketch(joints, {k: links[k] for k in order}, ground=ground, driver="crank")
+    start = time.perf_counter()
+    dec = decompose(sk)
+    assert time.perf_counter() - start < 1.0
+    assert [g.kind for g in dec.groups] == ["crank"] + ["triad"] * n
+    for k, g in enumerate(dec.groups[1:]):
+        assert g.links[0] == f"plate{k}" and set(g.links[1:]) == {f"arm{k}", f"upper{k}", f"lower{k}"}
+        assert set(g.joints[:3]) == {f"P{k - 1}" if k else "A", f"E{k}", f"F{k}"}
+        assert set(g.joints[3:]) == {f"P{k}", f"Q{k}", f"R{k}"}
 
 
 def test_toml_sketch_errors_name_the_field(write_scene):

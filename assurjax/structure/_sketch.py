@@ -16,8 +16,9 @@ from ..groups import GROUND
 
 LINK_FIELDS = ("joints", "mass", "inertia", "com", "density")
 MIN_EXTENT = 1e-100  # m: below it the squares of the drawing's lengths underflow
-# A sketch's size: 12 times the 81 links of bench_decomposition.py's 40-group chain. Its
-# decomposition grows with the square of the links: ~1.5 s at the bound, 5 s at 2000 links.
+# A sketch's size: 12 times the 81 links of bench_decomposition.py's 40-group chain. At the
+# bound its decomposition takes ~20 ms (it grows about linearly) and its build ~1 s (the
+# mechanism's arrays and checks), and the traced programs grow with it.
 MAX_LINKS = 1000
 MAX_JOINTS = 2 * MAX_LINKS  # a chain has about one joint a link; plates have more
 
@@ -136,8 +137,8 @@ class Sketch:
 def _check_size(joints: dict, links: dict) -> None:
     for what, table, limit in (("links", links, MAX_LINKS), ("joints", joints, MAX_JOINTS)):
         if len(table) > limit:
-            raise MechanismError(f"the sketch has {len(table)} {what}; at most {limit} (its decomposition's "
-                                 "work grows with the square of its size)")
+            raise MechanismError(f"the sketch has {len(table)} {what}; at most {limit} (its build and the traced "
+                                 "programs grow with its size)")
 
 
 def _number(v, what: str) -> float:
