@@ -16,6 +16,13 @@ from ._values import check_value, concrete as _concrete
 from .groups._base import GROUND, AbstractGroup, Link
 
 
+# A mechanism's size: the scene loader's bound on a table (its MAX_ENTRIES), room for
+# assurjax.n_four_bar(1000) (2001 links, 1001 groups, 1001 ground points, 4002 points on its
+# links), whose constructor takes ~0.6 s; the checks grow with the size, 10^6 links ran for minutes.
+MAX_PARTS = 2500  # ground points, links, groups: each
+MAX_POINTS = 4 * MAX_PARTS  # the points of all links together
+
+
 COM_PREFIX = "com:"
 """``"com:<link>"`` names a link's centre of mass where a load's point goes; no point may be so named."""
 
@@ -45,7 +52,9 @@ class Mechanism(eqx.Module):
     and the ground) is the revolute joint between them.
 
     Build-time checks (structure and, when the values are concrete, lengths,
-    masses and inertias) raise :class:`MechanismError` naming the culprit.
+    masses and inertias) raise :class:`MechanismError` naming the culprit. A mechanism has
+    at most 2500 ground points, links and groups each, and 10000 points on its links in all
+    (``MAX_PARTS``, ``MAX_POINTS``: a scene file's bound, room for ``n_four_bar(1000)``).
     """
 
     ground: dict[str, Array]
@@ -55,9 +64,11 @@ class Mechanism(eqx.Module):
     name: str = eqx.field(static=True)
 
     def __init__(self, ground: Mapping, links: Mapping[str, Link], groups: Iterable[AbstractGroup], *, name: str = "mechanism"):
+        groups = tuple(groups)
+        _check_size(name, ground, links, groups)  # before any value is converted or checked
         self.ground = {k: jnp.asarray(v, dtype=float) for k, v in ground.items()}
         self.links = dict(links)
-        self.groups = tuple(groups)
+        self.groups = groups
         _check_kinds(self.links, self.groups)
         self.name = name
         self.owner = tuple(_check_structure(self.ground, self.links, self.groups).items())
@@ -97,6 +108,17 @@ class Mechanism(eqx.Module):
                 if owner[p] != GROUND:
                     todo.append(group_of[owner[p]])
         return tuple(sorted(needed))
+
+
+def _check_size(name: str, ground: Mapping, links: Mapping, groups: tuple) -> None:
+    for field, table in (("ground", ground), ("links", links), ("groups", groups)):
+        if len(table) > MAX_PARTS:
+            raise MechanismError(f"mechanism '{name}': {field} has {len(table)} entries; at most {MAX_PARTS} (the "
+                                 "checks and the traced program grow with the size)")
+    points = sum(len(link.points) for link in links.values() if isinstance(link, Link))
+    if points > MAX_POINTS:
+        raise MechanismError(f"mechanism '{name}': links has {points} points in all; at most {MAX_POINTS} (the checks "
+                             "and the traced program grow with the size)")
 
 
 def _check_structure(ground, links, groups) -> dict[str, str]:

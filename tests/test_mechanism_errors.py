@@ -2,6 +2,7 @@
 (scene field, group, link or point), never a raw JAX traceback or a silent NaN."""
 
 import copy
+import time
 
 import equinox as eqx
 import jax
@@ -325,6 +326,43 @@ def test_python_mechanism_errors_name_the_culprit():
     lonely = Link(points={"S": jnp.zeros(2)}, com=jnp.zeros(2), mass=jnp.asarray(1.0), inertia=jnp.asarray(0.0))
     with raises(MechanismError, "'lonely'", "no group"):
         Mechanism(mech.ground, {**mech.links, "lonely": lonely}, mech.groups)
+
+
+def test_a_mechanism_built_in_python_is_bounded_by_field():
+    """At most 2500 ground points, links and groups each and 10000 points on the links, as a scene
+    file: refused by name before any value is read (values that are not points, and no structure
+    check, come later)."""
+    mech = scene().mechanism
+    bar, crank = mech.links["coupler"], mech.groups[0]
+    plate = Link(points={f"P{i}": [float(i), i % 2] for i in range(5)})
+    cases = [
+        (lambda: Mechanism({f"G{i}": "not a point" for i in range(2501)}, mech.links, mech.groups),
+         ["mechanism 'mechanism': ground has 2501 entries", "at most 2500"]),
+        (lambda: Mechanism(mech.ground, {f"bar{i}": bar for i in range(3000)}, mech.groups, name="big"),
+         ["mechanism 'big': links has 3000 entries", "at most 2500"]),
+        (lambda: Mechanism(mech.ground, mech.links, (crank for _ in range(2501))),
+         ["groups has 2501 entries", "at most 2500"]),
+        (lambda: Mechanism(mech.ground, {f"plate{i}": plate for i in range(2001)}, mech.groups),
+         ["links has 10005 points in all", "at most 10000"]),
+    ]
+    for build, fragments in cases:
+        start = time.perf_counter()
+        with raises(MechanismError, *fragments):
+            build()
+        assert time.perf_counter() - start < 1.0
+
+
+def test_the_mechanism_bound_holds_the_largest_generated_and_loaded_mechanisms():
+    # n_four_bar at its bound of 1000 windows (2001 links; building it takes seconds: its tables
+    # are counted), and a scene file whose tables are at the loader's bound
+    from assurjax._examples import n_four_bar_dict
+    from assurjax.scene._load import MAX_ENTRIES
+
+    tables = n_four_bar_dict(1000)
+    sizes = [len(tables["ground"]), len(tables["links"]), len(tables["formation"])]
+    assert sizes == [1001, 2001, 1001] and max(sizes) <= 2500
+    assert sum(len(link["points"]) for link in tables["links"].values()) <= 10000
+    assert MAX_ENTRIES <= 2500
 
 
 # -- hostile values: the scene loader and the Python API reject them in the same words ----------
