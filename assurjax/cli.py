@@ -710,13 +710,8 @@ def _lockup_approach(sol):
 
 def _solver_failed(sol) -> bool:
     """Whether the solver did not finish as asked: it neither reached t1 nor stopped at an
-    event, nor where the joint friction jams the mechanism (a physical end that its status
-    names: ``dynamics._results.jam_text``, whose result is the solver's NaN ahead)."""
-    from .dynamics._results import jam_text
-
-    if sol.successful:
-        return False
-    return sol.status != jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final))
+    event, nor where the joint friction jams the mechanism (a physical end: ``sol.jammed``)."""
+    return not (sol.successful or bool(sol.jammed))
 
 
 def _failure_lines(scene, sol, units: dict) -> list[str]:

@@ -155,6 +155,7 @@ def test_a_slider_driven_past_its_friction_angle_jams():
     loads = (aj.Drive(aj.Polynomial([1.0], variable="t")), rough)
     sol = aj.simulate(scene, loads=loads, q0=1.0, omega0=0.5, stop=None, t1=0.5, samples=11, rtol=1e-10, atol=1e-10)
     assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
+    assert sol.jammed and not sol.successful and "limit position" not in sol.status  # the crank turns fully
     assert abs(float(sol.q_final) - jam) < 1e-8 and float(sol.omega_final) > 1.0
     for tau in (1.0, 100.0):
         held = aj.simulate(scene, loads=(aj.Drive(aj.Polynomial([tau], variable="t")), rough), q0=1.4, stop=None,
@@ -263,6 +264,10 @@ def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     assert sol.status.startswith("the joint friction jams the mechanism"), sol.status
     q_jam, w_jam = float(sol.q_final), float(sol.omega_final)
     assert 1e-5 < q_jam + test_dynamics.LIMIT < 1e-4 and w_jam < 0.0
+    # the status names the limit just ahead (the stretched dyad, closed form) and a bound of its distance
+    assert sol.jammed and "short of a limit position (group 'dyad' (RRR)" in sol.status, sol.status
+    stated = float(sol.status.split("), ")[1].split(" short of")[0])
+    assert q_jam + test_dynamics.LIMIT <= stated < 10 * (q_jam + test_dynamics.LIMIT) * (1 + abs(q_jam))
     reference = jrf.with_friction(jr.four_bar_motor(0.9, -6.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0), T_stall=0.0,
                                                     damper_c=0.0), {j: jrf.Friction(mu=0.1, radius=0.01) for j in ("O2", "A", "B", "O4")})
     assert_reference_locks_at(reference, q_jam, w_jam, drive=0.0)
@@ -1053,6 +1058,7 @@ def test_a_jammed_member_of_a_batch_keeps_its_last_state(slider):
     batch = aj.simulate(slider, q0=np.array([0.5, 0.5]), omega0=np.array([5.0, 20.0]), **kw)
     alone = aj.simulate(slider, q0=0.5, omega0=5.0, **kw)
     assert batch.status.startswith("batch of 2: 1 reached t1, 1 jammed by the joint friction"), batch.status
+    assert batch.jammed.tolist() == [False, True] and alone.jammed is False
     assert "solver failures" not in batch.status
     assert abs(batch.q_final[0] - alone.q_final) < 1e-8 and batch.omega_final[0] == 0.0
     assert (batch.t_final[1], batch.q_final[1], batch.omega_final[1]) == (0.0, 0.5, 20.0)

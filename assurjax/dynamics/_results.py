@@ -90,9 +90,18 @@ def status_text(code: int, event: int, group: str | None, t_final: float, *, max
 JAM_REMEDY = "lower the friction coefficients, lengthen the slider blocks or change the geometry"
 
 
-def jam_text(t_final: float, q_final: float, omega_final: float) -> str:
-    """The status of a run stopped where the joint friction jams the mechanism."""
-    return (f"the joint friction jams the mechanism at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g}): "
+def jam_text(t_final: float, q_final: float, omega_final: float, limit: tuple[str, float] | None = None) -> str:
+    """The status of a run stopped where the joint friction jams the mechanism; ``limit``:
+    (the group, the distance) of a limit position just ahead, if there is one."""
+    where = f"at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g})"
+    if limit is not None:
+        group, distance = limit
+        return (f"the joint friction jams the mechanism {where}, {distance:.1g} short of a limit position ({group} cannot "
+                "assemble that much further on): near it the driver's motion barely moves the group, its force line "
+                "passes within the pins' friction circles and the friction self-locks it (no friction values satisfy the "
+                "Coulomb law of this motion with a positive effective inertia); a real mechanism wedges there. Keep the "
+                "motion away from that limit position (the geometry or the drive), or lower the friction coefficients")
+    return (f"the joint friction jams the mechanism {where}: "
             "there no friction values satisfy the Coulomb law of this motion with a positive effective inertia "
             "(Painleve's paradox: the friction would drive the motion it opposes, or it self-locks: a slider driven past "
             "its friction angle, a toggle whose force line passes within its pins' friction circles), so it cannot go on "

@@ -48,7 +48,11 @@ class Solution(eqx.Module):
     entries after it repeat the final state (under jit/vmap only; :func:`simulate`
     trims them). ``result``: an :class:`assurjax.RESULTS` item
     (``sol.result == assurjax.RESULTS.successful``); ``status`` a readable summary
-    with a remedy when the solver stopped early.
+    with a remedy when the solver stopped early. ``jammed``: True where the run stopped
+    because the joint friction jams the mechanism (no consistent motion on: a physical end,
+    see ``status``; its ``result`` is the solver's ``dt_min_reached``, so ``successful`` is
+    False), per member for a batch; None under jit/vmap (``simulate_core``), where it is not
+    tested.
     """
 
     t: Array
@@ -78,6 +82,7 @@ class Solution(eqx.Module):
     com_accelerations: dict[str, Array] = eqx.field(default_factory=dict)
     angular_velocities: dict[str, Array] = eqx.field(default_factory=dict)
     angular_accelerations: dict[str, Array] = eqx.field(default_factory=dict)
+    jammed: Any = None
     failed_group: str | None = eqx.field(static=True, default=None)
     status: str = eqx.field(static=True, default="")
 
@@ -255,18 +260,32 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings, q0) -> Solutio
 LIMIT_AHEAD = 1e-6  # (1 + |q|): a limit position this near past where a run ran out of steps is the one it closed in on
 
 
+def limit_ahead(mechanism: Mechanism, q: float, omega: float, distances=(LIMIT_AHEAD,)) -> tuple[str, float] | None:
+    """(the group, the distance): the first group that assembles at q but not one of
+    ``distances`` x (1 + |q|) further on in the direction of ``omega``, the nearest first;
+    None where there is none (or the run is at rest). The fixed branch's analysis."""
+    if omega == 0:
+        return None
+    here = np.asarray(assembled(mechanism, q))
+    for distance in distances:
+        step = float(np.sign(omega)) * distance * (1.0 + abs(q))
+        failing = np.flatnonzero(here & ~np.asarray(assembled(mechanism, q + step)))
+        if failing.size:
+            return mechanism.groups[failing[0]].describe(), abs(step)
+    return None
+
+
 def _limit_ahead(mechanism: Mechanism, q: float, omega: float) -> str:
     """Words for a run that used up its steps closing in on a limit position: near one, the
     reduced coordinate's round-off (J_red grows without bound) outgrows a tight tolerance,
     and the steps shrink (a four-bar's lock-up: 312 steps at rtol 1e-8, 2816 at 1e-10,
     11401 at 1e-11). Empty where every group assembles LIMIT_AHEAD past q (or fails at q)."""
-    ahead = q + np.sign(omega) * LIMIT_AHEAD * (1.0 + abs(q))
-    here, there = np.asarray(assembled(mechanism, q)), np.asarray(assembled(mechanism, ahead))
-    failing = np.flatnonzero(here & ~there)
-    if omega == 0 or failing.size == 0:
+    limit = limit_ahead(mechanism, q, omega)
+    if limit is None:
         return ""
-    return (f"; it was closing in on a limit position ({mechanism.groups[failing[0]].describe()} cannot assemble "
-            f"{ahead - q:+.1g} further on), where the driving coordinate does not resolve the motion to so tight a "
+    group, distance = limit
+    return (f"; it was closing in on a limit position ({group} cannot assemble {np.sign(omega) * distance:+.1g} "
+            "further on), where the driving coordinate does not resolve the motion to so tight a "
             "tolerance: loosen rtol/atol to locate the lock-up")
 
 
@@ -333,4 +352,4 @@ def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
     parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []
     failures = (events < 0) & (results != 0) & ~unassembled & ~jammed
     parts += [f"{np.sum(failures & (codes == code))} solver failures ({result_text(int(code))})" for code in np.unique(codes[failures])]
-    return dataclasses.replace(sols, status=f"batch of {events.size}: " + ", ".join(parts))
+    return dataclasses.replace(sols, jammed=jammed, status=f"batch of {events.size}: " + ", ".join(parts))

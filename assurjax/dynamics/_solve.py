@@ -586,7 +586,7 @@ def simulate(
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
         sol = prepared.run(args, batch)
     if batch is None:
-        sol = with_jam_status(trim(sol, model.mechanism, settings, q0), model)
+        sol = with_jam_status(trim(sol, model.mechanism, settings, q0), model, settings)
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol

@@ -60,7 +60,7 @@ from ._field import (FieldArgs, State, frictional, near, packed_vector_field, re
 from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
-from ._solution import Solution, no_outputs, replaced
+from ._solution import Solution, limit_ahead, no_outputs, replaced
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 FIRST_STEP = 1e-4  # in chunks, the first call's first step, times t1 - t0 (the controller adapts it)
@@ -299,13 +299,21 @@ def _expand(mask, like):
 JAM_PROBES = (1.0, 10.0, 100.0, 1e3, 1e4)
 
 
-def with_jam_status(sol: Solution, model: Model) -> Solution:
+def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution:
     """A run with joint friction that stopped on NaN ahead (``dt_min_reached``, no lock-up)
     where the friction of its motion has no consistent solution at or just past its end:
-    its status names the jam (on the host, compiled only for such a run)."""
+    ``jammed`` True and a status naming the jam, and the limit position just ahead if there
+    is one (on the host, compiled only for such a run); else ``jammed`` False."""
     if not jammed_members(sol, model):
-        return sol
-    return replaced(sol, status=jam_text(float(sol.t_final), float(sol.q_final), float(sol.omega_final)))
+        return replaced(sol, jammed=False)
+    q, omega = float(sol.q_final), float(sol.omega_final)
+    limit = limit_ahead(model.mechanism, q, omega, JAM_LIMIT_PROBES) if settings.branch == "fixed" else None
+    return replaced(sol, jammed=True, status=jam_text(float(sol.t_final), q, omega, limit))
+
+
+# a jam this near (x (1 + |q|)) before a limit position is that position's: a toggle self-locks
+# where its force line enters the pins' friction circles (a triple rocker with 10 mm pins: 5e-5 rad)
+JAM_LIMIT_PROBES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 
 
 def jammed_members(sols: Solution, model: Model, *, models_batched: bool = False) -> np.ndarray:
