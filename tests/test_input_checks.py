@@ -111,6 +111,16 @@ def test_reactions_refuse_a_solution_of_another_mechanism():
                  "'crank'")
 
 
+def test_reactions_refuse_a_solution_of_another_mechanism_that_saved_no_names(slider_crank):
+    """A Solution that saved no points nor angles (a drawn scene's default) is told by the
+    simulated mechanism's point names, which simulate records."""
+    sol = assurjax.simulate(slider_crank, t1=0.01, samples=2, points=(), angles=())
+    assert set(sol.mechanism_points) == set(slider_crank.mechanism.point_names) and not sol.points and not sol.angles
+    watt = assurjax.load_scene("watt_sixbar")
+    refused(lambda: assurjax.reactions(watt, sol), AssurjaxError, "'watt_sixbar'", "without the point(s)", "'O2'")
+    assert assurjax.reactions(slider_crank, sol).driving.shape == sol.t.shape  # its own mechanism's motion is taken
+
+
 # 4. two friction elements on one pair
 
 

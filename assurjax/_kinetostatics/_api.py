@@ -436,11 +436,20 @@ SAVED_BY_LINK = ("angles", "coms", "com_velocities", "com_accelerations", "angul
 
 
 def check_saved_names(mechanism: Mechanism, solution) -> None:
-    """Raise where ``solution`` (a Solution, or an object like one) saved outputs of points or
-    links that ``mechanism`` lacks: it is the motion of another mechanism (the Watt six-bar's
-    reactions along a slider-crank's Solution were computed without a word)."""
+    """Raise where ``solution`` (a Solution, or an object like one) was simulated on a mechanism
+    with other point names, or saved outputs of points or links that ``mechanism`` lacks: it
+    is the motion of another mechanism (the Watt six-bar's reactions along a slider-crank's
+    Solution were computed without a word)."""
     if isinstance(solution, (dict, tuple, list)):  # a bare state: no names to compare
         return
+    simulated = getattr(solution, "mechanism_points", None)
+    if simulated is not None and set(simulated) != set(mechanism.point_names):
+        differences = [f"{what} the point(s) {few(names)}" for what, names in (
+            ("with", [n for n in simulated if n not in mechanism.point_names]),
+            ("without", [n for n in mechanism.point_names if n not in simulated])) if names]
+        raise AssurjaxError(f"reactions: the Solution is not a motion of mechanism '{mechanism.name}': it was simulated "
+                            f"on a mechanism {' and '.join(differences)} (simulate this scene; or, for its reactions "
+                            "along that motion, pass (sol.q, sol.omega, sol.domega, sol.t))")
     known = {"point": set(mechanism.point_names), "link": set(mechanism.links)}
     for kind, fields in (("point", SAVED_BY_POINT), ("link", SAVED_BY_LINK)):
         for field in fields:

@@ -52,7 +52,8 @@ class Solution(eqx.Module):
     because the joint friction jams the mechanism (no consistent motion on: a physical end,
     see ``status``; its ``result`` is the solver's ``dt_min_reached``, so ``successful`` is
     False), per member for a batch; None under jit/vmap (``simulate_core``), where it is not
-    tested.
+    tested. ``mechanism_points``: the simulated mechanism's point names (None under jit/vmap):
+    :func:`assurjax.reactions` refuses a Solution of another mechanism by them.
     """
 
     t: Array
@@ -84,6 +85,7 @@ class Solution(eqx.Module):
     angular_accelerations: dict[str, Array] = eqx.field(default_factory=dict)
     jammed: Any = None
     failed_group: str | None = eqx.field(static=True, default=None)
+    mechanism_points: tuple[str, ...] | None = eqx.field(static=True, default=None)
     status: str = eqx.field(static=True, default="")
 
     @property
@@ -254,7 +256,7 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings, q0) -> Solutio
         fresh = np.diff(np.asarray(sol.t)[:n], prepend=-np.inf) != 0
         rows = rows if fresh.all() else np.flatnonzero(fresh)
     reached = saved_rows(sol, rows)
-    return replaced(reached, t_stop=t_stop, failed_group=group, status=status)
+    return replaced(reached, t_stop=t_stop, failed_group=group, status=status, mechanism_points=mechanism.point_names)
 
 
 LIMIT_AHEAD = 1e-6  # (1 + |q|): a limit position this near past where a run ran out of steps is the one it closed in on

@@ -590,7 +590,7 @@ def simulate(
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol
-    sol = to_host(sol)
+    sol = replaced(to_host(sol), mechanism_points=model.mechanism.point_names)
     sols = batch_summary(sol, jammed_members(sol, model))
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
@@ -670,7 +670,7 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
 def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
     refuse_traced("simulate", scene=jax.tree.leaves(scene), mechanism=jax.tree.leaves(mechanism),
                   loads=jax.tree.leaves(loads))
-    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads)
+    model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads, what="simulate")
     check_values_once(model.mechanism)
     check_has_inertia(model.mechanism)
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
