@@ -116,6 +116,18 @@ def test_coupler_curve_has_gaps_exactly_where_the_four_bar_cannot_assemble(rober
     assert ax.get_legend() is not None
 
 
+def test_a_legend_outside_the_axes_stays_inside_a_users_figure(watt, watt_frames):
+    """Axes of a user's plt.subplots() (no layout engine): a legend placed beside them is
+    given room (a plain savefig cut it off). At omega = 1 the label says the speed."""
+    fig, ax = plt.subplots()
+    viz.plot_angular_velocities(watt_frames, ax=ax)
+    fig.canvas.draw()
+    assert len(watt.links) > 2 and ax.get_legend().get_window_extent().x1 <= fig.bbox.x1
+    assert "at driver speed" not in ax.get_ylabel()  # these frames are at omega = 2
+    unit_speed = viz.mechanism_frames(watt, Q_WATT[:3], velocities=True)
+    assert "at driver speed 1 rad/s" in viz.plot_angular_velocities(unit_speed).get_ylabel()
+
+
 def test_line_plots_carry_units_and_legends(watt_frames):
     t = np.linspace(0, 1, 11)
     checks = [

@@ -345,6 +345,17 @@ def place_legend(ax):
     where nothing is named (see ``MechanismDrawing._make_links``)."""
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, borderaxespad=0.0)
+        make_room_for_legend(ax)
+
+
+def make_room_for_legend(ax):
+    """A legend outside the axes in a figure without a layout engine (a user's
+    ``plt.subplots()``) gets matplotlib's constrained layout, which makes room for it: without
+    it a plain ``savefig`` cut the legend off, and in a figure of several axes it lay on the
+    next panel's ticks and title."""
+    fig = ax.get_figure()
+    if fig is not None and fig.get_layout_engine() is None:
+        fig.set_layout_engine("constrained")
 
 
 def draw_mechanism(

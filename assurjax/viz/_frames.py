@@ -40,7 +40,8 @@ class Frames:
     ``angles[link]``: (n,) link angles (rad, counterclockwise from +x);
     ``velocities[name]``: (n, 2) point velocities (m/s) or None;
     ``angular_velocities[link]``: (n,) (rad/s) or None;
-    ``ok``: (n,) True where every group assembles (elsewhere values are meaningless).
+    ``ok``: (n,) True where every group assembles (elsewhere values are meaningless);
+    ``omega``: (n,) the driving velocity the velocities are at, or None where not known.
     """
 
     q: np.ndarray
@@ -49,6 +50,7 @@ class Frames:
     velocities: dict[str, np.ndarray] | None
     angular_velocities: dict[str, np.ndarray] | None
     ok: np.ndarray
+    omega: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.q)
@@ -71,6 +73,7 @@ def frames_from_kinematics(kin: Kinematics) -> Frames:
         velocities=as_np(kin.velocities),
         angular_velocities=as_np(kin.angular_velocities),
         ok=ok,
+        omega=np.broadcast_to(np.asarray(kin.omega, dtype=float), np.shape(kin.q)).reshape(-1),
     )
 
 

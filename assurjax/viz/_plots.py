@@ -13,7 +13,7 @@ import numpy as np
 
 from .._errors import AssurjaxError
 from .._mechanism import Mechanism, check_mechanism
-from ._draw import clipped_note, trace_color
+from ._draw import clipped_note, make_room_for_legend, trace_color
 from ._frames import Frames, length_scale, masked, reach_box
 
 
@@ -25,9 +25,8 @@ def _axes(ax, figsize=(6, 4)):
 
 def place_legend_clear(ax, entries: int):
     """A legend that does not hide data: inside (matplotlib's emptiest corner) for up to
-    two entries, outside on the right of the axes for more. Outside, in a figure of several
-    axes without a layout engine, the figure gets matplotlib's constrained layout, which
-    makes room for it (without, it lay on the next panel's ticks and title). None past the
+    two entries, outside on the right of the axes for more (room made for it:
+    :func:`make_room_for_legend`). None past the
     colour cycle: colours repeat and an entry names no line (the strandbeest's 49 angular
     velocities' legend took the figure's whole width)."""
     if entries > len(plt.rcParams["axes.prop_cycle"].by_key()["color"]):
@@ -36,9 +35,7 @@ def place_legend_clear(ax, entries: int):
         ax.legend(fontsize=8, loc="best")
         return
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig = ax.get_figure()
-    if fig is not None and len(fig.axes) > 1 and fig.get_layout_engine() is None:
-        fig.set_layout_engine("constrained")
+    make_room_for_legend(ax)
 
 
 DRIVER_KINDS = ("crank", "slider")
@@ -195,7 +192,10 @@ def plot_angular_velocities(frames: Frames, links: Iterable[str] | None = None, 
         raise AssurjaxError(f"plot_angular_velocities: unknown link(s) {unknown}; the frames have "
                             f"{sorted(frames.angular_velocities)}")
     series = {f"w {n}": frames.angular_velocities[n] * k for n in names}
-    return plot_against(frames.q, series, xlabel=driving_label(driver_kind), ylabel="angular velocity (deg/s)" if degrees else "angular velocity (rad/s)", ax=ax, title="angular velocities", ok=frames.ok)
+    ylabel = "angular velocity (deg/s)" if degrees else "angular velocity (rad/s)"
+    if frames.omega is not None and np.all(frames.omega == 1.0):  # the kinematic coefficients: say at what speed
+        ylabel += f" at driver speed 1 {'rad/s' if driver_kind == 'crank' else 'm/s'}"
+    return plot_against(frames.q, series, xlabel=driving_label(driver_kind), ylabel=ylabel, ax=ax, title="angular velocities", ok=frames.ok)
 
 
 def plot_time_histories(t, series: Mapping[str, np.ndarray], *, ylabel: str, ax=None, title: str | None = None):
