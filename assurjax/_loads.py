@@ -48,6 +48,7 @@ from ._listing import few
 from ._values import check_value, concrete, found_words, shape_words
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import COM_PREFIX, Mechanism, Pose
+from ._repr import value_pdoc
 from .groups._base import GROUND
 
 # ---------------------------------------------------------------------------- value forms
@@ -57,6 +58,8 @@ VARIABLES = ("q", "omega", "t")
 
 class Polynomial(eqx.Module):
     """c0 + c1 x + c2 x^2 + ... with x one of ``"q"``, ``"omega"``, ``"t"``."""
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     coefficients: Array
     variable: str = eqx.field(static=True, default="q")
@@ -79,6 +82,8 @@ class Table(eqx.Module):
     """Piecewise-linear interpolation of ``values`` at increasing ``x`` (of ``variable``; an
     x given twice is a jump); constant beyond the ends, or wrapped with ``period`` (e.g. 2 pi
     for a crank angle; at least the x range)."""
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     x: Array
     values: Array
@@ -132,6 +137,8 @@ def _interp(x, xp, fp):
 
 class Vector(eqx.Module):
     """A 2-vector whose components are values (numbers, forms or functions of (q, omega, t))."""
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     x: Any
     y: Any
@@ -290,6 +297,9 @@ class AbstractLoad(eqx.Module):
     of the energy balance), ``dissipative`` (it only removes energy: ``dissipation``
     is its power loss), ``needs_reactions`` (its wrenches depend on the joint
     reactions: friction), ``time_dependent()`` (depends on time t)."""
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
+    repr_omit: ClassVar[tuple[str, ...]] = ("velocity_dependent",)  # a capability of the class, not a value given
 
     velocity_dependent: eqx.AbstractVar[bool]
     conservative: ClassVar[bool] = False

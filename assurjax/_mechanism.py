@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._errors import MechanismError
+from ._repr import value_pdoc
 from ._values import check_value, concrete as _concrete
 from .groups._base import GROUND, AbstractGroup, Link
 
@@ -37,6 +38,8 @@ class Pose(eqx.Module):
     meaningless).
     """
 
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
+
     points: dict[str, Array]
     coms: dict[str, Array]
     angles: dict[str, Array]
@@ -56,6 +59,8 @@ class Mechanism(eqx.Module):
     at most 2500 ground points, links and groups each, and 10000 points on its links in all
     (``MAX_PARTS``, ``MAX_POINTS``: a scene file's bound, room for ``n_four_bar(1000)``).
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     ground: dict[str, Array]
     links: dict[str, Link]

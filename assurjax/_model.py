@@ -12,6 +12,7 @@ from jaxtyping import Array
 
 from ._errors import AssurjaxError
 from ._loads import AbstractLoad, check_loads
+from ._repr import value_pdoc
 from ._mechanism import Mechanism
 from ._values import check_value, concrete, numbers_problem
 
@@ -29,6 +30,8 @@ class Model(eqx.Module):
     >>> model = assurjax.Model(mechanism, gravity=(0.0, -9.81), loads=(assurjax.Drive(2.0),))
     >>> model = assurjax.load_scene("watt_sixbar").model
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     mechanism: Mechanism
     gravity: Array

@@ -22,6 +22,7 @@ from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictio
 from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
+from .._repr import value_pdoc
 from ._class4 import class4_topology, solve_class4_special
 from ._drivers import solve_crank, solve_slider
 from ._dyads import solve_prp, solve_prr, solve_rpr, solve_rrp, solve_rrr
@@ -89,6 +90,8 @@ class Reactions(eqx.Module):
     mechanism against any drive that way, and ``driving`` is not the band's edge.
     True without friction.
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     forces: dict[str, Array]
     couples: dict[str, Array]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import diffrax
 import numpy as np
 
@@ -10,16 +12,22 @@ NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
 RATE_SWITCH = -2  # internal: a friction element's d phi_k/dq changed sign (a segment ends, the run goes on)
 
 
-class RESULTS(diffrax.RESULTS):
-    """Outcome of a simulation, in diffrax's style (extends ``diffrax.RESULTS``):
-    ``sol.result == assurjax.RESULTS.successful``; ``assurjax.RESULTS[sol.result]``
-    is the message."""
+with warnings.catch_warnings():  # equinox warns that ``successful`` gets a message (diffrax's is ""); that is wanted
+    warnings.filterwarnings("ignore", message="Enumeration has duplicate incompatible values for successful")
 
-    start_not_assembled = "The mechanism cannot assemble at the starting state."
-    start_singular = ("The mechanism starts exactly at a singular configuration of a group (a limit position, or where "
-                      "two branches cross), where the driving coordinate does not carry the motion.")
-    max_segments_reached = ("The motion with joint friction needed more segments (rests, break-aways and changes of a "
-                            "joint's Coulomb sign) than a run allows before t1: shorten the time span.")
+    class RESULTS(diffrax.RESULTS):
+        """Outcome of a simulation, in diffrax's style (extends ``diffrax.RESULTS``):
+        ``sol.result == assurjax.RESULTS.successful``; ``assurjax.RESULTS[sol.result]``
+        is the message. An item prints as ``assurjax.RESULTS<message>``."""
+
+        __module__ = "assurjax"  # where users find it (an item's repr names its class by module and name)
+
+        successful = "The run finished as asked (at t1 or at a stop event)."
+        start_not_assembled = "The mechanism cannot assemble at the starting state."
+        start_singular = ("The mechanism starts exactly at a singular configuration of a group (a limit position, or "
+                          "where two branches cross), where the driving coordinate does not carry the motion.")
+        max_segments_reached = ("The motion with joint friction needed more segments (rests, break-aways and changes of "
+                                "a joint's Coulomb sign) than a run allows before t1: shorten the time span.")
 
 
 def result_value(result):

@@ -17,6 +17,7 @@ from .._loads import potential_energy
 from .._tracking import branch_mapping
 from .._mechanism import Mechanism, Pose, positions
 from .._positions import assembled
+from .._repr import value_pdoc
 from .._model import Model
 from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
@@ -55,6 +56,8 @@ class Solution(eqx.Module):
     tested. ``mechanism_points``: the simulated mechanism's point names (None under jit/vmap):
     :func:`assurjax.reactions` refuses a Solution of another mechanism by them.
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     t: Array
     q: Array

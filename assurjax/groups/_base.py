@@ -21,6 +21,7 @@ from jaxtyping import Array
 
 from .._errors import MechanismError
 from .._geometry import V2, heading, relative_rotation, rotate
+from .._repr import value_pdoc
 
 
 class Frame(NamedTuple):
@@ -45,6 +46,8 @@ class Link(eqx.Module):
     Defaults as in a scene file: ``com`` the centroid of the points, ``mass`` and
     ``inertia`` zero. Example: ``Link({"A": [0.0, 0.0], "B": [0.3, 0.0]}, mass=0.6)``.
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     points: dict[str, Array]
     com: Array
@@ -184,6 +187,8 @@ class AbstractGroup(eqx.Module):
     visible as shared point names) and ``two_modes`` and implement ``external_points``,
     ``required_points`` and ``solve``.
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     name: eqx.AbstractVar[str]
     links: eqx.AbstractVar[tuple[str, ...]]

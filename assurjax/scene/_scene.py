@@ -8,6 +8,7 @@ import equinox as eqx
 from jaxtyping import Array
 
 from .._mechanism import Mechanism
+from .._repr import value_pdoc
 
 
 class Settings(dict):
@@ -51,6 +52,8 @@ class Scene(eqx.Module):
     >>> scene.with_settings(state={"q0": 1.0}).state["q0"]
     1.0
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     mechanism: Mechanism
     gravity: Array
