@@ -201,3 +201,14 @@ def test_the_breakaway_band_in_float32():
     lower, upper = aj.breakaway_band(sc.with_loads(sc.loads + rough), np.linspace(0.1, 6.2, 13))
     np.testing.assert_allclose(lower32, lower, rtol=0, atol=1e-5)
     np.testing.assert_allclose(upper32, upper, rtol=0, atol=1e-5)
+
+
+def test_the_documented_band_of_the_press_at_its_dead_point():
+    """docs/kinetostatics.md: the press's band at q = 0 (the slider on its dead point), and
+    without the ram's slide friction."""
+    press = aj.load_scene("press_with_friction")
+    band = np.round(np.asarray(aj.breakaway_band(press, 0.0)), 5)
+    np.testing.assert_array_equal(band, [0.70774, 0.76405])
+    pins = tuple(l for l in press.loads if not isinstance(l, aj.SlideFriction))
+    band = np.round(np.asarray(aj.breakaway_band(press.with_loads(pins), 0.0)), 5)
+    np.testing.assert_array_equal(band, [0.70892, 0.76287])

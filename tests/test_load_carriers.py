@@ -295,3 +295,18 @@ def test_point_names_starting_with_com_are_reserved():
     text = SCENE_TEXT.replace('points = { A = [0.0, 0.0], B = [0.3, 0.0] }', 'points = { A = [0.0, 0.0], B = [0.3, 0.0], "com:x" = [0.1, 0.0] }')
     with pytest.raises(aj.SceneError, match=r"point name 'com:x': names starting with 'com:' are reserved"):
         scene_from_dict(tomllib.loads(text))
+
+
+def test_with_friction_in_the_pin_the_carrier_changes_the_driving_effort():
+    """docs/kinetostatics.md's example, by its recipe: the press's friction alone (mu = 0.15
+    in O, A, B of radius 0.01 m and on the ram's 0.05 m block) and (-300, 0) N at B, at
+    q = 1, w = 2, dw/dt = 0, on the rod and on the ram."""
+    press = aj.load_scene("press_with_friction")
+    friction = tuple(l for l in press.loads if isinstance(l, (aj.JointFriction, aj.SlideFriction)))
+    assert len(friction) == 4
+    quoted = {"rod": (-27.154, 87.5), "ram": (-27.111, 298.3)}
+    for link, (driving, r_b) in quoted.items():
+        scene = press.with_loads(friction + (aj.PointForce("B", (-300.0, 0.0), link=link),))
+        r = aj.reactions(scene, (1.0, 2.0, 0.0))
+        assert round(float(r.driving), 3) == driving, link
+        assert round(float(np.linalg.norm(r["B"])), 1) == r_b, link
