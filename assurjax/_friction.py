@@ -31,7 +31,6 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
@@ -43,7 +42,7 @@ from ._geometry import cross, dot, perp, rotation
 from ._listing import few
 from ._jit import moved_leaves, region, stays_unthreaded
 from ._kinematics import by_name
-from ._linalg import lu_determinant, plain_lu_factor, plain_lu_solve, small_solver
+from ._linalg import lu_determinant, lu_factor, lu_solve, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
 from .groups._base import GROUND
@@ -751,13 +750,14 @@ def _implicit_root_jvp(primals, tangents, *, find):
 
     _, moved_by = jax.jvp(lambda *v: residual(u, *v), values, value_tangents)
     jacobian = jax.jacfwd(residual)(u, *values)  # I - dlaw/du
-    # where no root was found (a jam: u is NaN) the tangent is 0 beside a NaN value, so that
-    # no NaN reaches lineax, which raises on it from inside the program (in reverse mode too:
-    # the selects below transpose to selects of the cotangents). Tested on primal values only:
-    # a test of the tangents themselves would not be linear in them.
+    # where no root was found (a jam: u is NaN) the tangent is 0 beside a NaN value. Tested on
+    # primal values only: a test of the tangents themselves would not be linear in them. So in
+    # reverse mode a NaN cotangent (a step rejected at a jam: 0 x NaN) still reaches the solve:
+    # an LU solve, not lineax's, whose transpose raises on it from inside the program
+    # (jax.grad of a run that jams stopped on an 'INTERNAL: CpuCallback error')
     finite = jnp.all(jnp.isfinite(jacobian)) & jnp.all(jnp.isfinite(u))
     jacobian = jnp.where(finite, jacobian, jnp.eye(len(u)))
-    du = lx.linear_solve(lx.MatrixLinearOperator(jacobian), jnp.where(finite, -moved_by, 0.0), small_solver()).value
+    du = lu_solve(lu_factor(jacobian), jnp.where(finite, -moved_by, 0.0))
     return (u, ok), (jnp.where(finite, du, 0.0), None)
 
 

@@ -809,6 +809,16 @@ def test_friction_solve_on_a_closed_form_law(slider, a, b, expected, ok):
         assert abs(float(u[0]) - expected) < 1e-14
 
 
+def test_friction_solve_reverse_mode_takes_a_nan_cotangent(slider):
+    """Reverse mode through the solve: du/da = -0.1 / (1 + 0.1 b) by hand (u = -0.1 (a + b u));
+    a NaN cotangent (a step rejected where the friction jams: 0 x NaN) gives NaN, where the
+    transposed lineax solve raised from inside the program."""
+    solve = _closed_form_solve(slider)
+    u, pullback = jax.vjp(lambda a: solve(a, 0.5)[0], 1.0)
+    assert abs(float(pullback(jnp.ones(1))[0]) + 0.1 / 1.05) < 1e-12
+    assert np.isnan(float(jax.jit(lambda ct: jax.vjp(lambda a: solve(a, 0.5)[0], 1.0)[1](ct)[0])(jnp.full(1, jnp.nan))))
+
+
 def test_friction_solve_batched(slider):
     """The same laws as one vmapped batch (Newton's method runs for the batch because some
     members need it; each member keeps its own branch's answer), and a batch where the
