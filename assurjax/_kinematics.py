@@ -23,7 +23,7 @@ from ._jit import jit
 from ._mechanism import Mechanism, Pose, check_mechanism, point_names, positions
 from ._positions import checked_request, stacked_positions
 from ._values import check_state_count, check_value, check_values, concrete
-from .groups._base import AbstractGroup
+from .groups._base import GROUND, AbstractGroup
 
 
 class Kinematics(eqx.Module):
@@ -526,18 +526,53 @@ def first_failure(mechanism: Mechanism, ok, q):
     return mechanism.groups[bad[-1]], q_bad, f" ({failing} of {total} configurations fail)"
 
 
-def raise_if_not_assembled(mechanism: Mechanism, ok, q) -> None:
-    """Raise :class:`AssemblyError` naming the first group that cannot assemble (no-op under tracing)."""
+def raise_if_not_assembled(mechanism: Mechanism, ok, q, *, pose: Pose | None = None, where: str = "",
+                           advice: Callable[[tuple[str, ...]], str] | None = None) -> None:
+    """Raise :class:`AssemblyError` naming the first group that cannot assemble, at which q, the
+    condition it violates there with the lengths (:func:`assurjax.structure.assembly_report`'s
+    words) and what to do (no-op under tracing). ``pose``: the Pose at a single ``q`` if at hand;
+    ``where``: a prefix (a scene file); ``advice``: the links to check -> what to do."""
+    from .structure._diagnostics import links_to_check, violated_condition  # the structure package imports this module
+
     failure = first_failure(mechanism, ok, q)
-    if failure is not None:
-        group, q_bad, how_many = failure
-        raise AssemblyError(f"{group.describe()} cannot assemble at q = {q_bad:.6g}{how_many}", group=group.name)
+    if failure is None:
+        return
+    group, q_bad, how_many = failure
+    reason = violated_condition(mechanism, group, q_bad, pose if not how_many else None)
+    links = links_to_check(mechanism, group)
+    if advice is None:
+        moving = [link for link in links if link != GROUND]
+        named = f"link(s) {', '.join(moving)}" + (" and the ground points" if GROUND in links else "")
+        todo = (f"check the points (m) of {named}, or use a q where it assembles "
+                "(assurjax.structure.assembly_report(mechanism, q) shows where)")
+    else:
+        todo = advice(links)
+    raise AssemblyError(f"{where}{group.describe()} cannot assemble at q = {q_bad:.6g}{how_many}"
+                        f"{': ' + reason if reason else ''}; {todo}", group=group.name)
+
+
+def with_reason(error: AssemblyError, mechanism: Mechanism, q) -> AssemblyError:
+    """``error`` (naming its group, at the single concrete ``q``) with the condition that group
+    violates there appended, when it does not assemble there (a singular start does)."""
+    names = [g.name for g in mechanism.groups]
+    if error.group not in names or np.ndim(q) or isinstance(q, jax.core.Tracer):
+        return error
+    from .structure._diagnostics import violated_condition  # the structure package imports this module
+
+    i = names.index(error.group)
+    pose = positions(mechanism, float(q))
+    if bool(np.asarray(pose.ok)[..., i].all()) or not bool(np.asarray(pose.ok)[..., :i].all()):
+        return error
+    reason = violated_condition(mechanism, mechanism.groups[i], float(q), pose)
+    return error if reason is None else AssemblyError(f"{error}; there {reason}", group=error.group)
 
 
 def pose_at(mechanism: Mechanism, q) -> Pose:
-    """The Pose at one q, with a clear error if some group cannot assemble."""
-    pose = positions(mechanism, q)  # its own jit
-    raise_if_not_assembled(mechanism, pose.ok, q)
+    """The Pose at one q, with a clear error if some group cannot assemble (why: the condition
+    it violates, with the lengths)."""
+    check_mechanism(mechanism, "pose_at")
+    pose = positions(mechanism, q)  # its own jit; checks q
+    raise_if_not_assembled(mechanism, pose.ok, q, pose=pose)
     return pose
 
 

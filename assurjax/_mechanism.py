@@ -277,7 +277,20 @@ def _check_crank_arms(mech: Mechanism) -> None:
 def check_mechanism(mechanism, what: str) -> None:
     if not isinstance(mechanism, Mechanism):
         raise MechanismError(f"{what}: expected an assurjax.Mechanism (a scene's: scene.mechanism), got "
-                             f"{type(mechanism).__name__}")
+                             f"{type(mechanism).__name__}{sketch_hint(mechanism)}")
+
+
+def sketch_hint(value, scene: bool = False) -> str:
+    """For a :class:`assurjax.Sketch` given where a Mechanism (``scene``: or a Scene) is
+    wanted, how to build one from it; else ""."""
+    from .structure._sketch import Sketch  # the structure package imports this module
+
+    if not isinstance(value, Sketch):
+        return ""
+    if scene:
+        return ("; a Sketch is a drawing: pass sketch.scene() (its Scene; gravity, loads and settings as keywords, "
+                "e.g. sketch.scene(gravity=(0, -9.81))) or sketch.mechanism() (its Mechanism)")
+    return "; a Sketch is a drawing: pass sketch.mechanism() (its Mechanism)"
 
 
 def point_names(mechanism: Mechanism, names, what: str) -> tuple[str, ...]:

@@ -13,7 +13,7 @@ from jaxtyping import Array
 from ._errors import AssurjaxError
 from ._loads import AbstractLoad, check_loads
 from ._repr import value_pdoc
-from ._mechanism import Mechanism
+from ._mechanism import Mechanism, sketch_hint
 from ._values import check_value, concrete, numbers_problem
 
 
@@ -39,7 +39,7 @@ class Model(eqx.Module):
 
     def __init__(self, mechanism: Mechanism, gravity=None, loads=()):
         if not isinstance(mechanism, Mechanism):
-            raise AssurjaxError(f"Model: expected an assurjax.Mechanism, got {type(mechanism).__name__}")
+            raise AssurjaxError(f"Model: expected an assurjax.Mechanism, got {type(mechanism).__name__}{sketch_hint(mechanism)}")
         self.mechanism = mechanism
         if gravity is None:
             gravity = np.zeros(2)
@@ -54,30 +54,35 @@ class Model(eqx.Module):
         check_loads(mechanism, self.loads)
 
 
-def load_tuple(loads) -> tuple:
-    """``loads`` as a tuple; one load alone is the only one (as one point name is a list of one)."""
+def load_tuple(loads, what: str = "Model") -> tuple:
+    """``loads`` as a tuple; one load alone is the only one (as one point name is a list of one).
+    ``what``: the function named in the error."""
     if isinstance(loads, AbstractLoad):
         return (loads,)
     if isinstance(loads, (str, bytes, Mapping)) or not isinstance(loads, Iterable):
-        raise AssurjaxError(f"Model: loads must be a sequence of loads (assurjax.Spring, assurjax.JointFriction, ...), "
+        raise AssurjaxError(f"{what}: loads must be a sequence of loads or one load (assurjax.Spring, assurjax.JointFriction, ...), "
                             f"got {type(loads).__name__}")
     return tuple(loads)
 
 
-def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=None) -> Model:
+def as_model(source, *, mechanism: Mechanism | None = None, gravity=None, loads=None, what: str | None = None) -> Model:
     """The :class:`Model` of a Scene, a Model or a bare Mechanism (no loads, no
-    gravity), with any of its parts replaced."""
+    gravity), with any of its parts replaced. ``what``: the function named in the error."""
     if isinstance(source, Model):
         base = source
     elif isinstance(source, Mechanism):
         base = Model(source)
     elif isinstance(source, _scene_class()):
         base = source.model
+    elif sketch_hint(source):
+        raise AssurjaxError(f"{what + ': ' if what else ''}expected an assurjax Scene, Model or Mechanism, got "
+                            f"{type(source).__name__}{sketch_hint(source, scene=True)}")
     else:  # any object with a scene's three parts
         try:
             base = Model(source.mechanism, source.gravity, source.loads)
         except AttributeError:
-            raise AssurjaxError(f"expected an assurjax Scene, Model or Mechanism, got {type(source).__name__}") from None
+            raise AssurjaxError(f"{what + ': ' if what else ''}expected an assurjax Scene, Model or Mechanism, got "
+                                f"{type(source).__name__}") from None
     if mechanism is None and gravity is None and loads is None:
         return base
     return Model(

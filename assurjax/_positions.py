@@ -42,7 +42,7 @@ from ._errors import MechanismError
 from ._values import check_value
 from ._geometry import V2, heading, rotate, wrap_angle
 from ._jit import jit
-from ._mechanism import Mechanism, Pose, point_names
+from ._mechanism import Mechanism, Pose, check_mechanism, point_names
 from .groups._base import GROUND, AbstractGroup, Frame, Link, Placement
 from .groups._branch import solve_near
 from .groups._newton import IterativeGroup
@@ -87,6 +87,7 @@ def checked_request(mechanism: Mechanism, q, points, near, what: str):
     """The mechanism, q (one number, finite where it is concrete), the point names (one may be
     a plain string) and ``near`` (link -> one angle each). Returns the point names as a tuple
     (None: all)."""
+    check_mechanism(mechanism, what)
     points = None if points is None else point_names(mechanism, points, what)
     check_value(MechanismError, f"{what}: q (one driving coordinate; for many, assurjax.kinematics or jax.vmap)", q,
                 shape=())

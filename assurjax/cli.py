@@ -127,7 +127,7 @@ def cmd_validate(args) -> int:
 
     scene = _load(args.scene)
     mech = scene.mechanism
-    pose = assurjax.pose_at(mech, scene.state["q0"])  # raises AssemblyError naming the group
+    pose = _pose_at_q0(scene)
     print(f"{scene.name}: OK ({scene.source})")
     if scene.description:
         print(f"  {scene.description}")
@@ -142,6 +142,37 @@ def cmd_validate(args) -> int:
     lo, hi = _sweep_range(scene, None, None)
     print("  over the driving range: " + _assembly_text(mech, np.linspace(lo, hi, VALIDATE_SAMPLES)).replace("\n", "\n  "))
     return 0
+
+
+def _pose_at_q0(scene):
+    """The pose at the scene's q0, or an AssemblyError naming the file, the group, why it does not
+    close (with the lengths) and the scene fields that set them."""
+    import assurjax
+    from ._kinematics import raise_if_not_assembled
+
+    q0 = scene.state["q0"]
+    pose = assurjax.positions(scene.mechanism, q0)
+    unit = _units(_driver_kind(scene.mechanism))["q"]
+    raise_if_not_assembled(scene.mechanism, pose.ok, q0, pose=pose, where=f"{scene.source}: ",
+                           advice=lambda links: f"check {_fields_of(scene, links)} (m), or [state] q0 ({unit})")
+    return pose
+
+
+def _fields_of(scene, links) -> str:
+    """The scene file's fields where the points of these links are set (GROUND: the fixed points)."""
+    import tomllib
+
+    from .groups import GROUND
+
+    moving = [link for link in links if link != GROUND]
+    try:
+        sketch = "sketch" in tomllib.loads(Path(scene.source).read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # not a file (a scene built in Python): the explicit form's names
+        sketch = False
+    if sketch:
+        return f"the [sketch.joints] of link(s) {', '.join(moving)}" + (" and the ground joints" if GROUND in links else "")
+    tables = [f"[links.{link}] points" for link in moving] + (["[ground]"] if GROUND in links else [])
+    return ", ".join(tables[:-1]) + f" and {tables[-1]}" if len(tables) > 1 else tables[0]
 
 
 def _assembly_text(mech, q) -> str:
@@ -209,6 +240,7 @@ def cmd_kinematics(args) -> int:
     frames = viz.frames_from_kinematics(sweep_kinematics(mech, q, quiet=args.quiet))
     elapsed = time.perf_counter() - t0
     if not frames.ok.any():
+        _pose_at_q0(scene)  # why, where it does not assemble at q0 either
         raise UserError(f"{scene.name}: the mechanism assembles nowhere in q = [{lo:.6g}, {hi:.6g}]")
     points = list(scene.outputs["points"]) or [p for p in mech.point_names if p not in mech.ground]
     units = _units(_driver_kind(mech))
@@ -829,6 +861,7 @@ def cmd_run(args) -> int:
     samples = _samples(args, scene)
     out = _out_dir(args.out, scene)
     units = _units(_driver_kind(scene.mechanism))
+    _pose_at_q0(scene)  # a start that does not assemble: why, before the simulation compiles
     steps = 4 + (not args.no_animation)
     with _progress(steps, f"run {scene.name}", args.quiet) as bar:
         sol, first, second = _simulate(scene, samples)
@@ -923,6 +956,7 @@ def cmd_reactions(args) -> int:
     scene = _load(args.scene)
     units = _units(_driver_kind(scene.mechanism))
     joints = list(scene.outputs["reactions"]) or None
+    _pose_at_q0(scene)  # a start that does not assemble: why, before anything compiles
     if args.static:  # printed only: no output directory
         from ._friction import frictions_of
 

@@ -228,7 +228,35 @@ def test_validate_scene_that_cannot_assemble_names_the_group(write_scene, capsys
         """
     )
     assert main(["validate", str(path)]) == 2
-    assert "dyad" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # why, from the numbers above: at q0 = 0, A = (1, 0) is 5 - 1 from F, beyond rod + rocker = 1 + 1;
+    # the file and the tables where those lengths are set (it said only "group 'dyad' (RRR) cannot assemble at q = 0")
+    assert err.startswith(f"assurjax: error: {path}: group 'dyad' (RRR) cannot assemble at q = 0: ")
+    assert f"|A F| = {5.0 - 1.0:.4g} m > 1 + 1 m (links rod, rocker too short)" in err
+    assert "check [links.rod] points, [links.rocker] points, [links.crank] points and [ground] (m), or [state] q0 (rad)" in err
+
+
+def test_validate_sketch_scene_that_cannot_assemble_names_its_joints(write_scene, capsys):
+    """A drawn four-bar asked to start where its crank points away from the rocker (q0 = pi)."""
+    path = write_scene(
+        """
+        [sketch]
+        driver = "crank"
+        ground = ["A", "D"]
+        joints = { A = [0.0, 0.0], B = [0.2, 0.3], C = [0.5, 0.3], D = [0.4, 0.0] }
+        [sketch.links]
+        crank = { joints = ["A", "B"], density = 2.0 }
+        coupler = { joints = ["B", "C"], density = 2.0 }
+        rocker = { joints = ["D", "C"], density = 2.0 }
+        [state]
+        q0 = 3.141592653589793
+        """
+    )
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    bd, bc, dc = 0.4 + np.hypot(0.2, 0.3), 0.3, np.hypot(0.1, 0.3)  # B = (-|A B|, 0) at q0 = pi
+    assert f"{path}: group 'RRR1' (RRR) cannot assemble at q = 3.14159: |B D| = {bd:.4g} m > {bc:.4g} + {dc:.4g} m" in err
+    assert "check the [sketch.joints] of link(s) coupler, rocker, crank and the ground joints (m), or [state] q0 (rad)" in err
 
 
 @pytest.mark.parametrize(

@@ -103,6 +103,65 @@ def test_unknown_field_is_rejected():
         scene(lambda d: d["links"]["crank"].update(lenght=0.3))
 
 
+@pytest.mark.parametrize(
+    "edit, where, typed, meant",
+    [
+        (lambda d: d["links"]["crank"].update(mas=1.0), "[links.crank]", "mas", "mass"),
+        (lambda d: d.update(output={"points": ["B"]}), "the top level", "output", "outputs"),
+        (lambda d: d["scene"].update(descripton="x"), "[scene]", "descripton", "description"),
+        (lambda d: d.update(state={"omega_0": 1.0}), "[state]", "omega_0", "omega0"),
+        (lambda d: d["formation"][1].update(mdoe="left"), "[[formation]] #2", "mdoe", "mode"),
+        (lambda d: d.update(simulation={"rtoll": 1e-6}), "[simulation]", "rtoll", "rtol"),
+        (lambda d: d["outputs"].update(point=["B"]), "[outputs]", "point", "points"),
+        # an optional field the parser only looks for (static_coefficient) is suggested too
+        (lambda d: d.update(loads=[{"type": "joint_friction", "joint": "A", "coefficient": 0.1, "radius": 0.01,
+                                    "static_coeficient": 0.2}]), "[[loads]] #1", "static_coeficient", "static_coefficient"),
+        (lambda d: d.update(loads=[{"type": "couple", "link": "crank", "moment": {"polynomal": [1.0]}}]), "'moment'",
+         "polynomal", "polynomial"),
+    ],
+)
+def test_unknown_fields_get_the_field_they_misspell(edit, where, typed, meant):
+    """'mas' in a link table and an [output] table were refused with no suggestion, where a
+    misspelt required field got one."""
+    with raises(SceneError, "bad.toml", where, typed, f"'{typed}': did you mean '{meant}'?"):
+        scene(edit)
+
+
+def test_an_unknown_field_like_no_known_one_lists_the_known_ones():
+    with raises(SceneError, "[links.crank]: unknown field(s) ['colour']; rename or remove it",
+                "known fields: com, inertia, mass, points") as info:
+        scene(lambda d: d["links"]["crank"].update(colour="red"))
+    assert "did you mean" not in str(info.value)
+
+
+def test_a_sketch_link_field_gets_the_field_it_misspells():
+    with raises(MechanismError, "link 'crank': unknown field(s) ['masss']", "did you mean 'mass'?"):
+        assurjax.Sketch({"O": (0, 0), "A": (0.1, 0)}, {"crank": {"joints": ["O", "A"], "masss": 1.0}}, ground=["O"],
+                        driver="crank").mechanism()
+
+
+def test_one_load_alone_is_the_only_load_of_with_loads():
+    """scene.with_loads(load) raised a raw TypeError ('JointFriction' object is not iterable);
+    simulate(loads=load) took it."""
+    base = scene()
+    friction = assurjax.JointFriction("A", 0.1, radius=0.01)
+    assert base.with_loads(friction).loads == (friction,)
+    with raises(assurjax.AssurjaxError, "with_loads: loads must be a sequence of loads or one load", "got float"):
+        base.with_loads(0.1)
+
+
+def test_a_sketch_given_for_a_mechanism_or_scene_says_how_to_build_one():
+    sketch = assurjax.Sketch({"O": (0, 0), "A": (0.1, 0)}, {"crank": ["O", "A"]}, ground=["O"], driver="crank")
+    for call, what, fix in [
+        (lambda: assurjax.kinematics(sketch, 0.5), "kinematics", "pass sketch.mechanism()"),
+        (lambda: assurjax.pose_at(sketch, 0.5), "pose_at", "pass sketch.mechanism()"),
+        (lambda: assurjax.simulate(sketch), "simulate", "pass sketch.scene()"),
+        (lambda: assurjax.reactions(sketch, (0.5, 0.0, 0.0)), "reactions", "pass sketch.scene()"),
+    ]:
+        with raises(assurjax.AssurjaxError, f"{what}: expected an assurjax", "got Sketch", "a Sketch is a drawing", fix):
+            call()
+
+
 def test_unknown_link():
     with raises(SceneError, "'dyad'", "unknown link 'rockr'"):
         scene(lambda d: d["formation"][1].update(links=["coupler", "rockr"]))
@@ -204,11 +263,20 @@ def test_invalid_toml(write_scene):
         assurjax.load_scene(path)
 
 
-def test_missing_scene_file(tmp_path):
-    with raises(SceneError, "no such scene file"):
+def test_missing_scene_file(tmp_path, monkeypatch):
+    with raises(SceneError, "no such scene file") as info:
         assurjax.load_scene(tmp_path / "nowhere.toml")
+    assert "bundled" not in str(info.value)  # no bundled scene of that name: no hint
     with raises(SceneError, "neither a scene file nor a bundled scene", "roberts"):
         assurjax.load_scene("no_such_bundled_scene")
+    # a bundled scene's name written as a file name: how to load it
+    monkeypatch.chdir(tmp_path)
+    for given, name in (("watt_sixbar.toml", "watt_sixbar"), ("scenes/roberts.toml", "roberts")):
+        assert name in assurjax.bundled_scenes()
+        with raises(SceneError, f"{given}: no such scene file", f"bare name, '{name}' (no '.toml'"):
+            assurjax.load_scene(given)
+    with raises(SceneError, "'wat_sixbar' is neither", "did you mean 'watt_sixbar'?"):
+        assurjax.load_scene("wat_sixbar")
 
 
 def test_cannot_assemble_outside_jit_names_the_group():
@@ -221,6 +289,35 @@ def test_cannot_assemble_outside_jit_names_the_group():
         assurjax.kinematics(mech, np.array([0.0, np.pi]))
     kin = assurjax.kinematics(mech, np.array([0.0, np.pi]), check=False)
     np.testing.assert_array_equal(np.asarray(kin.ok), [[True, True], [True, False]])
+
+
+def _length(link: str, a: str, b: str, data=FOUR_BAR) -> float:
+    points = data["links"][link]["points"]
+    return float(np.hypot(*np.subtract(points[a], points[b])))
+
+
+def test_cannot_assemble_says_why_with_the_lengths_and_what_to_check():
+    """The AssemblyError of pose_at and kinematics carries the condition assembly_report words
+    (it said only 'group ... cannot assemble at q = 0'): the lengths, from the scene's numbers."""
+    long_crank = copy.deepcopy(FOUR_BAR)
+    long_crank["links"]["crank"]["points"]["A"] = [1.5, 0.0]
+    mech = assurjax.scene_from_dict(long_crank, source="bad.toml").mechanism
+    # at q = pi, A = (-1.5, 0): |A O4| = 1.5 + |O2 O4| > coupler + rocker
+    gap = 1.5 + float(np.hypot(*np.subtract(FOUR_BAR["ground"]["O4"], FOUR_BAR["ground"]["O2"])))
+    coupler, rocker = _length("coupler", "A", "B"), _length("rocker", "O4", "B")
+    why = f"|A O4| = {gap:.4g} m > {coupler:.4g} + {rocker:.4g} m (links coupler, rocker too short)"
+    todo = "check the points (m) of link(s) coupler, rocker, crank and the ground points"
+    for call in (lambda: assurjax.pose_at(mech, np.pi), lambda: assurjax.kinematics(mech, np.array([0.0, np.pi]))):
+        with raises(AssemblyError, "group 'dyad' (RRR) cannot assemble at q = 3.14159", why, todo, "assembly_report"):
+            call()
+    # a length typed in mm (1000 for 1.0 m): the coupler is the long one, the other folds inside it
+    mm = copy.deepcopy(FOUR_BAR)
+    mm["links"]["coupler"]["points"]["B"] = [1000.0, 0.0]
+    mech = assurjax.scene_from_dict(mm, source="mm.toml").mechanism
+    gap = _length("crank", "O2", "A") - 1.0  # A = (0.3, 0), O4 = (1, 0) at q = 0
+    with raises(AssemblyError, "cannot assemble at q = 0", f"|A O4| = {abs(gap):.4g} m < |1000 - {rocker:.4g}| m",
+                "link coupler too long beside rocker"):
+        assurjax.pose_at(mech, 0.0)
 
 
 def test_cannot_assemble_inside_jit_sets_flags_and_stays_finite():

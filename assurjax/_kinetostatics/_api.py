@@ -628,7 +628,7 @@ def _run(scene, state, joints, method, check, *, static, source=None):
     saved names are checked against the mechanism)."""
     if method not in METHODS:
         raise AssurjaxError(f"method must be one of {METHODS}, got {method!r}")
-    model = as_model(scene)
+    model = as_model(scene, what="static_reactions" if static else "reactions")
     mechanism = model.mechanism
     check_saved_names(mechanism, source)
     groups = _wanted_groups(mechanism, joints)
@@ -661,7 +661,8 @@ def raise_if_singular(mechanism: Mechanism, ok, q) -> None:
         return
     group, q_bad, how_many = failure
     # a group that does not close there says so (kinematics' error), where its statics is not singular but void
-    raise_if_not_assembled(mechanism, positions(mechanism, q_bad).ok, q_bad)
+    pose = positions(mechanism, q_bad)
+    raise_if_not_assembled(mechanism, pose.ok, q_bad, pose=pose)
     raise SingularConfigurationError(
         f"{group.describe()}: its equilibrium equations are singular at q = {q_bad:.6g}{how_many}. A singular group (e.g. a dyad with "
         "its links collinear) cannot carry a general load: its reactions are not determined by statics",

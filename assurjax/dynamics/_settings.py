@@ -19,6 +19,7 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._errors import AssurjaxError
+from .._listing import did_you_mean
 from .._positions import assembled
 from .._values import MAGNITUDE_LIMIT, all_finite, concrete, found_words, value_problem
 from ._packed import UNPACKED, Packing
@@ -193,7 +194,8 @@ def check_simulation_table(table: Mapping, where: str = "[simulation]", schema: 
     out = {}
     for key, value in table.items():
         if key not in schema:
-            raise AssurjaxError(f"{where}: unknown field '{key}' (known: {sorted(schema)})")
+            raise AssurjaxError(f"{where}: unknown field '{key}'{did_you_mean([key], schema)}; rename or remove it "
+                                f"(known: {sorted(schema)})")
         problem = setting_problem(key, value, schema)
         if problem is not None:
             raise AssurjaxError(f"{where}, field '{key}': {problem}")

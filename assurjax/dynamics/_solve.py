@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import AssurjaxError
+from .._errors import AssemblyError, AssurjaxError
 from .._friction import frictions_of, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
@@ -28,7 +28,7 @@ from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
 from .._tracking import branch_angles, branch_mapping, stacked_branch
 from .._values import all_finite, numbers_problem
-from .._kinematics import START_SINGULAR_MEASURE, coefficients, singular_groups, singularity_measures
+from .._kinematics import START_SINGULAR_MEASURE, coefficients, singular_groups, singularity_measures, with_reason
 from ._events import checked_states, lockup_found, stop_event, which_event
 from ._field import FieldArgs, State, packed_vector_field
 from ._results import LOCKUP, NO_EVENT, RESULTS
@@ -586,7 +586,11 @@ def simulate(
     with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
         sol = prepared.run(args, batch)
     if batch is None:
-        sol = with_jam_status(trim(sol, model.mechanism, settings, q0), model, settings)
+        try:
+            sol = trim(sol, model.mechanism, settings, q0)
+        except AssemblyError as e:  # a start that does not assemble: why (the lengths), as kinematics says
+            raise with_reason(e, model.mechanism, q0) from None
+        sol = with_jam_status(sol, model, settings)
         if throw and not sol.successful:
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol

@@ -54,6 +54,7 @@ from jaxtyping import Array
 
 from .._errors import MechanismError
 from .._linalg import PlainLU
+from .._listing import did_you_mean
 from .._values import check_value, value_problem
 from .._geometry import heading
 from ._base import AbstractGroup, Link, Placement
@@ -225,7 +226,8 @@ def parse_guess(fields, internal: Iterable[str]) -> dict[str, Array]:
     missing = [p for p in internal if p not in raw]
     extra = [p for p in raw if p not in internal]
     if missing or extra:
-        fields.fail("guess", f"must place exactly the internal joints {list(internal)}; missing {missing}, unknown {extra}")
+        fields.fail("guess", f"must place exactly the internal joints {list(internal)}; missing {missing}, unknown {extra}"
+                             f"{did_you_mean(extra, missing)}")
     out = {}
     for p in internal:
         v = raw[p]

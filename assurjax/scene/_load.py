@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import tomllib
 from collections.abc import Callable
 from importlib import resources
@@ -13,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError, MechanismError, SceneError
-from .._listing import few
+from .._listing import close_match, did_you_mean, few
 from .._values import value_problem
 from ..dynamics._settings import OUTPUT_KEYS, check_simulation_table, state_problem
 from .._mechanism import Mechanism
@@ -43,12 +42,20 @@ def scene_path(path_or_name: str | Path) -> Path:
     bundled_too = bare and path.is_dir() and (resources.files(BUNDLED) / f"{path_or_name}.toml").is_file()
     if path.suffix == ".toml" or (path.exists() and not bundled_too):
         if not path.is_file():
-            raise SceneError(f"{path}: " + ("a directory, not a scene file" if path.is_dir() else "no such scene file"))
+            raise SceneError(f"{path}: " + ("a directory, not a scene file" if path.is_dir() else "no such scene file") + _bundled_hint(path))
         return path
     bundled = resources.files(BUNDLED) / f"{path_or_name}.toml"
     if not bundled.is_file():
-        raise SceneError(f"'{path_or_name}' is neither a scene file nor a bundled scene (bundled: {', '.join(bundled_scenes())})")
+        raise SceneError(f"'{path_or_name}' is neither a scene file nor a bundled scene{did_you_mean([str(path_or_name)], bundled_scenes())} "
+                         f"(bundled: {', '.join(bundled_scenes())})")
     return Path(str(bundled))
+
+
+def _bundled_hint(path: Path) -> str:
+    """Where a missing file's stem is a bundled scene's name: how to load that scene."""
+    if path.suffix != ".toml" or path.stem not in bundled_scenes():
+        return ""
+    return f"; the bundled scene of that name is loaded by its bare name, '{path.stem}' (no '.toml', no folder)"
 
 
 def load_scene(path_or_name: str | Path) -> Scene:
@@ -81,19 +88,21 @@ class Fields:
             raise SceneError(f"{source}: {where} must be a table, got {type(table).__name__}")
         self.table, self.where, self.source = table, where, source
         self.used: set[str] = set()
+        self.asked: set[str] = set()  # fields looked for (has): known too, for the suggestions
 
     def fail(self, key: str, message: str):
         raise SceneError(f"{self.source}: {self.where}, field '{key}': {message}")
 
     def has(self, key: str) -> bool:
+        self.asked.add(key)
         return key in self.table
 
     def raw(self, key: str, default: Any = ...):
         self.used.add(key)
         if key not in self.table:
             if default is ...:
-                close = difflib.get_close_matches(key, [k for k in self.table if isinstance(k, str)], n=1)
-                hint = f" (the table has '{close[0]}': misspelt?)" if close else ""
+                close = close_match(key, self.table)
+                hint = f" (the table has '{close}': misspelt?)" if close else ""
                 raise SceneError(f"{self.source}: {self.where}: missing field '{key}'{hint}")
             return default
         return self.table[key]
@@ -153,9 +162,13 @@ class Fields:
         return MODES[v]
 
     def reject_unknown(self, allowed: set[str] | None = None):
+        """Refuse the fields not in ``allowed`` (default: those read), with the known field each
+        most likely misspells and the known fields."""
         extra = sorted(set(self.table) - (allowed if allowed is not None else self.used))
         if extra:
-            raise SceneError(f"{self.source}: {self.where}: unknown field(s) {extra}")
+            known = sorted(allowed if allowed is not None else self.used | self.asked)
+            raise SceneError(f"{self.source}: {self.where}: unknown field(s) {extra}{did_you_mean(extra, known)}; "
+                             f"rename or remove {'it' if len(extra) == 1 else 'them'} (known fields: {', '.join(known)})")
 
 
 def _points(fields: Fields, key: str) -> dict[str, np.ndarray]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from .. import _friction, _loads
 from .._errors import MechanismError, SceneError
+from .._listing import did_you_mean
 from .._mechanism import Mechanism
 from .._values import value_problem
 from ._load import Fields
@@ -28,7 +29,7 @@ def _value(f: Fields, key: str, default=...):
         f.fail(key, f"expected a number, {{ polynomial = [...] }} or {{ x = [...], values = [...] }}, got {v!r}")
     extra = sorted(set(v) - FORM_KEYS)
     if extra:
-        f.fail(key, f"unknown entries {extra} (allowed: {sorted(FORM_KEYS)})")
+        f.fail(key, f"unknown entries {extra}{did_you_mean(extra, FORM_KEYS)} (allowed: {sorted(FORM_KEYS)})")
     variable = v.get("variable", "q")
     if not isinstance(variable, str) or variable not in _loads.VARIABLES:
         f.fail(key, f"variable must be one of {list(_loads.VARIABLES)}, got {variable!r}")

@@ -86,13 +86,16 @@ class Scene(eqx.Module):
         return eqx.tree_at(lambda s: s.mechanism, self, mechanism)
 
     def with_loads(self, loads) -> "Scene":
-        """A copy with these ``loads`` (a tuple of :class:`assurjax.AbstractLoad`), checked
-        against the mechanism. Built inside a traced function, its arrays may be traced:
+        """A copy with these ``loads`` (a tuple of :class:`assurjax.AbstractLoad`; one load
+        alone is the only one, as in :func:`assurjax.simulate`), checked against the mechanism.
+        They replace the scene's: add one with ``scene.with_loads(scene.loads + (load,))``.
+        Built inside a traced function, its arrays may be traced:
         ``jax.grad(lambda mu: synthesis.standstill_time(scene.with_loads(scene.loads +
         (assurjax.JointFriction("A", mu, radius=0.01),)))[0])(0.1)``."""
         from .._loads import check_loads
+        from .._model import load_tuple
 
-        loads = tuple(loads)
+        loads = load_tuple(loads, "with_loads")
         check_loads(self.mechanism, loads)
         return eqx.tree_at(lambda s: s.loads, self, loads)
 

@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from .._jit import jit
-from .._mechanism import Mechanism, positions
+from .._mechanism import Mechanism, check_mechanism, positions
 from ..groups import GROUND
 
 
@@ -79,7 +79,8 @@ def _condition(mech: Mechanism, g, points: dict, angles: dict) -> str:
         r1, r2, d = _length(mech, a, e1, j), _length(mech, b, e2, j), float(np.hypot(*(xy(e2) - xy(e1))))
         if d > r1 + r2:
             return f"|{e1} {e2}| = {d:.4g} m > {r1:.4g} + {r2:.4g} m (links {a}, {b} too short)"
-        return f"|{e1} {e2}| = {d:.4g} m < |{r1:.4g} - {r2:.4g}| m (one link folds inside the other)"
+        longer, other = (a, b) if r1 > r2 else (b, a)
+        return f"|{e1} {e2}| = {d:.4g} m < |{r1:.4g} - {r2:.4g}| m (link {longer} too long beside {other}: one folds inside the other)"
     if g.kind in ("RRP", "PRR"):
         rod = g.links[0] if g.kind == "RRP" else g.links[1]
         e, j = g.joints if g.kind == "RRP" else g.joints[::-1]
@@ -97,6 +98,24 @@ def _condition(mech: Mechanism, g, points: dict, angles: dict) -> str:
     return "Newton finds no assembly on the branch followed from the guess (the group's links cannot close)"
 
 
+def violated_condition(mechanism: Mechanism, group, q: float, pose=None) -> str | None:
+    """The condition ``group`` (one of the mechanism's, every group it depends on assembled)
+    violates at the one driving coordinate ``q``, as :func:`assembly_report` words it;
+    ``pose``: the mechanism's :class:`Pose` at q if at hand. None for a batch of mechanisms."""
+    if any(np.ndim(v) != 1 for v in (*mechanism.ground.values(), *(p for link in mechanism.links.values() for p in link.points.values()))):
+        return None
+    if pose is None:
+        pose = positions(mechanism, q)  # its own jit, once per structure
+    return _condition(mechanism, group, *jax.tree.map(np.asarray, (pose.points, pose.angles)))
+
+
+def links_to_check(mechanism: Mechanism, group) -> tuple[str, ...]:
+    """The group's links and those carrying the points it reads from earlier groups (GROUND for a
+    fixed one): where the lengths of a group that cannot assemble are set."""
+    owner = dict(mechanism.owner)
+    return tuple(dict.fromkeys((*group.links, *(owner[p] for p in group.external_points()))))
+
+
 @jit
 def _poses(mechanism: Mechanism, q):
     """Positions at every q: compiled once per mechanism structure (new dimensions reuse it)."""
@@ -109,6 +128,7 @@ def assembly_report(mechanism: Mechanism, q) -> AssemblyReport:
     the q intervals and the violated condition with numbers (m).
 
     Example: ``print(assembly_report(load_scene("roberts").mechanism, np.linspace(-3, 3, 121)))``."""
+    check_mechanism(mechanism, "assembly_report")
     q = np.asarray(q, dtype=float).reshape(-1)
     pose = _poses(mechanism, q)
     ok = np.asarray(pose.ok)

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import MechanismError
-from .._listing import few
+from .._listing import did_you_mean, few
 from .._mechanism import check_point_names
 from .._values import check_value
 from ..groups import GROUND
@@ -164,7 +164,7 @@ def _link_spec(name, value) -> LinkSpec:
     if isinstance(value, Mapping):
         extra = sorted(set(value) - set(LINK_FIELDS))
         if extra:
-            raise MechanismError(f"link '{name}': unknown field(s) {extra} (known: {list(LINK_FIELDS)})")
+            raise MechanismError(f"link '{name}': unknown field(s) {extra}{did_you_mean(extra, LINK_FIELDS)} (known: {list(LINK_FIELDS)})")
         if "joints" not in value:
             raise MechanismError(f"link '{name}': missing 'joints' (the names of its joints)")
         joints = value["joints"]
@@ -189,7 +189,8 @@ def _slide(s) -> Slide:
         extra = sorted(set(s) - {"link", "on", "direction"})
         missing = [k for k in ("link", "on") if k not in s]
         if extra or missing:
-            raise MechanismError(f"slide {dict(s)!r}: fields are 'link', 'on', 'direction'; unknown {extra}, missing {missing}")
+            raise MechanismError(f"slide {dict(s)!r}: fields are 'link', 'on', 'direction'; unknown {extra}, missing {missing}"
+                                 f"{did_you_mean(extra, ('link', 'on', 'direction'))}")
         s = Slide(s["link"], s["on"], s.get("direction"))
     elif not isinstance(s, Slide):
         raise MechanismError(f"slide {s!r}: expected Slide(link, on, direction) or a table with link, on, direction")
