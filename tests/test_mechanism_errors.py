@@ -699,6 +699,7 @@ def test_a_batch_counts_a_member_that_cannot_assemble_at_the_start_once():
         result: np.ndarray
         event: np.ndarray
         status: str = ""
+        jammed: np.ndarray | None = None
 
     # its event says lock-up (the check that found it); it was counted there as well
     summary = batch_summary(Ends(np.array([0, START_NOT_ASSEMBLED]), np.array([NO_EVENT, LOCKUP])))
