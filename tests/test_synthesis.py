@@ -73,6 +73,24 @@ def reference_straightness(lengths, centre, stroke=0.26, n=40001):
     return 0.5 * (r.max() - r.min())
 
 
+# ----------------------------------------------------------------------------- parameters
+
+
+def test_parameters_by_position_go_back_to_their_own_links():
+    """A select by position over links not listed alphabetically (the press: crank, rod, ram):
+    the rebuilt mechanism has each mass on its own link and the names say which. eqx.tree_at
+    read the selection on a copy rebuilt sorted: rebuild(theta) gave the rod the ram's 0.8 kg,
+    and parameter_names called the rod's mass the ram's."""
+    m = assurjax.load_scene("press_with_friction").mechanism
+    masses = lambda m: tuple(link.mass for link in m.links.values())  # noqa: E731
+    theta, rebuild = syn.flatten_parameters(m, select=masses)
+    np.testing.assert_array_equal(theta, [0.5, 1.0, 0.8])
+    again = rebuild(theta + jnp.array([0.0, 0.1, 0.2]))
+    assert list(again.links) == list(m.links)
+    assert {name: float(link.mass) for name, link in again.links.items()} == {"crank": 0.5, "rod": 1.1, "ram": 1.0}
+    assert syn.parameter_names(m, select=masses) == [".links['crank'].mass", ".links['rod'].mass", ".links['ram'].mass"]
+
+
 # ----------------------------------------------------------------------------- Design
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._errors import AssurjaxError
+from .._trees import SelectionError, picked, replace_selected, stand_ins
 
 
 def _selected(tree: Any, select: Callable | None):
@@ -33,13 +34,18 @@ def _selected(tree: Any, select: Callable | None):
     for leaf in jax.tree.leaves(params):
         if not eqx.is_inexact_array(leaf):
             raise AssurjaxError(f"select: every selected parameter must be a floating-point array, got {type(leaf).__name__}")
+    # put back in the tree's own order of links and points: eqx.tree_at read the selection on a
+    # copy rebuilt in alphabetical order (the press's masses by m.links.values(): rod's and ram's swapped)
+    def put_back(p):
+        return replace_selected(select, tree, lambda _: jax.tree.leaves(p))
+
     try:  # the selection put back once: it must name whole arrays of the tree
-        eqx.tree_at(select, tree, params)
-    except (TypeError, ValueError) as e:
+        put_back(params)
+    except (TypeError, ValueError, SelectionError) as e:
         raise AssurjaxError("select must pick whole arrays of the mechanism or scene (a point, a mass), not parts or "
                             "copies of them (e.g. m.ground['D'][0]: select m.ground['D'], and keep a coordinate "
                             f"with Design's fixed=) ({type(e).__name__}: {e})") from None
-    return params, lambda p: eqx.tree_at(select, tree, p)
+    return params, put_back
 
 
 def flatten_parameters(tree: Any, *, select: Callable | None = None) -> tuple[jax.Array, Callable[[jax.Array], Any]]:
@@ -65,27 +71,20 @@ def parameter_names(tree: Any, *, select: Callable | None = None) -> list[str]:
     return names
 
 
-class _Path:
-    """A stand-in for an array of the tree, carrying where it sits (see :func:`_selected_paths`)."""
-
-    def __init__(self, where: str):
-        self.where = where
-
-
 def _selected_paths(tree: Any, select: Callable | None, params: Any) -> list[str]:
     """Where each selected array sits in the whole tree: ``select`` run on the tree with its
     arrays replaced by their paths (found by identity, an array used in two places was named
     by the other). Without a select, or where it cannot run on stand-ins, by identity."""
     leaves = jax.tree_util.tree_flatten_with_path(params)[0]
     if select is not None:
-        marked = jax.tree_util.tree_map_with_path(
-            lambda path, x: _Path(jax.tree_util.keystr(path)) if eqx.is_array(x) else x, tree)
+        slots = stand_ins(tree)  # in the tree's own order (a copy rebuilt sorted named the press's rod mass 'ram')
+        where = {id(s): jax.tree_util.keystr(path) for path, s in jax.tree_util.tree_flatten_with_path(slots)[0]}
         try:
-            found = jax.tree.leaves(select(marked), is_leaf=lambda x: isinstance(x, _Path))
+            found = picked(select, slots)
         except Exception:  # noqa: BLE001 (a select that computes on its arrays: named by identity below)
             found = []
-        if len(found) == len(leaves) and all(isinstance(f, _Path) for f in found):
-            return [f.where for f in found]
+        if len(found) == len(leaves):
+            return [where[id(f)] for f in found]
     where = {id(leaf): jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
     return [where.get(id(leaf), jax.tree_util.keystr(path)) for path, leaf in leaves]
 
