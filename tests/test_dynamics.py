@@ -198,6 +198,28 @@ def test_lockup_stops_with_a_clear_result():
     assert sol.t[-1] < 3.0
 
 
+def test_a_batch_names_the_group_each_member_failed_in():
+    """batch_summary given the group names (batch_simulate's) names each member's failed group,
+    None where none failed, as a single run names its own: a batch had failed_group None even
+    for a member that could not assemble at the start (slider-cranks of rods 0.3, 0.105 and
+    0.08 m from q0 = 1.3 now give (None, None, 'rod_slider'))."""
+    from assurjax.dynamics._results import _SUCCESS, START_NOT_ASSEMBLED
+    from assurjax.dynamics._solution import batch_summary
+
+    n = 3
+    z = np.zeros((n, 2))
+    sols = aj.Solution(t=z, q=z, omega=z, domega=None, kinetic=None, potential=None, total=None, dissipated=None,
+                       points={}, angles={}, valid=np.ones((n, 2), bool), t_final=np.zeros(n), q_final=np.zeros(n),
+                       omega_final=np.zeros(n), t_stop=np.full(n, np.inf), event=np.array([-1, LOCKUP, LOCKUP]),
+                       failed_group_index=np.array([-1, 1, 0]), num_steps=np.ones(n, int),
+                       result=np.array([_SUCCESS, _SUCCESS, START_NOT_ASSEMBLED]))
+    groups = tuple(g.name for g in aj.load_scene("slider_crank").mechanism.groups)
+    summary = batch_summary(sols, groups=groups)
+    assert summary.failed_group == (None, groups[1], groups[0])
+    assert "1 lock-up" in summary.status and "1 cannot assemble at the start" in summary.status
+    assert batch_summary(sols).failed_group is None  # without the names (simulate's batches of starts)
+
+
 LIMIT = np.arccos((0.3**2 + 0.5**2 - 0.6**2) / (2 * 0.3 * 0.5))  # the triple rocker's stretched dyad: |A - O4| = 0.6
 
 

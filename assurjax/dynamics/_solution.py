@@ -44,7 +44,8 @@ class Solution(eqx.Module):
     (from the kinematic coefficients and the simulated w, dw/dt).
     ``t_stop``: time (s) at which a stop event fired (None when none did; under
     jit/vmap an array, +inf when none did). ``event``: -1 none, 0 standstill, 1 a group
-    can no longer assemble (``failed_group`` names it), 2 + k the k-th user event.
+    can no longer assemble (``failed_group`` names it; for a batch of mechanisms one name or
+    None per member), 2 + k the k-th user event.
     ``valid``: the saved times reached, then the final state (at ``t_final``); the
     entries after it repeat the final state (under jit/vmap only; :func:`simulate`
     trims them). ``result``: an :class:`assurjax.RESULTS` item
@@ -339,9 +340,11 @@ def replaced(sol: Solution, **changes) -> Solution:
     return new
 
 
-def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
+def batch_summary(sols: Solution, jammed: np.ndarray | None = None, groups: tuple[str, ...] | None = None) -> Solution:
     """A batched Solution (host arrays) with a status counting the outcomes; ``jammed``:
-    the members stopped where the joint friction jams (counted apart from solver failures)."""
+    the members stopped where the joint friction jams (counted apart from solver failures);
+    ``groups``: the mechanisms' group names, to name each member's ``failed_group`` (a tuple
+    with one name or None per member, as a single run's; left None without them)."""
     codes = result_code(sols.result)
     events, results = np.asarray(sols.event), np.where(np.isin(codes, FINISHED), 0, codes)
     unassembled = codes == START_NOT_ASSEMBLED  # its event says lock-up too: counted once, below
@@ -357,4 +360,6 @@ def batch_summary(sols: Solution, jammed: np.ndarray | None = None) -> Solution:
     parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []
     failures = (events < 0) & (results != 0) & ~unassembled & ~jammed
     parts += [f"{np.sum(failures & (codes == code))} solver failures ({result_text(int(code))})" for code in np.unique(codes[failures])]
-    return dataclasses.replace(sols, jammed=jammed, status=f"batch of {events.size}: " + ", ".join(parts))
+    named = {} if groups is None else {"failed_group": tuple(groups[i] if i >= 0 else None
+                                                            for i in np.ravel(sols.failed_group_index).tolist())}
+    return dataclasses.replace(sols, jammed=jammed, status=f"batch of {events.size}: " + ", ".join(parts), **named)
