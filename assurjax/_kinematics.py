@@ -22,6 +22,7 @@ from ._geometry import perp, rotation, wrap_angle
 from ._jit import jit
 from ._mechanism import Mechanism, Pose, check_mechanism, point_names, positions
 from ._positions import checked_request, stacked_positions
+from ._repr import value_pdoc
 from ._values import check_state_count, check_value, check_values, concrete
 from .groups._base import GROUND, AbstractGroup
 
@@ -35,6 +36,8 @@ class Kinematics(eqx.Module):
     batch of q every array gets the batch shape in front. ``rotations``: the links'
     (cos, sin) where the kinematics was built from :class:`Coefficients` (else None).
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     q: Array
     omega: Array
@@ -172,6 +175,8 @@ class Coefficients(eqx.Module):
     reads it, where its cosine and sine, taken of its angle at each reader, were copied by
     XLA into every computation reading them (the press with friction: 21 sines and cosines
     per right-hand side, 3 needed)."""
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     q: Array
     stacked: tuple

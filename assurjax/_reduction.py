@@ -37,6 +37,7 @@ from ._kinematics import (Coefficients, Kinematics, branch_coefficients, coeffic
                           singular_groups)
 from ._loads import any_velocity_dependent, check_loads, driver_effort
 from ._mechanism import Mechanism
+from ._repr import value_pdoc
 from ._values import check_state_count, check_values
 
 
@@ -61,6 +62,8 @@ class Reduction(eqx.Module):
     (all but gravity and springs, the driving effort included), when asked for:
     ``work_force * omega`` is the power that changes T + V.
     """
+
+    __pdoc__ = value_pdoc  # repr: scalars and small arrays by value, long tables cut
 
     inertia: Array
     dinertia: Array
