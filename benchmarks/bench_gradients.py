@@ -6,8 +6,9 @@ of f with respect to every parameter of the scene (all point coordinates, centre
 masses, inertias and gravity: 50 numbers) with
 
 - ``quadrature``: forward sensitivities by variation of constants (assurjax.synthesis,
-  ``adjoint="quadrature"``): the plain simulation, one batched reverse pass of the reduced
-  acceleration at Gauss-Legendre nodes, a 2x2 transition-matrix solve (no AD through diffrax),
+  ``adjoint="quadrature"``): the plain simulation saved at Gauss-Legendre nodes, one batched
+  reverse pass of the reduced acceleration there, one solve of every panel's 2x2 transition
+  matrix (no AD through diffrax),
 - ``sensitivity``: the forward-sensitivity equations integrated with the state by diffrax
   (one reverse pass of the acceleration per solver stage),
 - reverse mode through diffrax, RecursiveCheckpointAdjoint (default checkpoints, and every

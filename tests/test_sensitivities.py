@@ -444,3 +444,21 @@ def test_quadrature_that_does_not_resolve_the_motion_gives_nan_not_a_wrong_deriv
     assert np.all(np.isnan(np.asarray(jax.jacfwd(lambda c: state(c, adjoint="quadrature", panels=64))(c))))
     fine = np.asarray(jax.jacfwd(lambda c: state(c, adjoint="quadrature", panels=256))(c))
     np.testing.assert_allclose(fine, fd, rtol=1e-4)
+
+
+@pytest.mark.slow  # three compilations of the sensitivity routes (~20 s): the default suite stays under 10 min
+def test_quadrature_with_fixed_steps_and_a_run_short_of_t1():
+    """With a fixed step (dt) the quadrature's transition solve got the PID controller's place
+    taken by constant steps and no dt0 (diffrax's ValueError): it takes the simulation's dt
+    now, and agrees with the "sensitivity" route at that dt. A run that ends short of t1 (its
+    step budget spent) is NaN under jit with derivative 0: the route saves the states at its
+    nodes, which such a run does not reach."""
+    scene = assurjax.load_scene("slider_crank")
+
+    def value_and_derivative(adjoint, **kw):
+        return jax.value_and_grad(lambda q0: syn.final_state(scene, 0.3, q0=q0, adjoint=adjoint, **kw)[0])(0.5)
+
+    quadrature, sensitivity = (float(value_and_derivative(a, dt=1e-3)[1]) for a in ("quadrature", "sensitivity"))
+    assert abs(quadrature - sensitivity) <= RTOL * abs(sensitivity), (quadrature, sensitivity)
+    value, derivative = value_and_derivative("quadrature", max_steps=3)
+    assert np.isnan(value) and derivative == 0.0
