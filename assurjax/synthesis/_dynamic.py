@@ -18,7 +18,7 @@ the adjoint named by ``adjoint``:
   second-order kinematics at every solver stage).
 - ``"backsolve"`` (diffrax.BacksolveAdjoint): solves the adjoint ODE backwards in
   time, O(1) memory, gradients only to the solver tolerance; no events.
-- ``"quadrature"`` (the fastest for the whole gradient, ~3-6x one simulation for the
+- ``"quadrature"`` (the fastest for the whole gradient, ~3.5-4x one simulation for the
   50 parameters of the Watt six-bar: benchmarks/README.md): forward sensitivities by the
   variation-of-constants formula (:mod:`._sensitivity`): the plain simulation, one
   batched reverse pass of the reduced acceleration at Gauss-Legendre nodes and a 2x2

@@ -19,7 +19,7 @@ as reverse mode through the solver would).
 
 ``method="quadrature"`` gets the same S from the variation-of-constants formula
 instead (see :func:`_augmented_quadrature`): the parameter derivative is then one
-batched reverse pass at Gauss-Legendre nodes after the plain simulation, 3-4x the
+batched reverse pass at Gauss-Legendre nodes after the plain simulation, 3.5-4x the
 cost of the simulation itself for all 50 parameters of the Watt six-bar (the
 ``"loop"`` method pays a reverse pass per solver stage: ~45x; a reverse pass, like a
 batch of 50 tangents, costs far more inside the solver's loop, where the plain
