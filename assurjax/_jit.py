@@ -327,7 +327,13 @@ def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:
 # passes, and the parameter is unused again); (2) cannot call libraries (LAPACK, host
 # callbacks): a region's body takes _linalg's plain LU, and a body holding such a call runs as
 # an ordinary call; (3) emits no scatter, which a gather's transpose is: a region's derivatives
-# are those of the ordinary call (custom_jvp). Past REGION_LARGEST values in an array XLA's own
+# are those of the ordinary call (custom_jvp); (4) cannot call XLA's collectives (no runtime
+# symbol for them in its kernel: 'Failed to materialize symbols', __xla_cpu_runtime_AllReduce):
+# a vmapped region holds tests over the whole batch (a while loop's batched predicate, equinox's
+# unvmap_any), each an all-reduce once XLA partitions a batch sharded over devices, so a
+# sharded sweep maps each device's members on their own (_sweep._sharded_vmap, a shard_map)
+# and no collective reaches a region; a user's own jit over a sharded batch takes
+# ASSURJAX_REGIONS=0 or a shard_map. Past REGION_LARGEST values in an array XLA's own
 # kernels do better, and the region is an ordinary call too. Verified on the XLA of the JAX
 # versions below (CPU): elsewhere, or with the environment variable ASSURJAX_REGIONS=0, every
 # region is an ordinary nested jit (docs/design-notes.md, "Regions").

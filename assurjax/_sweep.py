@@ -11,7 +11,8 @@ loop, with a progress bar), so memory stays bounded by the chunk size; each
 chunk's results are either written into preallocated numpy arrays or reduced.
 With ``mesh=`` every chunk is split along its batch axis over the devices of a
 :class:`jax.sharding.Mesh` (``NamedSharding(mesh, PartitionSpec("batch"))``);
-the jitted function then runs on all devices at once (computation follows data).
+the jitted function then runs on all devices at once, each device on its own
+members (a ``shard_map`` of the vmapped function: no communication between devices).
 
 Multi-host: call ``jax.distributed.initialize()`` on every process first, then
 build the mesh over ``jax.devices()`` (all processes' devices) with
@@ -40,6 +41,7 @@ from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism, value_fields
 from ._model import Model, check_has_inertia
+from ._trees import SelectionError, map_keep_order, replace_selected
 from ._values import check_state_count, check_value, check_values, value_problem
 
 BATCH_AXIS = "batch"
@@ -53,26 +55,30 @@ def stack_mechanisms(mechanisms: Sequence[Any]) -> Any:
     """Stack mechanisms (or scenes) of one structure into one batch (leading axis on every array).
 
     Raises :class:`AssurjaxError` when the structures differ (other groups,
-    names or modes), naming the first mismatching index.
+    names or modes), naming the first mismatching index. Arrays are stacked by name;
+    the batch keeps item 0's order of links and points.
     """
     mechanisms = list(mechanisms)
     if not mechanisms:
         raise AssurjaxError("stack_mechanisms: empty sequence")
     arrays0, static0 = eqx.partition(mechanisms[0], eqx.is_array)
     treedef0 = jax.tree.structure(arrays0)
-    parts = []
     for i, m in enumerate(mechanisms):
         arrays, static = eqx.partition(m, eqx.is_array)
         if jax.tree.structure(arrays) != treedef0 or jax.tree.structure(static) != jax.tree.structure(static0):
             raise AssurjaxError(f"stack_mechanisms: item {i} has a different structure than item 0 (groups, links, points or modes differ)")
-        parts.append(arrays)
-    stacked = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *parts)
-    return eqx.combine(stacked, static0)
+    # by name, in item 0's order (eqx.combine of the partitioned arrays rebuilt every dict sorted)
+    return map_keep_order(lambda x, *xs: jnp.stack([jnp.asarray(y) for y in (x, *xs)]) if eqx.is_array(x) else x,
+                          *mechanisms)
 
 
 def broadcast_batch(mechanism: Any, n: int) -> Any:
     """``n`` copies of one mechanism as a batch (every array gets a leading axis of size ``n``)."""
-    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)) if eqx.is_array(x) else x, mechanism)
+    return map_keep_order(lambda x: _broadcast(x, n), mechanism)
+
+
+def _broadcast(x, n: int):
+    return jnp.broadcast_to(x, (n,) + jnp.shape(x)) if eqx.is_array(x) else x
 
 
 def batch_size(batch: Any) -> int:
@@ -99,7 +105,7 @@ def check_batch_values(mechanisms: Mechanism, where: str) -> None:
 
 def take(batch: Any, index) -> Any:
     """Item ``index`` (or a slice) of a batch."""
-    return jax.tree.map(lambda x: x[index] if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
+    return map_keep_order(lambda x: x[index] if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
 
 
 def point_coordinates(mechanism: Mechanism):
@@ -123,7 +129,9 @@ def perturb(
     broadcast. ``select`` picks a pytree of arrays (default: every point
     coordinate, so every link length moves by up to about ``relative``).
     Perturbed copies may fail to assemble: check ``Kinematics.ok``. ``n``: at most
-    10 million.
+    10 million. ``select`` is read on the mechanism as given (a selection by position,
+    ``tuple(link.mass for link in m.links.values())``, follows its order of links) and
+    must return whole arrays of it; the batch keeps that order.
     """
     if not (isinstance(n, numbers.Integral) and 0 < n <= MAX_COPIES):
         raise AssurjaxError(f"perturb: n must be a positive integer, at most {MAX_COPIES}, got {n!r}")
@@ -137,19 +145,28 @@ def perturb(
         raise AssurjaxError(f"perturb: key must be a JAX random key (jax.random.key(0) or jax.random.PRNGKey(0)), got {key!r}")
     select = point_coordinates if select is None else select
     try:
-        chosen = select(mechanism)
+        select(mechanism)
     except (KeyError, AttributeError, IndexError, TypeError) as e:
         raise AssurjaxError(f"perturb: select failed on the mechanism ({type(e).__name__}: {e})") from None
-    leaves, treedef = jax.tree.flatten(chosen)
-    keys = jax.random.split(key, 2 * len(leaves))
-    new = []
-    for i, x in enumerate(leaves):
-        x = jnp.asarray(x, dtype=float)
-        u1 = jax.random.uniform(keys[2 * i], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
-        u2 = jax.random.uniform(keys[2 * i + 1], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
-        new.append(x * (1.0 + relative * u1) + absolute * u2)
-    batch = broadcast_batch(mechanism, n)
-    return eqx.tree_at(select, batch, jax.tree.unflatten(treedef, new))
+
+    def perturbed(leaves):
+        keys = jax.random.split(key, 2 * len(leaves))
+        new = []
+        for i, x in enumerate(leaves):
+            x = jnp.asarray(x, dtype=float)
+            u1 = jax.random.uniform(keys[2 * i], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
+            u2 = jax.random.uniform(keys[2 * i + 1], (n,) + x.shape, minval=-1.0, maxval=1.0, dtype=x.dtype)
+            new.append(x * (1.0 + relative * u1) + absolute * u2)
+        return new
+
+    # the selection is read and put back on the mechanism in its own order of links and points:
+    # eqx.tree_at read it on a copy rebuilt in alphabetical order, and put the values read here
+    # on other links (the press's rod and ram swapped masses, strandbeest's links their points)
+    try:
+        return replace_selected(select, mechanism, perturbed, others=lambda x: _broadcast(x, n))
+    except (SelectionError, KeyError, AttributeError, IndexError, TypeError) as e:
+        raise AssurjaxError(f"perturb: select must return whole arrays of the mechanism, picked by name or position "
+                            f"(e.g. m.links['rod'].mass), not values computed from them ({type(e).__name__}: {e})") from None
 
 
 # --------------------------------------------------------------------------- sharding
@@ -167,7 +184,7 @@ def shard_batch(batch: Any, mesh: Mesh) -> Any:
     n = batch_size(batch)
     if n % mesh.size:
         raise AssurjaxError(f"shard_batch: batch size {n} is not a multiple of the {mesh.size} devices of the mesh")
-    return jax.tree.map(lambda x: jax.device_put(x, sharding) if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
+    return map_keep_order(lambda x: jax.device_put(x, sharding) if eqx.is_array(x) or isinstance(x, np.ndarray) else x, batch)
 
 
 # --------------------------------------------------------------------------- chunked sweeps
@@ -190,7 +207,7 @@ def _pad(chunk: Any, size: int) -> Any:
         missing = size - x.shape[0]
         return x if missing == 0 else np.concatenate([np.asarray(x), np.repeat(np.asarray(x)[-1:], missing, axis=0)])
 
-    return jax.tree.map(pad, chunk)
+    return map_keep_order(pad, chunk)
 
 
 def sweep(
@@ -234,7 +251,7 @@ def sweep(
     size = n if chunk_size is None else min(int(chunk_size), n, MAX_COPIES)
     if mesh is not None:
         size = -(-size // mesh.size) * mesh.size
-    run = _compiled_vmap(fn)
+    run = _compiled_vmap(fn) if mesh is None else _sharded_vmap(fn, mesh)
     out, carry = None, None
     with _progress_bar(n, progress, desc) as bar:
         for start in range(0, n, size):
@@ -282,6 +299,46 @@ def _compiled_vmap(fn):
         except TypeError:
             pass
         return compiled
+
+
+_SHARDED: dict = {}
+
+
+def _sharded_vmap(fn, mesh: Mesh):
+    """One jitted ``shard_map`` of the vmapped ``fn`` over ``mesh``'s batch axis per function
+    and mesh: every device runs the vmapped function on its own members, as an unsharded
+    sweep of fewer items. A vmap's tests over its whole batch (a while loop's predicate, equinox's
+    ``unvmap_any``) stay on each device; partitioned by XLA from a sharded batch (a plain jit)
+    each became an all-reduce at every step of the loop, and inside a region
+    (``_jit.region``: one kernel, which cannot call XLA's collectives on a CPU) a crash: the
+    sharded sweep with joint friction raised ``INTERNAL: Failed to materialize symbols``."""
+    key = (fn, mesh)
+    try:
+        return _SHARDED[key]
+    except (KeyError, TypeError):
+        pass
+    spec = PartitionSpec(BATCH_AXIS)
+
+    def run(chunk):
+        arrays, static = eqx.partition(chunk, eqx.is_array)
+        results = {}
+
+        def local(arrays):  # one device's members
+            out = eqx.filter_vmap(fn)(eqx.combine(arrays, static))
+            out_arrays, results["static"] = eqx.partition(out, eqx.is_array)
+            return out_arrays
+
+        # every array of the chunk and of the results carries the batch axis (filter_vmap's
+        # in_axes and out_axes): the members split, nothing replicated to check
+        out_arrays = jax.shard_map(local, mesh=mesh, in_specs=(spec,), out_specs=spec, check_vma=False)(arrays)
+        return eqx.combine(out_arrays, results["static"])
+
+    compiled = jit(run)
+    try:
+        _SHARDED[key] = compiled
+    except TypeError:
+        pass
+    return compiled
 
 
 # --------------------------------------------------------------------------- batched kinematics
@@ -387,8 +444,9 @@ def batch_simulate(
     As :func:`assurjax.simulate`'s batches: at most 100 million saved states (mechanisms x
     samples) a call, and a fixed step ``dt`` no longer than the span.
     Returns an untrimmed Solution of numpy arrays with the batch axis in front:
-    read ``valid``, ``event``, ``t_stop`` and ``result`` per mechanism (a batch
-    member that locks up or fails does not stop the others).
+    read ``valid``, ``event``, ``t_stop``, ``result`` and ``failed_group`` (a tuple: the
+    group each member could not assemble, or None) per mechanism (a batch member that
+    locks up or fails does not stop the others).
     """
     from .dynamics._settings import check_single_start, check_step_within_span, fixed_step_from, settings_from
     from .dynamics._solve import check_saved_total, check_steps_request, checked_saveat, refuse_traced, simulate_core
@@ -438,7 +496,8 @@ def batch_simulate(
     sols = sweep(_SIM_ITEMS[key], batch, chunk_size=chunk_size, mesh=mesh, progress=progress, desc="simulate")
     mechanism, loads, gravity = jax.tree.map(lambda x: x[0], batch)  # Model() checks one model's shapes
     models = eqx.tree_at(lambda m: (m.mechanism, m.loads, m.gravity), Model(mechanism, gravity, loads), batch)
-    return batch_summary(sols, jammed_members(sols, models, models_batched=True))
+    groups = tuple(g.name for g in mechanism.groups)  # shared by every member
+    return batch_summary(sols, jammed_members(sols, models, models_batched=True), groups)
 
 
 _SIM_ITEMS: dict = {}

@@ -109,6 +109,7 @@ def test_stack_mechanisms(batch, roberts):
         assurjax.batch_kinematics(roberts, Q)
 
 
+
 SHARDED = textwrap.dedent(
     """
     import os
@@ -132,13 +133,80 @@ SHARDED = textwrap.dedent(
 )
 
 
-def test_sharded_equals_unsharded_on_four_cpu_devices(tmp_path):
+def _run_on_cpu_devices(tmp_path, source: str, devices: int) -> str:
+    """The last line ``source`` prints, run in a process of its own on ``devices`` forced CPU
+    devices (XLA reads its flags once per process)."""
     script = tmp_path / "sharded.py"
-    script.write_text(SHARDED)
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    script.write_text(source)
+    env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
-    assert out.stdout.strip().splitlines()[-1] in ("EXACT", "CLOSE")
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_sharded_equals_unsharded_on_four_cpu_devices(tmp_path):
+    assert _run_on_cpu_devices(tmp_path, SHARDED, 4) in ("EXACT", "CLOSE")
+
+
+SHARDED_FRICTION = textwrap.dedent(
+    """
+    import os
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    import jax, numpy as np, assurjax
+    from assurjax import dynamics
+    from assurjax.dynamics._field import field_args
+    assert len(jax.devices()) == 2, jax.devices()
+    pendulum = assurjax.scene_from_dict({  # a crank alone: the smallest field with friction
+        "scene": {"name": "pendulum", "gravity": [0.0, -9.81]}, "ground": {"O": [0.0, 0.0]},
+        "links": {"bar": {"points": {"O": [0.0, 0.0]}, "com": [0.3, 0.0], "mass": 2.0, "inertia": 0.02}},
+        "formation": [{"group": "crank", "name": "crank", "link": "bar", "pivot": "O"}]})
+    friction = (assurjax.JointFriction("O", 0.2, radius=0.02),)
+    args = field_args(assurjax.Model(pendulum.mechanism, pendulum.gravity, friction))
+
+    def rates(y):
+        return dynamics.vector_field(0.0, dynamics.State(*y), args).omega
+
+    states = (np.linspace(0.2, 2.0, 4), np.linspace(-3.0, 3.0, 4))
+    plain = assurjax.sweep(rates, states)
+    sharded = assurjax.sweep(rates, states, mesh=assurjax.batch_mesh())
+    assert np.max(np.abs(sharded - plain)) <= 1e-12 * np.max(np.abs(plain)), (plain, sharded)
+    print("REGIONS" if assurjax._jit.regions_enabled() else "NO REGIONS")
+    """
+)
+
+
+def test_a_sharded_sweep_with_friction_equals_the_unsharded_one(tmp_path):
+    """The friction field's regions (_jit.region: one kernel each) hold loops over a batch-wide
+    test (the iteration's and Newton's while loops, vmapped); partitioned by XLA over a sharded
+    batch, such a test became an all-reduce, which a region's kernel cannot call on a CPU (the
+    call raised 'INTERNAL: Failed to materialize symbols'). A sharded sweep runs each device's
+    members on their own (shard_map): no collective, regions kept. 2 forced CPU devices,
+    4 states of a pendulum with friction in its pivot."""
+    assert _run_on_cpu_devices(tmp_path, SHARDED_FRICTION, 2) in ("REGIONS", "NO REGIONS")
+
+
+@pytest.mark.slow  # compiles a vmapped simulation with friction twice: about a minute
+def test_a_sharded_batch_simulate_with_friction_equals_the_unsharded_one(tmp_path):
+    """batch_simulate(mesh=) of the press with friction on 2 forced CPU devices, against the
+    same batch unsharded (it crashed as the sweep above did)."""
+    source = textwrap.dedent(
+        """
+        import os
+        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+        import jax, numpy as np, assurjax
+        scene = assurjax.load_scene("press_with_friction")
+        batch = assurjax.perturb(scene.mechanism, jax.random.key(3), 2, relative=0.05,
+                                 select=lambda m: tuple(link.mass for link in m.links.values()))
+        kw = dict(t1=0.2, samples=3, stop=None, points=(), angles=(), progress=False)
+        plain = assurjax.batch_simulate(scene, batch, **kw)
+        sharded = assurjax.batch_simulate(scene, batch, mesh=assurjax.batch_mesh(), **kw)
+        assert np.all(sharded.result == assurjax.RESULTS.successful), sharded.status
+        # the same members in programs of 2 and 1 members: a step may differ by round-off
+        assert np.max(np.abs(sharded.q - plain.q)) <= 1e-9, np.max(np.abs(sharded.q - plain.q))
+        print("OK")
+        """
+    )
+    assert _run_on_cpu_devices(tmp_path, source, 2) == "OK"
 
 
 @pytest.mark.slow  # compiles a vmapped diffrax solve: minutes on a busy 2-core machine
