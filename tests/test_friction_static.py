@@ -203,6 +203,7 @@ def test_the_breakaway_band_in_float32():
     np.testing.assert_allclose(upper32, upper, rtol=0, atol=1e-5)
 
 
+@pytest.mark.slow  # ~8 s: the press's friction analysis compiled for one documented number
 def test_the_documented_band_of_the_press_at_its_dead_point():
     """docs/kinetostatics.md: the press's band at q = 0 (the slider on its dead point), and
     without the ram's slide friction."""

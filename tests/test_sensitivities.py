@@ -427,6 +427,7 @@ def test_standstill_time_past_a_lock_up_is_no_result():
     assert np.asarray(assurjax.positions(scene.mechanism, syn.final_state(scene, t_star)[0]).ok).all()
 
 
+@pytest.mark.slow  # ~25 s: two-turn slider-cranks differentiated at several panel counts
 def test_quadrature_that_does_not_resolve_the_motion_gives_nan_not_a_wrong_derivative():
     """The slider-crank driven by c = 0.905 N m over two turns (0.7 s): the quadrature's default
     16 panels gave d(q, w)/dc = (30.0, +1936) against (19.38, -44.48) by central differences
