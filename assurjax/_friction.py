@@ -23,6 +23,7 @@ would start to move in (stiction, see ``dynamics._stick``).
 from __future__ import annotations
 
 import abc
+import copy
 
 from collections.abc import Callable
 from typing import ClassVar, NamedTuple
@@ -124,9 +125,10 @@ class AbstractFriction(AbstractLoad):
 
     @abc.abstractmethod
     def limit_terms(self, mechanism: Mechanism, kin) -> tuple:
-        """(a, b, n, 1/L) of the Coulomb magnitude (N m or N, >= 0) from the pair's
+        """(a, b, n, 1/L, s) of the Coulomb magnitude (N m or N, >= 0) from the pair's
         reaction force F (2,) and couple M, one formula for every kind (see :func:`limits`):
-        a |F| + b (|N/2 - M/L| + |N/2 + M/L|), N = F . n; None for a term it lacks."""
+        a |F| + b (|N/2 - M/L| + |N/2 + M/L|), N = F . n, the block ends' |.| read with the
+        signs s (2,) where they are frozen; None for a term it lacks."""
 
 
 class JointFriction(AbstractFriction):
@@ -169,7 +171,7 @@ class JointFriction(AbstractFriction):
         return [(link, zero, jnp.asarray(s)) for link, s in ((p.on, 1.0), (p.by, -1.0)) if link != GROUND]
 
     def limit_terms(self, mechanism, kin):
-        return self.coefficient * self.radius, None, None, None
+        return self.coefficient * self.radius, None, None, None, None
 
 
 class SlideFriction(AbstractFriction):
@@ -192,6 +194,9 @@ class SlideFriction(AbstractFriction):
     smoothing: Array | None
     static_coefficient: Array | None
     velocity_dependent: bool = eqx.field(static=True, default=True)
+    # the signs of the block ends' loads N/2 -+ M/L frozen for a slip segment (0: not frozen,
+    # |.|), set by the simulation (with_block_signs); None: the law as written
+    block_signs: Array | None = eqx.field(default=None, repr=False)
     kind: ClassVar[str] = "P"
 
     def __init__(self, pair: str, coefficient, length, *, viscous=0.0, smoothing=None, static_coefficient=None):
@@ -220,7 +225,7 @@ class SlideFriction(AbstractFriction):
 
     def limit_terms(self, mechanism, kin):
         p = pairs_by_name(mechanism)[self.pair]
-        return None, self.coefficient, perp(self._direction(kin, p)), 1.0 / self.length
+        return None, self.coefficient, perp(self._direction(kin, p)), 1.0 / self.length, self.block_signs
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -408,31 +413,91 @@ SUMMED_TERMS = 8  # up to this many elements, the law element by element; beyond
 
 def limits(terms, force, couple):
     """Coulomb magnitudes from the pairs' forces (..., 2) and couples (...):
-    a |F| + b (|N/2 - M/L| + |N/2 + M/L|) with N = F . n, ``terms`` = (a, b, n, 1/L) of
+    a |F| + b (|N/2 - M/L| + |N/2 + M/L|) with N = F . n, ``terms`` = (a, b, n, 1/L, s) of
     :meth:`AbstractFriction.limit_terms` (one element's, or stacked): mu r |F| on a
-    revolute (no b term), the block's two ends on a prismatic pair (no a term)."""
-    a, b, normal, inverse_length = terms
+    revolute (no b term), the block's two ends on a prismatic pair (no a term), each end's
+    |.| as s times its load where its sign s is frozen (a slip segment's analytic branch:
+    an event ends the segment where that load changes sign, see :func:`with_block_signs`)."""
+    a, b, normal, inverse_length, signs = terms
     out = 0.0 if a is None else a * jnp.sqrt(jnp.sum(force * force, axis=-1) + 1e-300)
     if b is None:
         return out
-    half, end = _block_ends(force, couple, normal, inverse_length)
-    return out + b * (jnp.abs(half - end) + jnp.abs(half + end))
+    ends = block_end_loads(force, couple, normal, inverse_length)
+    return out + b * jnp.sum(_frozen_abs(ends, signs), axis=-1)
 
 
-def _block_ends(force, couple, normal, inverse_length):
-    """N/2 and M/L of a prismatic pair: its block's two ends carry N/2 -+ M/L."""
-    return 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+def block_end_loads(force, couple, normal, inverse_length):
+    """(..., 2): the loads N/2 - M/L and N/2 + M/L on a prismatic pair's block's two ends."""
+    half, end = 0.5 * jnp.sum(force * normal, axis=-1), couple * inverse_length
+    return jnp.stack([half - end, half + end], axis=-1)
+
+
+def _frozen_abs(ends, signs):
+    """|ends|, or signs * ends where a sign is frozen (nonzero)."""
+    return jnp.abs(ends) if signs is None else jnp.where(signs != 0, signs * ends, jnp.abs(ends))
+
+
+def has_blocks(frictions) -> bool:
+    """Whether some element is a prismatic pair's (its block ends' loads have kinks)."""
+    return any(f.kind == "P" for f in frictions)
+
+
+def with_block_signs(model, signs):
+    """The model with its prismatic pairs' block-end signs frozen: ``signs`` (K, 2), one row
+    per friction element (the revolutes' rows unread), 0 where not frozen. Frozen for a slip
+    segment, the law is analytic inside it: where an end's load passes through 0 (one end of
+    the block lifts) |.| has a kink that no Coulomb switch marks, and a step across it is
+    differentiated with one side's slope (a derivative off by ~sqrt(tol)); the segment's
+    event ends it there instead (``dynamics._events.margins``)."""
+    k = 0
+    loads = []
+    for load in model.loads:
+        if isinstance(load, AbstractFriction):
+            if load.kind == "P":
+                load = _with_field(load, "block_signs", signs[k])
+            k += 1
+        loads.append(load)
+    return eqx.tree_at(lambda m: m.loads, model, tuple(loads))
+
+
+def _with_field(module, name, value):
+    """A copy of an equinox module with one field replaced (eqx.tree_at cannot reach a field
+    that is None where others are: None is one object)."""
+    out = copy.copy(module)
+    object.__setattr__(out, name, value)
+    return out
+
+
+def end_loads(mechanism: Mechanism, kin, frictions, reactions, u):
+    """(K, 2): the block ends' loads (:func:`block_end_loads`) of each element at the friction
+    values u (0 on a revolute), from the reactions affine in u (``reactions``: at u = 0 and
+    their K tangents, see :func:`linearize_reactions`)."""
+    reactions0, basis = reactions
+    if len(frictions) > SUMMED_TERMS:  # stacked at the elements' pairs
+        (forces0, couples0), (forces_b, couples_b) = reactions0, basis
+        terms = _stacked_terms(mechanism, kin, frictions)
+        return block_end_loads(_affine(forces0, forces_b, u), _affine(couples0, couples_b, u), terms[2], terms[3])
+    (forces0, couples0), (forces_b, couples_b) = by_pair(reactions0), by_pair(basis)
+    rows = []
+    for f in frictions:
+        if f.kind != "P":
+            rows.append(jnp.zeros(2))
+            continue
+        _, _, normal, inverse_length, _ = f.limit_terms(mechanism, kin)
+        rows.append(block_end_loads(_affine(forces0[f.pair], forces_b[f.pair], u),
+                                    _affine(couples0[f.pair], couples_b[f.pair], u), normal, inverse_length))
+    return jnp.stack(rows)
 
 
 def _stacked_terms(mechanism: Mechanism, kin, frictions) -> tuple:
-    """The elements' (a, b, n, 1/L) stacked ((K,), (K,), (K, 2), (K,)), 0 where an element lacks a term."""
+    """The elements' (a, b, n, 1/L, s) stacked ((K,), (K,), (K, 2), (K,), (K, 2)), 0 where an element lacks a term."""
     parts = [f.limit_terms(mechanism, kin) for f in frictions]
 
     def stacked(i, zero):
         found = [p[i] for p in parts]
         return None if all(v is None for v in found) else jnp.stack([zero if v is None else v for v in found])
 
-    return stacked(0, 0.0), stacked(1, 0.0), stacked(2, jnp.zeros(2)), stacked(3, 0.0)
+    return stacked(0, 0.0), stacked(1, 0.0), stacked(2, jnp.zeros(2)), stacked(3, 0.0), stacked(4, jnp.zeros(2))
 
 
 def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
@@ -489,13 +554,14 @@ def _static_slopes(mechanism: Mechanism, kin, frictions, reactions, inertial, u)
         return _affine(values.get(pair, 0.0), tangent, u), tangent - jnp.multiply.outer(dalpha, per_unit.get(pair, 0.0))
 
     def rows(terms, force, d_force, couple, d_couple):  # one element's (K,) or stacked (K, K)
-        a, b, normal, inverse_length = (None if v is None else jnp.asarray(v) for v in terms)
+        a, b, normal, inverse_length, frozen = (None if v is None else jnp.asarray(v) for v in terms)
         out = 0.0
         if a is not None:
             out = out + a[..., None] * jnp.sqrt(jnp.sum(d_force * d_force, axis=-1))
         if b is not None:
-            half, end = _block_ends(force, couple, normal, inverse_length)
-            s1, s2 = jnp.sign(half - end), jnp.sign(half + end)
+            ends = block_end_loads(force, couple, normal, inverse_length)
+            signs = jnp.sign(ends) if frozen is None else jnp.where(frozen != 0, frozen, jnp.sign(ends))
+            s1, s2 = signs[..., 0], signs[..., 1]
             along = jnp.sum(d_force * normal[..., None, :], axis=-1)
             out = out + b[..., None] * jnp.abs(0.5 * (s1 + s2)[..., None] * along
                                                + ((s2 - s1) * inverse_length)[..., None] * d_couple)

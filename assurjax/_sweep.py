@@ -468,7 +468,8 @@ def batch_simulate(
                             "apart (the batch's tables ran unchecked through positions a member cannot assemble in): "
                             "batch_simulate runs the exact reduction; simulate() tabulates a batch of starts")
     options = settings_from(scene, **settings)
-    options = batch_settings(options._replace(reduction="exact"), scene.loads)  # a scene's 'table' or 'auto' too
+    # a scene's 'table' or 'auto' too; never differentiated (host arrays): no cuts at a slide's kinks
+    options = batch_settings(options._replace(reduction="exact", block_end_events=False), scene.loads)
     if options.save_steps:  # as simulate's batches
         raise AssurjaxError("batch_simulate: save_steps saves up to max_steps states per run: it is for single runs, "
                             "not batches (use samples or saveat)")

@@ -25,9 +25,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, finish_friction_implicit,
-                         friction_wrenches, frictions_of, has_static, iterate_friction, linearize_reactions,
-                         rates_and_slopes, signs_ahead, smoothed_only, solve_friction, static_model)
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, end_loads,
+                         finish_friction_implicit, friction_wrenches, frictions_of, has_static, iterate_friction,
+                         linearize_reactions, rates_and_slopes, signs_ahead, smoothed_only, solve_friction, static_model,
+                         with_block_signs)
 from .._jit import FlatLayout, flattened_floats, jit, moved_leaves, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
@@ -67,6 +68,10 @@ class FieldArgs(eqx.Module):
     user_signs: tuple | None
     rate_signs: Array | None = None
     coeffs: object = None  # a stick segment's kinematic coefficients (its q stays; see frictional)
+    # a slip segment's prismatic pairs' block-end signs (K, 2), frozen (_friction.with_block_signs), and the
+    # floors of its event's margins s x - floor, which start > 0 (_stick._block_signs)
+    end_signs: Array | None = None
+    end_floor: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # the friction iteration's tolerance at each right-hand side (_friction.iteration_tolerance)
     friction_tolerance: float = eqx.field(static=True, default=FIXED_POINT_TOLERANCE)
@@ -157,7 +162,7 @@ def _implicit_field(t, y: State, args: FieldArgs) -> State:
     ``_friction.solve_friction`` (the values of the field's own solve, their derivatives by
     the implicit function theorem)."""
     at = _evaluated_at(y, args)
-    model = args.model
+    model = segment_model(args)
     start = _start(model, t, at, args.direction, kinematic_coefficients(model, at, args.bridge), args.rate_signs, True,
                    args.friction_tolerance, implicit=True)
     return _checked(y, args, *_rates(t, at, args, _finish(model, at, start)))
@@ -189,8 +194,8 @@ def _settled_field(t, y: State, args: FieldArgs):
 def _settled(t, y: State, args: FieldArgs):
     """The field with the iteration's root (taken where it is settled), the state it was
     evaluated at and the friction analysis."""
-    at = _evaluated_at(y, args)
-    start = _start(args.model, t, at, args.direction, kinematic_coefficients(args.model, at, args.bridge),
+    at, model = _evaluated_at(y, args), segment_model(args)
+    start = _start(model, t, at, args.direction, kinematic_coefficients(model, at, args.bridge),
                    args.rate_signs, True, args.friction_tolerance)
     settled = _assembled(start, start.fixed.value, jnp.array(True), at)
     return _checked(y, args, *_rates(t, at, args, settled)), at, start
@@ -198,12 +203,45 @@ def _settled(t, y: State, args: FieldArgs):
 
 def _solved_field(t, y: State, args: FieldArgs) -> State:
     at = _evaluated_at(y, args)
-    return _checked(y, args, *_rates(t, at, args, frictional(args.model, t, at, args.direction, args.bridge,
+    return _checked(y, args, *_rates(t, at, args, frictional(segment_model(args), t, at, args.direction, args.bridge,
                                                              args.rate_signs)))
 
 
 def _field_from(t, y: State, args: FieldArgs, at: State, start) -> State:
-    return _checked(y, args, *_rates(t, at, args, _finish(args.model, at, start)))
+    return _checked(y, args, *_rates(t, at, args, _finish(segment_model(args), at, start)))
+
+
+def segment_model(args: FieldArgs) -> Model:
+    """The model of the field's friction: with a slip segment's block-end signs frozen."""
+    return args.model if args.end_signs is None else with_block_signs(args.model, args.end_signs)
+
+
+def block_loads(model: Model, t, y: State, direction, bridge: float, rate_signs):
+    """(K, 2): the loads on the prismatic pairs' block ends (``_friction.end_loads``) in the
+    motion at y in ``direction`` with the Coulomb signs ``rate_signs`` (as :func:`frictional`),
+    at the fixed-point iteration's root: one region, without the solve's fallback (Newton's
+    method in a cond, which doubled the first call with these loads in the events and made
+    the press's warm run 1.5x); where the iteration has not settled its root is near enough
+    to tell where a load changes sign."""
+    t, direction = jnp.asarray(t, dtype=float), jnp.asarray(direction, dtype=float)
+    return _block_loads(model, t, y, direction, bridge, rate_signs)
+
+
+@region
+def _block_loads(model: Model, t, y: State, direction, bridge: float, rate_signs):
+    start = _start(model, t, y, direction, kinematic_coefficients(model, y, bridge), rate_signs, True)
+    return end_loads(model.mechanism, start.kin, frictions_of(model.loads), start.linear, start.fixed.value)
+
+
+def end_margins(t, y: State, args: FieldArgs):
+    """Per block end of a slip segment (K, 2): its load times its frozen sign, less the floor
+    of its start (> 0 there), positive until the load changes sign; inf where not frozen or
+    without Coulomb friction."""
+    model = segment_model(args)
+    loads = block_loads(model, t, y, args.direction, args.bridge, args.rate_signs)
+    coulomb = jnp.stack([f.coefficient for f in frictions_of(model.loads)]) > 0
+    margins = jnp.where(coulomb[:, None] & (args.end_signs != 0), args.end_signs * loads - args.end_floor, jnp.inf)
+    return jnp.where(jnp.isnan(margins), jnp.inf, margins)  # a jam: the field stops the run
 
 
 def _evaluated_at(y: State, args: FieldArgs) -> State:

@@ -621,8 +621,9 @@ class _Prepared:
         key = (max_steps, batch is not None, batch is not None and batch[0] >= AUTO_TABLE_BATCH)
         if key not in self._resolutions:
             # simulate() returns host arrays, never differentiated: diffrax's plain while loop
-            # (forward mode) traces faster than the checkpointed one and computes the same
-            settings = self.settings._replace(max_steps=max_steps, adjoint="forward")
+            # (forward mode) traces faster than the checkpointed one and computes the same,
+            # and no cuts at a slide's kinks, which only derivatives need (Settings.block_end_events)
+            settings = self.settings._replace(max_steps=max_steps, adjoint="forward", block_end_events=False)
             settings = settings if batch is None else batch_settings(settings, self.model.loads)
             self._resolutions[key] = _resolve_reduction(settings, table, self.model, batch)
         return self._resolutions[key]

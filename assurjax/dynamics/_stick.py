@@ -51,14 +51,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of, has_static, iteration_tolerance, signs_ahead
+from .._friction import frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, with_block_signs
 from .._jit import any_mapped, jit
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import (FieldArgs, State, frictional, near, packed_vector_field, rest_analysis, rest_direction,
-                     start_kinematics)
+from ._field import (FieldArgs, State, block_loads, frictional, near, packed_vector_field, rest_analysis,
+                     rest_direction, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
-from ._results import DT_MIN, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
+from ._results import DT_MIN, END_SWITCH, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, limit_ahead, no_outputs, replaced
 
@@ -116,7 +116,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # of segment_steps steps a member whose segment has ended waits at most that many to start its next one
     chunk = settings.segment_steps
     slip_settings = settings._replace(standstill=True)
-    slip_event = stop_event(slip_settings, switches=True)
+    # prismatic pairs: each slip segment freezes their block ends' signs, and ends where a load changes sign
+    blocks = settings.block_end_events and has_blocks(frictions_of(model.loads))
+    slip_event = stop_event(slip_settings, switches=True, ends=blocks)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program,
@@ -134,10 +136,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck, step, coeffs):
+    def segment(start, y, direction, signs, stuck, step, coeffs, ends):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
-                         friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model)
+                         friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model,
+                         end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1])
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
@@ -159,7 +162,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
-        start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, _ = carry
+        start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, last_ends, switched, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the only direction it can start in; unless the last segment found it held
         side, rates, slopes, coeffs = start_kinematics(model, start, y, settings.bridge)
@@ -183,10 +186,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
         start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
+        y_start, direction = y._replace(friction_rates=start_rates), jnp.where(static_held, 0.0, direction)
+        block_ends = _block_signs(model, start, y_start, direction, settings.bridge, signs, last_ends, switched) if blocks else None
         # held by the static coefficients with no stick segment to follow: a slip segment that
         # does not move (direction 0), refused at its first step
-        run, args = segment(start, y._replace(friction_rates=start_rates), jnp.where(static_held, 0.0, direction), signs,
-                            stuck, step, coeffs)
+        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -243,7 +247,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         result = RESULTS.where(finished(result), segment_result, result)
         # the chunk's mean step (not a stick segment's: its steps follow the loads, not the motion)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
-        return end, y_next, direction, held, stuck & fired, saved, filled, steps, result, event, failed, step, done
+        return (end, y_next, direction, held, stuck & fired, saved, filled, steps, result, event, failed, step,
+                last_ends if block_ends is None else block_ends[0],
+                code == END_SWITCH, done)
 
     def cond(carry):
         return ~carry[-1]
@@ -253,10 +259,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
-                                                                                  dtype=float), jnp.asarray(False))
+                                                                                  dtype=float), jnp.zeros((k_elements, 2)),
+             jnp.asarray(False), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
-    end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, done = eqxi.while_loop(
+    end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
@@ -277,6 +284,29 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         result=result, num_steps=steps,
     )
     return sol, saved.branch
+
+
+# a block end's load at a segment's start within this share of the largest is taken as 0: just
+# past an event on it (located to the root finder's tolerance), on either side of its root
+END_ROUNDOFF = 1e-8
+
+
+def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last, switched):
+    """(signs (K, 2), floors (K, 2)) of a slip segment's block ends (``FieldArgs.end_signs``,
+    ``end_floor``): the signs of their loads x0 at its start, with the law as written; a load 0
+    to round-off takes the sign it goes on with: just after its own switch (``switched``, the last
+    segment ended on one) the last segment's flipped, else +1 (a wrong guess ends the segment at
+    its first step, and the next one flips it). Floors: min(s x0, 0) less END_ROUNDOFF of the
+    largest load, so that each margin s x - floor starts > 0 (the event recomputes x0 with the
+    signs frozen, which moves it by round-off; a margin at or below 0 at the start would hide
+    every crossing)."""
+    loads = block_loads(with_block_signs(model, jnp.zeros_like(last)), t, y, direction, bridge, rate_signs)
+    loads = jnp.where(jnp.isfinite(loads), loads, 0.0)  # a jam at the start: the run stops there anyway
+    read = jnp.where(loads >= 0, 1.0, -1.0)
+    roundoff = END_ROUNDOFF * jnp.max(jnp.abs(loads))
+    signs = jnp.where((jnp.abs(loads) <= roundoff) & switched & (last != 0), -last, read)
+    signs = jnp.where(np.array([f.kind == "P" for f in frictions_of(model.loads)])[:, None], signs, 0.0)
+    return signs, jnp.minimum(signs * loads, 0.0) - roundoff - 1e-200
 
 
 class _Saved(NamedTuple):
