@@ -3,8 +3,8 @@
 A prismatic pair's Coulomb magnitude mu (|N/2 - M/L| + |N/2 + M/L|) has a kink where the
 load on one end of its block passes through 0. Where a run is differentiated, each slip
 segment freezes the block ends' signs and an event ends it there
-(``Settings.block_end_events``, set by ``with_derivative_needs``); "uncut" switches that
-off in this process (the code before the cuts), so that both compare in one run.
+(``Settings.block_end_events``, on in the entry points that can be differentiated); "uncut"
+switches that off in this process (the code before the cuts), so that both compare in one run.
 
 Case: the bundled press with Coulomb friction mu = 0.15 in its pins O, A, B (r = 0.01 m)
 and its slide (L = 0.05 m), from rest; q(T) and d q(T)/d mu of ``synthesis.final_state``
@@ -57,14 +57,20 @@ def reference(t1):
     return (4 * d[1e-3] - d[2e-3]) / 3, d[1e-3]
 
 
+_RUN = None
+
+
 def cuts(on: bool) -> None:
-    """The cuts on (the package as it is) or off (every run as if not differentiated)."""
-    from assurjax.dynamics import _settings, _solve
+    """The cuts on (the package as it is) or off (every run as simulate()'s, not cut)."""
+    global _RUN
     from assurjax.synthesis import _dynamic
 
-    original = _settings.with_derivative_needs
-    patched = original if on else (lambda settings, *inputs: settings)
-    _solve.with_derivative_needs = _dynamic.with_derivative_needs = patched
+    _RUN = _RUN or _dynamic._run
+
+    def run(model, q0, omega0, t0, t1, dt, settings, **kwargs):
+        return _RUN(model, q0, omega0, t0, t1, dt, settings._replace(block_end_events=on), **kwargs)
+
+    _dynamic._run = run
 
 
 def measure(on: bool, t1: float, tol: float) -> dict:
