@@ -225,6 +225,42 @@ def _has_time_form(value, *, functions: bool = False) -> bool:
     return functions and callable(value)
 
 
+def tables_in(loads, variable: str) -> tuple[Table, ...]:
+    """The piecewise-linear tables in ``variable`` among the loads' values: their knots are
+    kinks of the loads (or jumps, at an x given twice)."""
+    found = []
+
+    def visit(value):
+        if isinstance(value, Table) and value.variable == variable:
+            found.append(value)
+        elif isinstance(value, Vector):
+            visit(value.x)
+            visit(value.y)
+
+    for load in loads:
+        for value in load._values().values():
+            visit(value)
+    return tuple(found)
+
+
+KNOT_ROUNDOFF = 1e-10  # a knot within this (1 + |x|) of x is the one just reached, not one ahead
+
+
+def next_knot(tables, x, direction):
+    """The nearest knot of ``tables`` (see :func:`tables_in`) strictly ahead of x in
+    ``direction`` (+1 or -1), periodic tables wrapped; +-inf where there is none."""
+    eps = KNOT_ROUNDOFF * (1.0 + jnp.abs(x))
+    ups, downs = [], []
+    for table in tables:
+        knots, shift = table.x, jnp.zeros_like(x)
+        if table.period is not None:  # x wrapped into [x0, x0 + period), the knots of three periods around it
+            shift = x - (knots[0] + jnp.mod(x - knots[0], table.period))
+            knots = jnp.concatenate([knots - table.period, knots, knots + table.period])
+        ups.append(shift + jnp.min(jnp.where(knots + shift > x + eps, knots, jnp.inf)))
+        downs.append(shift + jnp.max(jnp.where(knots + shift < x - eps, knots, -jnp.inf)))
+    return jnp.where(direction > 0, jnp.min(jnp.stack(ups)), jnp.max(jnp.stack(downs)))
+
+
 def _as_value(v, where: str, shape: tuple[int, ...] = ()):
     """A load value: a function or form as it is (its arguments checked here, what it
     returns by :func:`check_loads`), a number (or 2-vector, ``shape``) checked finite."""

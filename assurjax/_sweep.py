@@ -469,7 +469,7 @@ def batch_simulate(
                             "batch_simulate runs the exact reduction; simulate() tabulates a batch of starts")
     options = settings_from(scene, **settings)
     # a scene's 'table' or 'auto' too; never differentiated (host arrays): no cuts at a slide's kinks
-    options = batch_settings(options._replace(reduction="exact", block_end_events=False), scene.loads)
+    options = batch_settings(options._replace(reduction="exact", kink_events=False), scene.loads)
     if options.save_steps:  # as simulate's batches
         raise AssurjaxError("batch_simulate: save_steps saves up to max_steps states per run: it is for single runs, "
                             "not batches (use samples or saveat)")

@@ -3,7 +3,7 @@
 A prismatic pair's Coulomb magnitude mu (|N/2 - M/L| + |N/2 + M/L|) has a kink where the
 load on one end of its block passes through 0. Where a run is differentiated, each slip
 segment freezes the block ends' signs and an event ends it there
-(``Settings.block_end_events``, on in the entry points that can be differentiated); "uncut"
+(``Settings.kink_events``, on in the entry points that can be differentiated); "uncut"
 switches that off in this process (the code before the cuts), so that both compare in one run.
 
 Case: the bundled press with Coulomb friction mu = 0.15 in its pins O, A, B (r = 0.01 m)
@@ -68,7 +68,7 @@ def cuts(on: bool) -> None:
     _RUN = _RUN or _dynamic._run
 
     def run(model, q0, omega0, t0, t1, dt, settings, **kwargs):
-        return _RUN(model, q0, omega0, t0, t1, dt, settings._replace(block_end_events=on), **kwargs)
+        return _RUN(model, q0, omega0, t0, t1, dt, settings._replace(kink_events=on), **kwargs)
 
     _dynamic._run = run
 

@@ -19,7 +19,7 @@ import optimistix as optx
 from .._friction import frictions_of
 from .._positions import assembled
 from ._field import FieldArgs, State, end_margins
-from ._results import END_SWITCH, LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER
+from ._results import END_SWITCH, KNOT, LOCKUP, NO_EVENT, RATE_SWITCH, RESULTS, STANDSTILL, USER
 from ._settings import Settings
 
 _SCALE = 1e-30  # see located_event
@@ -36,7 +36,8 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     ``friction_rates``): the smallest d phi_k/dq times its sign frozen for the segment,
     over the elements with a Coulomb coefficient (the others do not switch);
     block-end switches (``args.end_signs``): the smallest of a slip segment's prismatic
-    pairs' block-end loads times their frozen signs (``_field.end_margins``).
+    pairs' block-end loads times their frozen signs (``_field.end_margins``); knots
+    (``args.knots``): the distance to the next knot of the loads' tables, in q or in t.
     """
     out = []
     if settings.standstill:  # a hair above 0 at a start from rest, so that it hides no other crossing there
@@ -46,7 +47,16 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
         out.append(jnp.min(rate_margins(args, y.friction_rates)))
     if args.end_signs is not None:
         out.append(jnp.min(end_margins(t, y, args)))
+    if args.knots is not None:
+        out.append(knot_margin(t, y, args))
     return out
+
+
+def knot_margin(t, y: State, args: FieldArgs):
+    """The distance to the next knot of the loads' tables: in q, ahead in the segment's
+    direction (none at rest), and in t; positive until one is reached."""
+    in_q = jnp.where(args.direction != 0, args.direction * (args.knots[0] - y.q), jnp.inf)
+    return jnp.minimum(in_q, args.knots[1] - t)
 
 
 def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
@@ -63,17 +73,18 @@ def rate_margins(args: FieldArgs, friction_rates):
     return jnp.where(coulomb & (args.rate_signs != 0), args.rate_signs * friction_rates, jnp.inf)
 
 
-def event_codes(settings: Settings, switches: bool = False, ends: bool = False) -> tuple[int, ...]:
+def event_codes(settings: Settings, switches: bool = False, ends: bool = False, knots: bool = False) -> tuple[int, ...]:
     codes = [STANDSTILL] if settings.standstill else []
     return tuple(codes + [USER + k for k in range(len(settings.events))] + ([RATE_SWITCH] if switches else [])
-                 + ([END_SWITCH] if ends else []))
+                 + ([END_SWITCH] if ends else []) + ([KNOT] if knots else []))
 
 
-def stop_event(settings: Settings, switches: bool = False, ends: bool = False):
+def stop_event(settings: Settings, switches: bool = False, ends: bool = False, knots: bool = False):
     """One event on the smallest margin (:func:`located_event`). None when no condition is
     enabled. ``switches``: the state carries ``friction_rates`` (their sign changes end the run);
-    ``ends``: the arguments carry frozen block-end signs (their loads' sign changes end it)."""
-    if not event_codes(settings, switches, ends):
+    ``ends``: the arguments carry frozen block-end signs (their loads' sign changes end it);
+    ``knots``: the arguments carry the next knots of the loads' tables (reaching one ends it)."""
+    if not event_codes(settings, switches, ends, knots):
         return None
     return located_event(lambda t, y, args: jnp.min(jnp.stack(margins(settings, t, y, args))), settings)
 
@@ -94,7 +105,7 @@ def located_event(margin, settings: Settings) -> diffrax.Event:
 
 def which_event(sol, settings: Settings, args: FieldArgs, last):
     """The code of the stop condition that fired (the smallest margin at the stop), or -1."""
-    codes = event_codes(settings, sol.ys.friction_rates is not None, args.end_signs is not None)
+    codes = event_codes(settings, sol.ys.friction_rates is not None, args.end_signs is not None, args.knots is not None)
     if not codes:
         return jnp.asarray(NO_EVENT)
     y_final = jax.tree.map(lambda y: y[last], sol.ys)

@@ -72,6 +72,8 @@ class FieldArgs(eqx.Module):
     # floors of its event's margins s x - floor, which start > 0 (_stick._block_signs)
     end_signs: Array | None = None
     end_floor: Array | None = None
+    # a slip segment's next knots of the loads' tables (_loads.next_knot), in q ahead in its direction and in t
+    knots: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # the friction iteration's tolerance at each right-hand side (_friction.iteration_tolerance)
     friction_tolerance: float = eqx.field(static=True, default=FIXED_POINT_TOLERANCE)
@@ -236,12 +238,26 @@ def _block_loads(model: Model, t, y: State, direction, bridge: float, rate_signs
 def end_margins(t, y: State, args: FieldArgs):
     """Per block end of a slip segment (K, 2): its load times its frozen sign, less the floor
     of its start (> 0 there), positive until the load changes sign; inf where not frozen or
-    without Coulomb friction."""
-    model = segment_model(args)
-    loads = block_loads(model, t, y, args.direction, args.bridge, args.rate_signs)
+    without Coulomb friction.
+
+    Without derivatives in the state or the parameters: the field is continuous where a load
+    changes sign, so the time of such a cut enters a derivative times f- - f+ = 0 (unlike a
+    Coulomb switch's, whose time carries the saltation). Differentiated, the analysis was
+    one more copy of its derivative at each step and in the root find (the press's
+    derivative's first call 2x). A unit slope in t is left to the margins, so that the root
+    find's implicit derivative of the cut's time is 0 / 1, not 0 / 0."""
+    model, at, y, direction, rate_signs = constant((segment_model(args), t, y, args.direction, args.rate_signs))
+    loads = block_loads(model, at, y, direction, args.bridge, rate_signs)
     coulomb = jnp.stack([f.coefficient for f in frictions_of(model.loads)]) > 0
     margins = jnp.where(coulomb[:, None] & (args.end_signs != 0), args.end_signs * loads - args.end_floor, jnp.inf)
-    return jnp.where(jnp.isnan(margins), jnp.inf, margins)  # a jam: the field stops the run
+    margins = jnp.where(jnp.isnan(margins), jnp.inf, margins)  # a jam: the field stops the run
+    return margins + (t - jax.lax.stop_gradient(t))
+
+
+def constant(tree):
+    """``tree`` with its float arrays cut off from derivatives (jax.lax.stop_gradient), so that
+    what is computed from it traces no derivative at all."""
+    return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_inexact_array(x) else x, tree)
 
 
 def _evaluated_at(y: State, args: FieldArgs) -> State:

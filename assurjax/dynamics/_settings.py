@@ -101,11 +101,12 @@ class Settings(NamedTuple):
     # a whole segment per call); set by simulate and batch_simulate for batches, whose members then wait for one
     # another per chunk
     segment_steps: int | None = None
-    # joint friction on prismatic pairs: each slip segment freezes the signs of their block ends' loads and
-    # ends where one changes sign (_stick), so that derivatives see the law's kinks there (accurate to the
-    # tolerance instead of ~its square root); the values move by the tolerance, and each step solves the
-    # friction once more (the press's run 1.6x). Off in simulate() and the sweeps, never differentiated
-    block_end_events: bool = True
+    # with joint friction, slip segments end at the kinks of the law and the loads, so that derivatives see
+    # them (accurate to the tolerance instead of ~its square root): where a prismatic pair's block-end load
+    # changes sign (each segment freezes those signs; one more friction solve per step: the press's run 1.6x)
+    # and at the knots of the loads' tables in q and t. The values move by the tolerance. Off in simulate()
+    # and the sweeps, never differentiated
+    kink_events: bool = True
 
 
 # [simulation] keys of a scene file and what they must be: (type check, description).

@@ -622,8 +622,8 @@ class _Prepared:
         if key not in self._resolutions:
             # simulate() returns host arrays, never differentiated: diffrax's plain while loop
             # (forward mode) traces faster than the checkpointed one and computes the same,
-            # and no cuts at a slide's kinks, which only derivatives need (Settings.block_end_events)
-            settings = self.settings._replace(max_steps=max_steps, adjoint="forward", block_end_events=False)
+            # and no cuts at the kinks of the friction and the loads, which only derivatives need (Settings.kink_events)
+            settings = self.settings._replace(max_steps=max_steps, adjoint="forward", kink_events=False)
             settings = settings if batch is None else batch_settings(settings, self.model.loads)
             self._resolutions[key] = _resolve_reduction(settings, table, self.model, batch)
         return self._resolutions[key]

@@ -53,9 +53,10 @@ import numpy as np
 from .._errors import AssurjaxError
 from .._friction import frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, with_block_signs
 from .._jit import any_mapped, jit
+from .._loads import next_knot, tables_in
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import (FieldArgs, State, block_loads, frictional, near, packed_vector_field, rest_analysis,
+from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
                      rest_direction, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import DT_MIN, END_SWITCH, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
@@ -117,8 +118,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     chunk = settings.segment_steps
     slip_settings = settings._replace(standstill=True)
     # prismatic pairs: each slip segment freezes their block ends' signs, and ends where a load changes sign
-    blocks = settings.block_end_events and has_blocks(frictions_of(model.loads))
-    slip_event = stop_event(slip_settings, switches=True, ends=blocks)
+    blocks = settings.kink_events and has_blocks(frictions_of(model.loads))
+    # the knots of the loads' tables in q and t: each ends a slip segment too (kinks of the loads)
+    tables = (tables_in(model.loads, "q"), tables_in(model.loads, "t")) if settings.kink_events else ((), ())
+    knotted = any(tables)
+    slip_event = stop_event(slip_settings, switches=True, ends=blocks, knots=knotted)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program,
@@ -136,11 +140,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck, step, coeffs, ends):
+    def segment(start, y, direction, signs, stuck, step, coeffs, ends, knots):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
                          friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model,
-                         end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1])
+                         end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1],
+                         knots=knots)
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
@@ -190,7 +195,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         block_ends = _block_signs(model, start, y_start, direction, settings.bridge, signs, last_ends, switched) if blocks else None
         # held by the static coefficients with no stick segment to follow: a slip segment that
         # does not move (direction 0), refused at its first step
-        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends)
+        knots = jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
+                           next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf]) if knotted else None
+        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, knots)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -300,7 +307,9 @@ def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last,
     largest load, so that each margin s x - floor starts > 0 (the event recomputes x0 with the
     signs frozen, which moves it by round-off; a margin at or below 0 at the start would hide
     every crossing)."""
-    loads = block_loads(with_block_signs(model, jnp.zeros_like(last)), t, y, direction, bridge, rate_signs)
+    # the signs are discrete, and the floors the margins' fixed offsets: no derivatives
+    loads = block_loads(*constant((with_block_signs(model, jnp.zeros_like(last)), t, y, direction)), bridge,
+                        constant(rate_signs))
     loads = jnp.where(jnp.isfinite(loads), loads, 0.0)  # a jam at the start: the run stops there anyway
     read = jnp.where(loads >= 0, 1.0, -1.0)
     roundoff = END_ROUNDOFF * jnp.max(jnp.abs(loads))
