@@ -32,6 +32,8 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
+import copy
+
 import inspect
 import weakref
 from typing import Any, ClassVar
@@ -89,6 +91,8 @@ class Table(eqx.Module):
     values: Array
     variable: str = eqx.field(static=True, default="q")
     period: float | None = eqx.field(static=True, default=None)
+    # (a, b): the table read as a + b x, its piece at a segment's start continued (with_pieces); None: as given
+    piece: Array | None = eqx.field(default=None, repr=False)
 
     def __init__(self, x, values, variable: str = "q", period: float | None = None):
         if variable not in VARIABLES:
@@ -115,6 +119,8 @@ class Table(eqx.Module):
 
     def __call__(self, q, omega, t):
         x = {"q": q, "omega": omega, "t": t}[self.variable]
+        if self.piece is not None:
+            return self.piece[0] + self.piece[1] * x
         if self.period is not None:
             x = self.x[0] + jnp.mod(x - self.x[0], self.period)
         return _interp(x, self.x, self.values)
@@ -225,22 +231,47 @@ def _has_time_form(value, *, functions: bool = False) -> bool:
     return functions and callable(value)
 
 
+def _is_table(value) -> bool:
+    return isinstance(value, Table)
+
+
 def tables_in(loads, variable: str) -> tuple[Table, ...]:
     """The piecewise-linear tables in ``variable`` among the loads' values: their knots are
-    kinks of the loads (or jumps, at an x given twice)."""
-    found = []
+    kinks of the loads (or jumps, at an x given twice). In the loads' tree order, which
+    :func:`with_pieces` follows."""
+    leaves = jax.tree.leaves(loads, is_leaf=_is_table)
+    return tuple(v for v in leaves if isinstance(v, Table) and v.variable == variable)
 
-    def visit(value):
+
+def pieces_at(tables, x, direction):
+    """(n, 2): (a, b) of each table's piece just ahead of x in ``direction`` (its value a + b x,
+    continued past its knots: see :func:`with_pieces`)."""
+    if not tables:
+        return jnp.zeros((0, 2))
+    ahead = x + direction * KNOT_ROUNDOFF * (1.0 + jnp.abs(x))
+    rows = []
+    for table in tables:
+        read = lambda v, table=table: table(v, v, v)  # noqa: E731  (its variable is v, whichever it is)
+        value, slope = jax.jvp(read, (ahead,), (jnp.ones_like(ahead),))
+        rows.append(jnp.stack([value - slope * ahead, slope]))
+    return jnp.stack(rows)
+
+
+def with_pieces(loads, variable: str, pieces):
+    """The loads with their tables in ``variable`` read as the linear pieces ``pieces`` (rows
+    of :func:`pieces_at`, in :func:`tables_in`'s order): a segment's field continued past the
+    knots analytically, as the friction's Coulomb signs are, so that the step that crosses
+    the next knot (where the segment's event ends it) is that of one smooth field."""
+    count = iter(range(pieces.shape[0]))
+
+    def frozen(value):
         if isinstance(value, Table) and value.variable == variable:
-            found.append(value)
-        elif isinstance(value, Vector):
-            visit(value.x)
-            visit(value.y)
+            out = copy.copy(value)
+            object.__setattr__(out, "piece", pieces[next(count)])
+            return out
+        return value
 
-    for load in loads:
-        for value in load._values().values():
-            visit(value)
-    return tuple(found)
+    return jax.tree.map(frozen, loads, is_leaf=_is_table)
 
 
 KNOT_ROUNDOFF = 1e-10  # a knot within this (1 + |x|) of x is the one just reached, not one ahead

@@ -32,7 +32,7 @@ from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulom
 from .._jit import FlatLayout, flattened_floats, jit, moved_leaves, region
 from .._kinematics import branch_coefficients
 from .._kinetostatics._api import from_kinematics
-from .._loads import dissipated_power
+from .._loads import dissipated_power, tables_in, with_pieces
 from .._model import Model
 from .._reduction import reduce_coefficients, reduce_with_kinematics, reduced_acceleration
 from .._tracking import branch_mapping, branch_rates, stacked_branch
@@ -72,8 +72,10 @@ class FieldArgs(eqx.Module):
     # floors of its event's margins s x - floor, which start > 0 (_stick._block_signs)
     end_signs: Array | None = None
     end_floor: Array | None = None
-    # a slip segment's next knots of the loads' tables (_loads.next_knot), in q ahead in its direction and in t
+    # a slip segment's next knots of the loads' tables (_loads.next_knot), in q ahead in its direction and in t,
+    # and the tables' pieces it runs on (_loads.pieces_at: those in q, then those in t)
     knots: Array | None = None
+    pieces: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
     # the friction iteration's tolerance at each right-hand side (_friction.iteration_tolerance)
     friction_tolerance: float = eqx.field(static=True, default=FIXED_POINT_TOLERANCE)
@@ -214,17 +216,23 @@ def _field_from(t, y: State, args: FieldArgs, at: State, start) -> State:
 
 
 def segment_model(args: FieldArgs) -> Model:
-    """The model of the field's friction: with a slip segment's block-end signs frozen."""
-    return args.model if args.end_signs is None else with_block_signs(args.model, args.end_signs)
+    """The model of a slip segment's field: its block-end signs frozen, its loads' tables read
+    as their pieces at its start (each continued past the next knot, where an event ends it)."""
+    model = args.model if args.end_signs is None else with_block_signs(args.model, args.end_signs)
+    if args.pieces is None:
+        return model
+    in_q = len(tables_in(model.loads, "q"))
+    loads = with_pieces(with_pieces(model.loads, "q", args.pieces[:in_q]), "t", args.pieces[in_q:])
+    return eqx.tree_at(lambda m: m.loads, model, loads)
 
 
 def block_loads(model: Model, t, y: State, direction, bridge: float, rate_signs):
     """(K, 2): the loads on the prismatic pairs' block ends (``_friction.end_loads``) in the
     motion at y in ``direction`` with the Coulomb signs ``rate_signs`` (as :func:`frictional`),
     at the fixed-point iteration's root: one region, without the solve's fallback (Newton's
-    method in a cond, which doubled the first call with these loads in the events and made
-    the press's warm run 1.5x); where the iteration has not settled its root is near enough
-    to tell where a load changes sign."""
+    method in a cond, which made the press's first call with these loads in the events 1.9x
+    and its warm run 1.45x); where the iteration has not settled its root is near enough to
+    tell where a load changes sign."""
     t, direction = jnp.asarray(t, dtype=float), jnp.asarray(direction, dtype=float)
     return _block_loads(model, t, y, direction, bridge, rate_signs)
 
@@ -282,7 +290,7 @@ def _checked(y: State, args: FieldArgs, rates: State, ok) -> State:
 def _rates(t, y: State, args: FieldArgs, f: Frictional | None):
     """(dy/dt, the groups' ok flags) of :func:`vector_field` without a table; ``f``: the
     friction analysis at the state, where the model has friction."""
-    model = args.model
+    model = segment_model(args)
     slopes = None
     if f is not None:
         # the Coulomb signs of the segment (its direction of motion, the signs of the rates

@@ -76,6 +76,10 @@ def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, 
     Outputs are then computed from the saved (q, w) with the exact analysis, and the
     assembly event is off (the table checked a full turn).
 
+    With joint friction, ``settings.kink_events`` (on by default) ends the segments at the
+    kinks of the law and the loads as well, for derivatives that do not step across them;
+    off, the run is ``simulate``'s (cheaper where nothing is differentiated).
+
     **Example** (10 starting angles at once):
     >>> core = assurjax.jit(eqx.filter_vmap(
     ...     lambda q0: assurjax.simulate_core(mech, gravity, (), q0, 0.0, 0.0, 2.0,

@@ -15,10 +15,12 @@ signs frozen, so that the field is smooth inside a segment and a derivative sees
 switch of the law (its saltation) through the located switch time: a slip segment ends
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
-each a diffrax.Event located by root finding; a stick segment (w = 0, q fixed) ends where
-the break-away margin -s a_s crosses 0 (another Event), its steps controlled on the
-margin's integral, carried in its state so that they resolve how the loads move the
-margin (``_stuck_field``). A segment goes in the direction
+each a diffrax.Event located by root finding (and, in a run that can be differentiated,
+where a prismatic pair's block-end load changes sign or q or t reaches a knot of a load's
+table: kinks, which derivatives must not step across, ``Settings.kink_events``); a stick
+segment (w = 0, q fixed) ends where the break-away margin -s a_s crosses 0 (another
+Event), its steps controlled on the margin's integral, carried in its state so that they
+resolve how the loads move the margin (``_stuck_field``). A segment goes in the direction
 sign(w) or, from rest, in s; there its own vector field decides whether the mechanism
 breaks away: at w = 0 an acceleration not in direction s (or no consistent friction) is
 0, so its first step ends at rest, which the step-size controller rejects and ends the
@@ -53,7 +55,7 @@ import numpy as np
 from .._errors import AssurjaxError
 from .._friction import frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, with_block_signs
 from .._jit import any_mapped, jit
-from .._loads import next_knot, tables_in
+from .._loads import next_knot, pieces_at, tables_in
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
@@ -145,7 +147,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
                          friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model,
                          end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1],
-                         knots=knots)
+                         knots=knots[0], pieces=knots[1])
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
@@ -195,9 +197,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         block_ends = _block_signs(model, start, y_start, direction, settings.bridge, signs, last_ends, switched) if blocks else None
         # held by the static coefficients with no stick segment to follow: a slip segment that
         # does not move (direction 0), refused at its first step
-        knots = jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
-                           next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf]) if knotted else None
-        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, knots)
+        knots = pieces = None
+        if knotted:  # the next knots, and the pieces the segment runs on up to them
+            knots = jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
+                               next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf])
+            pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0)])
+        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, (knots, pieces))
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -296,6 +301,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 # a block end's load at a segment's start within this share of the largest is taken as 0: just
 # past an event on it (located to the root finder's tolerance), on either side of its root
 END_ROUNDOFF = 1e-8
+# the margins' cushion at a segment's start, per unit of the largest load: above the friction
+# solve's own tolerance (1e-12), which is what the event's recomputed loads differ by; as small
+# as that, since a segment runs on its frozen branch this far past the kink (with 1e-8 the
+# press's d q(0.45 s)/d mu was 3.4e-6 off at rtol 1e-12, with 1e-13 1.6e-6)
+END_CUSHION = 1e-11
 
 
 def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last, switched):
@@ -303,19 +313,18 @@ def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last,
     ``end_floor``): the signs of their loads x0 at its start, with the law as written; a load 0
     to round-off takes the sign it goes on with: just after its own switch (``switched``, the last
     segment ended on one) the last segment's flipped, else +1 (a wrong guess ends the segment at
-    its first step, and the next one flips it). Floors: min(s x0, 0) less END_ROUNDOFF of the
+    its first step, and the next one flips it). Floors: min(s x0, 0) less END_CUSHION of the
     largest load, so that each margin s x - floor starts > 0 (the event recomputes x0 with the
-    signs frozen, which moves it by round-off; a margin at or below 0 at the start would hide
-    every crossing)."""
+    signs frozen, which moves it by the solve's tolerance; a margin at or below 0 at the start
+    would hide every crossing)."""
     # the signs are discrete, and the floors the margins' fixed offsets: no derivatives
     loads = block_loads(*constant((with_block_signs(model, jnp.zeros_like(last)), t, y, direction)), bridge,
                         constant(rate_signs))
     loads = jnp.where(jnp.isfinite(loads), loads, 0.0)  # a jam at the start: the run stops there anyway
-    read = jnp.where(loads >= 0, 1.0, -1.0)
-    roundoff = END_ROUNDOFF * jnp.max(jnp.abs(loads))
-    signs = jnp.where((jnp.abs(loads) <= roundoff) & switched & (last != 0), -last, read)
+    read, largest = jnp.where(loads >= 0, 1.0, -1.0), jnp.max(jnp.abs(loads))
+    signs = jnp.where((jnp.abs(loads) <= END_ROUNDOFF * largest) & switched & (last != 0), -last, read)
     signs = jnp.where(np.array([f.kind == "P" for f in frictions_of(model.loads)])[:, None], signs, 0.0)
-    return signs, jnp.minimum(signs * loads, 0.0) - roundoff - 1e-200
+    return signs, jnp.minimum(signs * loads, 0.0) - END_CUSHION * largest - 1e-200
 
 
 class _Saved(NamedTuple):
