@@ -142,12 +142,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck, step, coeffs, ends, knots):
+    def segment(start, y, direction, signs, stuck, step, coeffs, ends, knots, pieces):
         args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
                          friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model,
                          end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1],
-                         knots=knots[0], pieces=knots[1])
+                         knots=knots, pieces=pieces)
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
@@ -202,7 +202,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             knots = jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
                                next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf])
             pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0)])
-        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, (knots, pieces))
+        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, knots, pieces)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
