@@ -23,7 +23,6 @@ would start to move in (stiction, see ``dynamics._stick``).
 from __future__ import annotations
 
 import abc
-import copy
 
 from collections.abc import Callable
 from typing import ClassVar, NamedTuple
@@ -46,6 +45,7 @@ from ._kinematics import by_name
 from ._linalg import lu_determinant, lu_factor, lu_solve, plain_lu_factor, plain_lu_solve, small_solver
 from ._loads import AbstractLoad
 from ._mechanism import Mechanism
+from ._trees import with_field
 from .groups._base import GROUND
 
 
@@ -454,18 +454,10 @@ def with_block_signs(model, signs):
     for load in model.loads:
         if isinstance(load, AbstractFriction):
             if load.kind == "P":
-                load = _with_field(load, "block_signs", signs[k])
+                load = with_field(load, "block_signs", signs[k])
             k += 1
         loads.append(load)
     return eqx.tree_at(lambda m: m.loads, model, tuple(loads))
-
-
-def _with_field(module, name, value):
-    """A copy of an equinox module with one field replaced (eqx.tree_at cannot reach a field
-    that is None where others are: None is one object)."""
-    out = copy.copy(module)
-    object.__setattr__(out, name, value)
-    return out
 
 
 def end_loads(mechanism: Mechanism, kin, frictions, reactions, u):

@@ -32,7 +32,6 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
-import copy
 
 import inspect
 import weakref
@@ -47,6 +46,7 @@ from jaxtyping import Array
 
 from ._errors import MechanismError
 from ._listing import few
+from ._trees import with_field
 from ._values import check_value, concrete, found_words, shape_words
 from ._geometry import cross, dot, safe_norm
 from ._mechanism import COM_PREFIX, Mechanism, Pose
@@ -266,9 +266,7 @@ def with_pieces(loads, variable: str, pieces):
 
     def frozen(value):
         if isinstance(value, Table) and value.variable == variable:
-            out = copy.copy(value)
-            object.__setattr__(out, "piece", pieces[next(count)])
-            return out
+            return with_field(value, "piece", pieces[next(count)])
         return value
 
     return jax.tree.map(frozen, loads, is_leaf=_is_table)

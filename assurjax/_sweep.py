@@ -288,17 +288,22 @@ def _check_results_size(n: int, chunk_result) -> None:
 _COMPILED: dict = {}
 
 
-def _compiled_vmap(fn):
-    """One jitted vmap per function object (so repeated sweeps do not retrace)."""
+def _cached(cache: dict, key, build):
+    """``cache[key]``, built by ``build()`` on the first call (an unhashable key: built every time)."""
     try:
-        return _COMPILED[fn]
+        return cache[key]
     except (KeyError, TypeError):
-        compiled = jit(eqx.filter_vmap(fn))
+        made = build()
         try:
-            _COMPILED[fn] = compiled
+            cache[key] = made
         except TypeError:
             pass
-        return compiled
+        return made
+
+
+def _compiled_vmap(fn):
+    """One jitted vmap per function object (so repeated sweeps do not retrace)."""
+    return _cached(_COMPILED, fn, lambda: jit(eqx.filter_vmap(fn)))
 
 
 _SHARDED: dict = {}
@@ -312,11 +317,11 @@ def _sharded_vmap(fn, mesh: Mesh):
     each became an all-reduce at every step of the loop, and inside a region
     (``_jit.region``: one kernel, which cannot call XLA's collectives on a CPU) a crash: the
     sharded sweep with joint friction raised ``INTERNAL: Failed to materialize symbols``."""
-    key = (fn, mesh)
-    try:
-        return _SHARDED[key]
-    except (KeyError, TypeError):
-        pass
+    return _cached(_SHARDED, (fn, mesh), lambda: jit(_shard_mapped(fn, mesh)))
+
+
+def _shard_mapped(fn, mesh: Mesh):
+    """``fn`` vmapped over each device's members of a chunk sharded over ``mesh`` (see :func:`_sharded_vmap`)."""
     spec = PartitionSpec(BATCH_AXIS)
 
     def run(chunk):
@@ -333,12 +338,7 @@ def _sharded_vmap(fn, mesh: Mesh):
         out_arrays = jax.shard_map(local, mesh=mesh, in_specs=(spec,), out_specs=spec, check_vma=False)(arrays)
         return eqx.combine(out_arrays, results["static"])
 
-    compiled = jit(run)
-    try:
-        _SHARDED[key] = compiled
-    except TypeError:
-        pass
-    return compiled
+    return run
 
 
 # --------------------------------------------------------------------------- batched kinematics
@@ -468,7 +468,8 @@ def batch_simulate(
                             "apart (the batch's tables ran unchecked through positions a member cannot assemble in): "
                             "batch_simulate runs the exact reduction; simulate() tabulates a batch of starts")
     options = settings_from(scene, **settings)
-    # a scene's 'table' or 'auto' too; never differentiated (host arrays): no cuts at a slide's kinks
+    # a scene's 'table' or 'auto' too; never differentiated (host arrays): no cuts at the kinks of the
+    # friction and the loads (Settings.kink_events)
     options = batch_settings(options._replace(reduction="exact", kink_events=False), scene.loads)
     if options.save_steps:  # as simulate's batches
         raise AssurjaxError("batch_simulate: save_steps saves up to max_steps states per run: it is for single runs, "
@@ -497,8 +498,7 @@ def batch_simulate(
     sols = sweep(_SIM_ITEMS[key], batch, chunk_size=chunk_size, mesh=mesh, progress=progress, desc="simulate")
     mechanism, loads, gravity = jax.tree.map(lambda x: x[0], batch)  # Model() checks one model's shapes
     models = eqx.tree_at(lambda m: (m.mechanism, m.loads, m.gravity), Model(mechanism, gravity, loads), batch)
-    groups = tuple(g.name for g in mechanism.groups)  # shared by every member
-    return batch_summary(sols, jammed_members(sols, models, models_batched=True), groups)
+    return batch_summary(sols, jammed_members(sols, models, models_batched=True), mechanism.group_names)
 
 
 _SIM_ITEMS: dict = {}

@@ -12,6 +12,7 @@ rebuild every plain dict in the key order of the first tree they map over, and
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from typing import Any
 
@@ -83,3 +84,11 @@ def replace_selected(select: Callable[[Any], Any], tree: Any, new: Callable[[lis
         raise SelectionError(f"{len(values)} replacements for {len(found)} selected arrays")
     chosen = {id(s): i for i, s in enumerate(found)}
     return map_keep_order(lambda s: values[chosen[id(s)]] if id(s) in chosen else others(s.value), slots)
+
+
+def with_field(module: Any, name: str, value: Any) -> Any:
+    """A copy of an equinox module with one field replaced, its other fields the same objects
+    (eqx.tree_at cannot reach a field that is None where others are: None is one object)."""
+    out = copy.copy(module)
+    object.__setattr__(out, name, value)
+    return out

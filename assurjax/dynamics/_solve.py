@@ -599,7 +599,7 @@ def simulate(
             raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
         return sol
     sol = replaced(to_host(sol), mechanism_points=model.mechanism.point_names)
-    sols = batch_summary(sol, jammed_members(sol, model), groups=tuple(g.name for g in model.mechanism.groups))
+    sols = batch_summary(sol, jammed_members(sol, model), groups=model.mechanism.group_names)
     if throw and not sols.successful:
         raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
     return sols
