@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import assurjax  # importing it starts no JAX backend
-from assurjax._jit import add_xla_flag
+from assurjax._jit import COMPILER_OPTIONS, add_xla_flag
 from assurjax.cli import STALL_FREE_FLAG
 
 # XLA's CPU runtime can stall inside a large compiled call on this 2-core machine (all
@@ -18,6 +18,14 @@ from assurjax.cli import STALL_FREE_FLAG
 # finished 5 of 5. Set before JAX starts its backend; the package itself sets no process-wide
 # flag (docs/design-notes.md, "Known issues").
 add_xla_flag(STALL_FREE_FLAG, "xla_cpu_enable_concurrency_optimized_scheduler")
+
+# The tests' own jitted checks (derivatives, vmapped references) compile with the options the
+# package compiles its programs with (assurjax._jit.COMPILER_OPTIONS): XLA's legacy loop
+# emitters and no library fusions, which compile these programs faster and run them the same
+# (benchmarks/bench_compile_options.py). Their files ran in 104 -> 77 s (test_sensitivities.py,
+# test_synthesis_optimize.py, test_dyads.py).
+for _setting, _value in COMPILER_OPTIONS.items():
+    add_xla_flag(f"--{_setting}={str(_value).lower() if isinstance(_value, bool) else _value}", _setting)
 
 # The command line keeps compiled programs on disk by default; tests leave no files behind.
 os.environ.setdefault("ASSURJAX_NO_CACHE", "1")

@@ -457,6 +457,7 @@ def test_summary_says_where_a_run_ends_held_at_rest(write_scene, capsys):
     assert "driving effort: none needed (the loads alone drive this motion; largest value" in printed
 
 
+@pytest.mark.slow  # ~9 s; the default suite keeps to 10 min
 def test_run_to_a_lockup_reports_the_balance_before_its_approach(tmp_path, capsys):
     """The Roberts four-bar coasts (no loads) into the limit position of its crank: T stays at
     T(0) up to the lock-up's approach, where J_red grows without bound and w goes to 0; the

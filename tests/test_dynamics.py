@@ -281,10 +281,11 @@ def inverted_slider_crank(mode: int):
         state=dict(q0=1.0)))
 
 
+# PRR (RRP listed from its other end) and the RPR's other mode in the slow suite (~7 s): the default suite keeps to 10 min
 SLIDER_LIMITS = [(lambda: long_crank_slider("RRP"), np.arcsin(0.3 / 0.32), -1.0, "RRP"),
-                 (lambda: long_crank_slider("PRR"), np.arcsin(0.3 / 0.32), -1.0, "PRR"),
+                 pytest.param(lambda: long_crank_slider("PRR"), np.arcsin(0.3 / 0.32), -1.0, "PRR", marks=pytest.mark.slow),
                  (lambda: inverted_slider_crank(1), np.arccos(0.1075 / 0.12), 1.0, "RPR"),
-                 (lambda: inverted_slider_crank(-1), np.arccos(0.1075 / 0.12), 1.0, "RPR")]
+                 pytest.param(lambda: inverted_slider_crank(-1), np.arccos(0.1075 / 0.12), 1.0, "RPR", marks=pytest.mark.slow)]
 
 
 @pytest.mark.parametrize("build, q_limit, inside, kind", SLIDER_LIMITS)
@@ -417,6 +418,7 @@ def test_constant_steps_that_turn_the_driver_at_a_limit_lock_up():
         assert sol.event == LOCKUP and 0.0 < q_star - float(sol.q_final) < 3e-3
 
 
+@pytest.mark.slow  # ~9 s; a batch thrown into a limit stays in the default suite
 def test_lockup_in_a_batch_stops_each_member_at_its_limit():
     """Vmapped runs, each closing in on a lock-up of its own (both limits), as run alone (the
     time of arrival is ill-conditioned: q approaches the limit quadratically in t)."""

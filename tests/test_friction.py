@@ -203,6 +203,7 @@ def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
         aj.synthesis.standstill_time(loaded, adjoint="quadrature")
 
 
+@pytest.mark.slow  # ~6 s; the default suite keeps to 10 min
 def test_segment_budget_is_reported(slider, monkeypatch):
     """A run that needs more segments than the budget stops there and says so (its own
     max_steps makes it a program of its own, traced with the small budget)."""
@@ -248,6 +249,7 @@ def test_a_jam_where_the_effective_inertia_goes_to_zero_is_named():
     assert sol.status.startswith("the joint friction jams the mechanism at t = 0.57"), sol.status
 
 
+@pytest.mark.slow  # ~8 s; the default suite keeps a jam's status (test_a_friction_jam_is_named)
 def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     """The same rocker with 10 mm pins: near the stretched dyad its pins' friction circles
     take the coupler's force line, and the motion jams 5e-5 rad short of the limit (it used
@@ -372,6 +374,7 @@ def test_a_start_on_two_dead_points_then_a_jam():
     assert_reference_locks_at(reference, float(sol.q_final), float(sol.omega_final), drive=3.0)
 
 
+@pytest.mark.slow  # scaled masses (~7 s and ~13 s for the two scalings): the default suite keeps to 10 min
 def test_a_heavier_mechanism_moves_the_same(slider):
     """Every mass and inertia 1e5 times larger scales every force, the friction included, by
     1e5: the same motion. The friction solves' absolute tolerance was capped at 1 N m, which
@@ -452,6 +455,7 @@ def test_backsolve_with_friction_is_a_clear_error(write_scene):
             scene.with_loads(scene.loads[:1] + (aj.JointFriction("O", mu, 0.04),)), 0.9, adjoint="backsolve")[0])(0.3)
 
 
+@pytest.mark.slow  # ~11 s; the default suite keeps the break-away under a scene torque
 def test_breakaway_under_a_torque_given_as_a_function(write_scene):
     """The same arm under the same torque k t given as a Python function: a function is never
     assumed constant in time (the stick segment stays), so it breaks away at the same time."""
@@ -505,6 +509,7 @@ def assert_breaks_away_at(sol, q0, direction):
     assert direction * sol.omega[1] > 0.0 and direction * (sol.q[2] - q0) > 1e-4
 
 
+@pytest.mark.slow  # ~8 s; the break-away at the static limit stays in the default suite
 def test_a_short_pulse_of_torque_breaks_the_arm_away(write_scene):
     """A pulse 2 L exp(-((t - 0.5) / 0.05)^2) on the arm held at rest (L its static limit)
     breaks it away where the pulse reaches L, t* = 0.5 - 0.05 sqrt(ln 2) (closed form); a
@@ -519,6 +524,7 @@ def test_a_short_pulse_of_torque_breaks_the_arm_away(write_scene):
     assert np.all(held.q == q0) and np.all(held.omega == 0.0) and held.status.startswith("reached t1")
 
 
+@pytest.mark.slow  # ~7 s; a short pulse's break-away stays in the default suite
 def test_a_pulse_shorter_than_the_steps_needs_max_step(write_scene):
     """A pulse of width 0.01 s: the controller's first steps grow past it, as an ODE solve
     steps over any forcing its stages do not sample (the arm stays at rest); with
@@ -964,6 +970,7 @@ STRONG = (aj.JointFriction("O", 0.0, RADIUS), aj.JointFriction("A", 5.0, RADIUS)
           aj.SlideFriction("slider/ground", 5.0, 0.005))
 
 
+@pytest.mark.slow  # ~23 s; the default suite checks the friction solve's derivative in mu (the acceleration's)
 def test_vector_field_derivative_in_mu_against_differences(slider):
     """The vector field's d(dw/dt)/d(scale of every mu), reverse and forward mode, against
     central differences: with moderate friction (the iteration settles) and with STRONG's at
@@ -1047,13 +1054,18 @@ def test_a_friction_jam_is_named(slider):
                       rtol=1e-10, atol=1e-10)  # run()'s program
     assert not sol.successful
     assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20)"), sol.status
-    # the differentiable final state has no q(T) to give: it says why (it returned the start as q(T))
-    with pytest.raises(aj.AssurjaxError, match="final_state: the motion did not end as asked: the joint friction jams "
-                                              "the mechanism at t = 0 s"):
-        aj.synthesis.final_state(slider.with_loads(STRONG), 0.5, q0=0.5, omega0=20.0)
     for steps in (1, 4, 16):
         with pytest.raises(RuntimeError, match="did not converge"):
             _strong_reference(20.0, steps).forward(0.5, 20.0)
+
+
+@pytest.mark.slow  # ~8 s: the differentiable program; the default suite keeps to 10 min
+def test_a_friction_jam_is_named_by_the_final_state(slider):
+    """The differentiable final state of that jam has no q(T) to give: it says why (it returned
+    the start as q(T))."""
+    with pytest.raises(aj.AssurjaxError, match="final_state: the motion did not end as asked: the joint friction jams "
+                                              "the mechanism at t = 0 s"):
+        aj.synthesis.final_state(slider.with_loads(STRONG), 0.5, q0=0.5, omega0=20.0)
 
 
 @pytest.mark.slow
@@ -1223,6 +1235,7 @@ def test_agrees_with_the_joint_based_reference(case, monkeypatch):
         np.testing.assert_array_equal(np.concatenate(calls[-12:]), np.minimum(np.arange(84), times.size - 1))
 
 
+@pytest.mark.slow  # ~11 s; the stacked path stays in the default suite (many_elements), batches through test_kinetostatics.py
 def test_friction_through_statics_solved_in_batches_obeys_the_law():
     """The two-legged strandbeest with friction in every joint (K past SUMMED_TERMS: the
     stacked path; the legs' statics, and their tangents, solved in batches of one kind of
@@ -1399,6 +1412,7 @@ def test_fast_loops_give_the_same_triad_reactions():
         np.testing.assert_allclose(fast_values, values, rtol=1e-10, atol=1e-10 * np.max(np.abs(values)))
 
 
+@pytest.mark.slow  # ~15 s; the band against closed forms stays in the default suite
 def test_the_break_away_band_at_a_dead_point_is_that_of_the_starts():
     """At the slider-crank's dead points (q = 0, pi) the slider's rate is 0, and the band gave
     it no friction: 0.7089-0.7629 N m at q = 0 where 0.7077-0.7640 holds just beside it, and a
@@ -1447,6 +1461,7 @@ def _press_weighing(factor: float):
     return aj.scene_from_dict(raw)
 
 
+@pytest.mark.slow
 def test_a_press_a_trillion_times_lighter_moves_the_same():
     # the friction solve's tolerance was absolute (N, N m): at 1e-12 of the masses and forces the
     # press's angle erred by 1.9e-3 rad after 1 s, and no tolerance of the run brought it down

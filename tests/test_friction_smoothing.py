@@ -58,6 +58,7 @@ def _run(scene, loads, **kw):
                        atol=1e-10, **kw)
 
 
+@pytest.mark.slow  # ~20 s; the default suite checks the regularized law's derivative (the sensitivity route)
 def test_smoothed_law_agrees_with_the_joint_based_reference(case):
     """The slider-crank from rest, every pair rough (viscous terms too) with the regularized law:
     one smooth field, no segments, so the solver's own steps are saved too (``save_steps``,

@@ -41,6 +41,7 @@ def test_breakaway_at_the_static_limit_then_the_kinetic_law(write_scene):
     np.testing.assert_allclose([float(lower), float(upper)], [-limit, limit], rtol=1e-12)
 
 
+@pytest.mark.slow  # ~13 s; the break-away then the kinetic law stays in the default suite
 def test_a_swing_sticks_where_the_static_coefficient_holds_it(write_scene):
     """The arm thrown up from hanging (3 rad/s) comes to rest at q*, where gravity's torque
     m g l |cos q*| lies between the kinetic limit mu r m g and the static mu_s r m g

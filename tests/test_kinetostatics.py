@@ -217,8 +217,11 @@ def solved():
 
 
 def _scene_params(names):
-    """The scenes as parameters; the strandbeest (25 groups, ~15 s of compilation) in the slow suite."""
-    return marked_slow(names, ("strandbeest",))
+    """The scenes as parameters; in the slow suite the strandbeest (25 groups, ~15 s of
+    compilation), class IV's (~13 s; its statics checked by default against the 12 x 12 solve),
+    the four-bar of roberts (as the Watt six-bar's) and the two-cylinder (its batches checked
+    by default below)."""
+    return marked_slow(names, ("strandbeest", "class4_seed003", "roberts", "two_cylinder"))
 
 
 def _single(tree, i):
@@ -284,8 +287,7 @@ def test_group_by_group_equals_dense_and_global_solves(solved):
         np.testing.assert_allclose(other.driving, r.driving, rtol=0, atol=1e-9)
 
 
-# the strandbeest's in the slow suite (~10 s of compiles): its leg dyads' batches stay checked by
-# default through test_friction.py's test_friction_through_statics_solved_in_batches_obeys_the_law
+# the strandbeest's in the slow suite (~10 s of compiles), as test_friction.py's batches with friction
 @pytest.mark.parametrize("name, batches", [pytest.param("two legs", [2, 2], marks=pytest.mark.slow), ("two_cylinder", [2])])
 def test_groups_of_one_kind_at_one_level_are_solved_together(name, batches):
     """The two-legged strandbeest's legs (RRR dyads) and the two cylinders' slider dyads

@@ -132,6 +132,7 @@ def test_reduced_figure_spans_one_crank_turn(shaper):
     assert j[-1] == pytest.approx(j[0], rel=1e-9)
 
 
+@pytest.mark.slow  # ~12 s; the command's files are checked by default in tests/test_cli.py
 def test_standstill_message_follows_the_scene(tmp_path, capsys):
     from assurjax.cli import main
 

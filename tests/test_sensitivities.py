@@ -407,6 +407,7 @@ def test_standstill_time_without_a_standstill_has_t1s_derivative():
         jax.grad(lambda q0: syn.standstill_time(slider, q0=q0, omega0=5.0, t1=0.1, adjoint="forward")[0])(1.0)
 
 
+@pytest.mark.slow  # ~10 s; final_state past a lock-up stays in the default suite
 def test_standstill_time_past_a_lock_up_is_no_result():
     """The sensitivity routes integrate through a lock-up (no assembly checks): an offset
     slider-crank that locks up at 0.31 s (simulate stops there) came to a 'standstill' at

@@ -565,6 +565,7 @@ t1 = 0.3
 """
 
 
+@pytest.mark.slow  # ~9 s; starts at a dyad's limit stay in the default suite (test_dynamics.py)
 def test_a_drawing_at_the_cranks_limit_is_no_start_and_a_start_beside_it_locks_up():
     # crank 0.8, coupler 0.5, rocker 0.6, ground 1 (not Grashof): the crank's limit is where
     # coupler and rocker are in line, |O4 A| = 1.1: cos q = (0.64 + 1 - 1.21) / 1.6. Drawn

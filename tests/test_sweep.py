@@ -175,6 +175,7 @@ SHARDED_FRICTION = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # ~7 s; a sharded sweep stays in the default suite
 def test_a_sharded_sweep_with_friction_equals_the_unsharded_one(tmp_path):
     """The friction field's regions (_jit.region: one kernel each) hold loops over a batch-wide
     test (the iteration's and Newton's while loops, vmapped); partitioned by XLA over a sharded
@@ -269,6 +270,7 @@ def test_batch_simulate_refuses_what_simulate_refuses_with_fixed_steps():
         assurjax.batch_simulate(scene, batch, t1=1.0, reduction="table")
 
 
+@pytest.mark.slow  # ~8 s; the default suite keeps to 10 min
 def test_a_member_that_locks_up_beside_one_that_stops_keeps_its_final_state():
     # crank 0.32 m, rod 0.3 m: from q0 = 0.5 at 5 rad/s the in-line slider-crank locks up at
     # q = asin(0.3 / 0.32); from -0.5 it comes to a standstill. Batched, diffrax re-evaluated

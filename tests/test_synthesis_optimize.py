@@ -64,6 +64,7 @@ def coupler_point_problem():
     return lengths, design, objective
 
 
+@pytest.mark.slow  # ~10 s; the objectives' gradients and the stopping rules stay in the default suite
 def test_optimum_matches_slsqp_on_the_epigraph_form(coupler_point_problem):
     lengths, design, objective = coupler_point_problem
     centre = float(design.start()[1])

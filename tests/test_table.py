@@ -172,9 +172,13 @@ def _drive(a, b):
     return [aj.Drive(LinearTorque(jnp.asarray(a), jnp.asarray(b)), velocity_dependent=False)]
 
 
-def test_time_dependent_or_non_periodic_loads_are_clear_errors(watt):
+def test_time_dependent_loads_are_a_clear_error(watt):
     with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time"):
         aj.simulate(watt, reduction="table", loads=[aj.Drive(aj.Polynomial([0.0, 1.0], variable="t"))])
+
+
+@pytest.mark.slow  # ~17 s: a table compiled for each function (the default suite keeps to 10 min)
+def test_functions_of_time_velocity_or_non_periodic_are_clear_errors(watt):
     # User functions flagged velocity-independent: their programs are read for t and omega
     with pytest.raises(aj.AssurjaxError, match=r"Drive load depends on time t"):
         aj.build_table(watt.mechanism, watt.gravity, _drive(0.0, 0.1), 16)
@@ -258,6 +262,7 @@ def test_table_built_inside_the_core_is_differentiable(watt, watt_runs):
     assert float(dq_dm) == pytest.approx((hi - lo) / (2 * eps), rel=1e-5)
 
 
+@pytest.mark.slow  # ~21 s: three tables compiled; the default suite keeps to 10 min
 def test_a_table_given_to_simulate_must_be_the_scenes(watt, tables):
     """simulate(..., table=T) took any table as the whole reduced model: one built without
     gravity left the falling six-bar at rest ('reached t1', q = 0), one of the slider-crank
@@ -321,6 +326,7 @@ def test_a_window_between_the_nodes_where_a_group_cannot_assemble_is_refused():
     assert np.all(np.asarray(aj.build_table(turns, scene.gravity, scene.loads).ok))
 
 
+@pytest.mark.slow  # ~7 s; simulate's checks of a table stay in the default suite
 def test_final_state_with_a_table_checks_it_as_build_table_does():
     """final_state(..., reduction="table") built its table inside the traced program, without
     build_table's checks: on the slider-crank 1e-9 m short of turning fully (the window between
