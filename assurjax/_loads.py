@@ -290,6 +290,18 @@ def next_knot(tables, x, direction):
     return jnp.where(direction > 0, jnp.min(jnp.stack(ups)), jnp.max(jnp.stack(downs)))
 
 
+def piece_around(tables, x, side):
+    """For a variable that may go either way in a segment (omega): (bounds (2,), pieces (n, 2)),
+    the knots below and above the piece of ``tables`` just on ``side`` (+1 or -1) of x, each
+    moved out by 2 KNOT_ROUNDOFF (1 + |x|), and that piece (:func:`pieces_at`). x on a knot just
+    reached (located to the root finder's tolerance, on either side of it) is then inside the
+    bounds, and the piece is the one it goes on into."""
+    pad = jax.lax.stop_gradient(2 * KNOT_ROUNDOFF * (1.0 + jnp.abs(x)))  # an offset, not a function of x
+    inside = x + side * pad
+    bounds = jnp.stack([next_knot(tables, inside, -1.0) - pad, next_knot(tables, inside, 1.0) + pad])
+    return bounds, pieces_at(tables, inside, side)
+
+
 def _as_value(v, where: str, shape: tuple[int, ...] = ()):
     """A load value: a function or form as it is (its arguments checked here, what it
     returns by :func:`check_loads`), a number (or 2-vector, ``shape``) checked finite."""

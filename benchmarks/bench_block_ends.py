@@ -15,6 +15,12 @@ Richardson-extrapolated from h = 2e-3 and 1e-3. Costs: the jitted derivative's f
 (trace and compile) and its best warm call, and ``simulate()``'s warm run (never
 differentiated: the same program either way).
 
+Second case (kinks of a load in omega): the press's motor line replaced by a torque-speed
+table with knots at 4, 8, 12 and 16 rad/s (omega rises through them from rest and falls back
+through 16, 12 and 8 by T = 0.3 s), d q(0.3 s)/d mu cut, cut everywhere but at the table's
+knots (``_stick.tables_in`` made to find no table in omega: the code before those cuts), and
+uncut.
+
     python benchmarks/bench_block_ends.py [--out FILE]
 
 Writes results/block_ends.json unless told otherwise.
@@ -38,20 +44,27 @@ HERE = Path(__file__).resolve().parent
 MU = 0.15
 
 
-def press(mu):
+SPEED_CURVE = ([0.0, 4.0, 8.0, 12.0, 16.0, 20.0], [40.0, 33.0, 25.0, 19.0, 10.0, 0.0])  # rad/s -> N m
+
+
+def press(mu, curve=False):
+    """The press with friction mu everywhere; ``curve``: its motor line replaced by SPEED_CURVE."""
     scene = aj.load_scene("press_with_friction")
-    others = tuple(load for load in scene.loads if not isinstance(load, (aj.JointFriction, aj.SlideFriction)))
+    kept = (aj.PointForce,) if curve else (aj.PointForce, aj.MotorLine)
+    others = tuple(load for load in scene.loads if isinstance(load, kept))
+    if curve:
+        others += (aj.Drive(aj.Table(*SPEED_CURVE, variable="omega")),)
     rough = tuple(aj.JointFriction(j, mu, radius=0.01) for j in ("O", "A", "B")) + (aj.SlideFriction("ram/ground", mu, 0.05),)
     return scene.with_loads(others + rough)
 
 
-def q_at(mu, t1, tol):
-    return aj.synthesis.final_state(press(mu), t1, rtol=tol, atol=tol, adjoint="forward")[0]
+def q_at(mu, t1, tol, curve=False):
+    return aj.synthesis.final_state(press(mu, curve), t1, rtol=tol, atol=tol, adjoint="forward")[0]
 
 
-def reference(t1):
+def reference(t1, curve=False):
     def q(mu):
-        return float(aj.synthesis.final_state(press(mu), t1, rtol=1e-12, atol=1e-12)[0])
+        return float(aj.synthesis.final_state(press(mu, curve), t1, rtol=1e-12, atol=1e-12)[0])
 
     d = {h: (q(MU + h) - q(MU - h)) / (2 * h) for h in (2e-3, 1e-3)}
     return (4 * d[1e-3] - d[2e-3]) / 3, d[1e-3]
@@ -60,22 +73,30 @@ def reference(t1):
 _RUN = None
 
 
-def cuts(on: bool) -> None:
-    """The cuts on (the package as it is) or off (every run as simulate()'s, not cut)."""
-    global _RUN
+_TABLES_IN = None
+
+
+def cuts(on: bool, in_omega: bool = True) -> None:
+    """The cuts on (the package as it is) or off (every run as simulate()'s, not cut);
+    ``in_omega`` False: on, but not at the knots of tables in omega."""
+    global _RUN, _TABLES_IN
+    from assurjax.dynamics import _field, _stick
     from assurjax.synthesis import _dynamic
 
-    _RUN = _RUN or _dynamic._run
+    _RUN, _TABLES_IN = _RUN or _dynamic._run, _TABLES_IN or _stick.tables_in
 
     def run(model, q0, omega0, t0, t1, dt, settings, **kwargs):
         return _RUN(model, q0, omega0, t0, t1, dt, settings._replace(kink_events=on), **kwargs)
 
     _dynamic._run = run
+    _stick.tables_in = _field.tables_in = (
+        lambda loads, variable: () if variable == "omega" and not in_omega else _TABLES_IN(loads, variable))
+    jax.clear_caches()  # the runs' programs are cached by their settings, which in_omega leaves as they are
 
 
-def measure(on: bool, t1: float, tol: float) -> dict:
-    cuts(on)
-    program = jax.jit(lambda mu, t: jax.jvp(lambda m: q_at(m, t, tol), (mu,), (jnp.ones(()),)))
+def measure(on: bool, t1: float, tol: float, curve: bool = False, in_omega: bool = True) -> dict:
+    cuts(on, in_omega)
+    program = jax.jit(lambda mu, t: jax.jvp(lambda m: q_at(m, t, tol, curve), (mu,), (jnp.ones(()),)))
     mu, t = jnp.asarray(MU), jnp.asarray(t1)
     start = time.perf_counter()
     q, slope = jax.block_until_ready(program(mu, t))
@@ -100,6 +121,16 @@ def main() -> None:
                 print(f"T {t1} tol {tol:g} {'cut  ' if on else 'uncut'}: d q/d mu {row['slope']:.10f} (reference "
                       f"{ref:.10f}, h=1e-3 alone {plain:.10f}) error {row['slope_error']:.1e}; first call "
                       f"{row['first_call_s']:.1f} s, warm {row['warm_ms']:.1f} ms", flush=True)
+    ref, plain = reference(0.3, curve=True)  # the torque-speed table
+    for tol in (1e-8, 1e-10):
+        for label, on, in_omega in (("cut", True, True), ("cut but in omega", True, False), ("uncut", False, True)):
+            row = dict(case="torque-speed table", T=0.3, tol=tol, cuts=on, omega_knots_cut=on and in_omega,
+                       **measure(on, 0.3, tol, True, in_omega))
+            row["slope_error"] = abs(row["slope"] - ref) / abs(ref)
+            rows.append(row)
+            print(f"table in omega, T 0.3 tol {tol:g} {label}: d q/d mu {row['slope']:.10f} (reference {ref:.10f}, "
+                  f"h=1e-3 alone {plain:.10f}) error {row['slope_error']:.1e}; first call {row['first_call_s']:.1f} s, "
+                  f"warm {row['warm_ms']:.1f} ms", flush=True)
     cuts(True)
     scene = press(MU)
     simulate_ms = 1e3 * best_time(lambda: aj.simulate(scene, t1=0.5).q, repeats=7)

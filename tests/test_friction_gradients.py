@@ -161,3 +161,49 @@ def test_a_tables_piece_is_continued_past_its_knot():
         np.testing.assert_allclose(float(frozen(turn + 5.0, 0.0, 0.0)), float(table(turn + 5.0, 0.0, 0.0)), rtol=1e-13)
     (behind,) = tables_in(with_pieces(loads, "q", pieces_at(tables_in(loads, "q"), jnp.asarray(4.5), -1.0)), "q")
     np.testing.assert_allclose(float(behind(4.0, 0.0, 0.0)), slope * (4.0 - 4 * np.pi / 3), rtol=1e-13)
+
+
+# a kinked torque-speed curve on the press's crank, for its motor line: knots at 4, 8, 12 and 16 rad/s
+SPEED_CURVE = ([0.0, 4.0, 8.0, 12.0, 16.0, 20.0], [40.0, 33.0, 25.0, 19.0, 10.0, 0.0])
+
+
+@pytest.mark.slow
+def test_gradient_in_mu_past_the_knots_of_a_table_in_omega():
+    """The press driven through a torque-speed table (kinks in omega, which goes up through
+    its knots and back down through them within 0.3 s): a segment ends where omega leaves its
+    piece either way, and reads that piece continued past it. d q(0.3 s)/d mu against
+    differences Richardson-extrapolated from h = 2e-3 and 1e-3 (their spread 5e-7): 2e-8 off
+    at rtol 1e-10 (uncut, the steps crossing the kinks, 6e-7 off differences at rtol 1e-12:
+    benchmarks/README.md)."""
+    press = aj.load_scene("press_with_friction")
+    others = tuple(load for load in press.loads if isinstance(load, aj.PointForce))
+    drive = aj.Drive(aj.Table(*SPEED_CURVE, variable="omega"))
+
+    def scene(mu):
+        rough = tuple(aj.JointFriction(j, mu, radius=0.01) for j in ("O", "A", "B")) + (aj.SlideFriction("ram/ground", mu, 0.05),)
+        return press.with_loads(others + (drive,) + rough)
+
+    omega = aj.simulate(scene(MU), t1=0.3, stop=None, samples=301).omega
+    assert np.max(omega) > 17.0 and omega[-1] < 7.0  # from rest up through the knots, then down through 16, 12 and 8
+    program = jax.jit(lambda mu: jax.jvp(lambda m: aj.synthesis.final_state(scene(m), 0.3, rtol=TOL, atol=TOL, adjoint="forward")[0],
+                                         (mu,), (jnp.ones(()),)))
+    q = lambda mu: float(program(jnp.asarray(mu))[0])  # noqa: E731
+    d1, d2 = ((q(MU + h) - q(MU - h)) / (2 * h) for h in (2e-3, 1e-3))
+    np.testing.assert_allclose(float(program(jnp.asarray(MU))[1]), (4 * d2 - d1) / 3, rtol=1e-7)
+
+
+def test_a_piece_in_omega_is_bounded_by_its_knots_either_way():
+    """_loads.piece_around against the table's knots by hand: between knots, its piece and the
+    knots around it; on a knot (to round-off either side), the piece on the side given and the
+    knots around that piece, moved out by the round-off pad."""
+    from assurjax._loads import KNOT_ROUNDOFF, Table, piece_around
+
+    table = Table(*SPEED_CURVE, variable="omega")
+    cases = [(10.0, 1.0, (8.0, 12.0), (37.0, -1.5)), (10.0, -1.0, (8.0, 12.0), (37.0, -1.5)),
+             (8.0, 1.0, (8.0, 12.0), (37.0, -1.5)), (8.0 - 1e-11, 1.0, (8.0, 12.0), (37.0, -1.5)),
+             (8.0 + 1e-11, -1.0, (4.0, 8.0), (41.0, -2.0)), (25.0, 1.0, (20.0, np.inf), (0.0, 0.0))]
+    for omega, side, (low, high), (a, b) in cases:
+        bounds, pieces = piece_around((table,), jnp.asarray(omega), side)
+        pad = 2 * KNOT_ROUNDOFF * (1 + omega)
+        np.testing.assert_allclose(np.asarray(bounds), [low - pad, high + pad], rtol=1e-15)
+        np.testing.assert_allclose(np.asarray(pieces), [[a, b]], rtol=1e-12, atol=1e-12)

@@ -37,7 +37,7 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
     over the elements with a Coulomb coefficient (the others do not switch);
     block-end switches (``args.end_signs``): the smallest of a slip segment's prismatic
     pairs' block-end loads times their frozen signs (``_field.end_margins``); knots
-    (``args.knots``): the distance to the next knot of the loads' tables, in q or in t.
+    (``args.knots``): the distance to the next knot of the loads' tables, in q, t or omega.
     """
     out = []
     if settings.standstill:  # a hair above 0 at a start from rest, so that it hides no other crossing there
@@ -54,9 +54,11 @@ def margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
 
 def knot_margin(t, y: State, args: FieldArgs):
     """The distance to the next knot of the loads' tables: in q, ahead in the segment's
-    direction (none at rest), and in t; positive until one is reached."""
+    direction (none at rest), in t, and in omega to either of the piece's bounds (it may go
+    either way); positive until one is reached."""
     in_q = jnp.where(args.direction != 0, args.direction * (args.knots[0] - y.q), jnp.inf)
-    return jnp.minimum(in_q, args.knots[1] - t)
+    in_omega = jnp.minimum(y.omega - args.knots[2], args.knots[3] - y.omega)
+    return jnp.minimum(jnp.minimum(in_q, args.knots[1] - t), in_omega)
 
 
 def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:

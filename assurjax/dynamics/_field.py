@@ -73,7 +73,8 @@ class FieldArgs(eqx.Module):
     end_signs: Array | None = None
     end_floor: Array | None = None
     # a slip segment's next knots of the loads' tables (_loads.next_knot), in q ahead in its direction and in t,
-    # and the tables' pieces it runs on (_loads.pieces_at: those in q, then those in t)
+    # then its piece's bounds in omega (_loads.piece_around); and the tables' pieces it runs on
+    # (_loads.pieces_at: those in q, then in t, then in omega)
     knots: Array | None = None
     pieces: Array | None = None
     bridge: float = eqx.field(static=True, default=0.0)  # singular-window bridging of a tracked branch (0: off)
@@ -221,8 +222,11 @@ def segment_model(args: FieldArgs) -> Model:
     model = args.model if args.end_signs is None else with_block_signs(args.model, args.end_signs)
     if args.pieces is None:
         return model
-    in_q = len(tables_in(model.loads, "q"))
-    loads = with_pieces(with_pieces(model.loads, "q", args.pieces[:in_q]), "t", args.pieces[in_q:])
+    loads, read = model.loads, 0
+    for variable in ("q", "t", "omega"):
+        count = len(tables_in(model.loads, variable))
+        if count:
+            loads, read = with_pieces(loads, variable, args.pieces[read:read + count]), read + count
     return eqx.tree_at(lambda m: m.loads, model, loads)
 
 

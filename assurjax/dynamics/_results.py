@@ -11,7 +11,7 @@ import numpy as np
 NO_EVENT, STANDSTILL, LOCKUP, USER = -1, 0, 1, 2
 RATE_SWITCH = -2  # internal: a friction element's d phi_k/dq changed sign (a segment ends, the run goes on)
 END_SWITCH = -3  # internal: the load on a prismatic pair's block end changed sign (a segment ends, the run goes on)
-KNOT = -4  # internal: q or t reached a knot of a load's table (a segment ends, the run goes on)
+KNOT = -4  # internal: q, t or omega reached a knot of a load's table (a segment ends, the run goes on)
 
 
 with warnings.catch_warnings():  # equinox warns that ``successful`` gets a message (diffrax's is ""); that is wanted

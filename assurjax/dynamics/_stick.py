@@ -16,7 +16,7 @@ switch of the law (its saltation) through the located switch time: a slip segmen
 where w returns to 0, or where some element's d phi_k/dq changes sign (its integrated
 value, ``State.friction_rates``, crosses 0: the motion goes on with that sign flipped),
 each a diffrax.Event located by root finding (and, in a run that can be differentiated,
-where a prismatic pair's block-end load changes sign or q or t reaches a knot of a load's
+where a prismatic pair's block-end load changes sign or q, t or w reaches a knot of a load's
 table: kinks, which derivatives must not step across, ``Settings.kink_events``); a stick
 segment (w = 0, q fixed) ends where the break-away margin -s a_s crosses 0 (another
 Event), its steps controlled on the margin's integral, carried in its state so that they
@@ -55,13 +55,13 @@ import numpy as np
 from .._errors import AssurjaxError
 from .._friction import frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, with_block_signs
 from .._jit import any_mapped, jit
-from .._loads import next_knot, pieces_at, tables_in
+from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
                      rest_direction, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
-from ._results import DT_MIN, END_SWITCH, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
+from ._results import DT_MIN, END_SWITCH, KNOT, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, limit_ahead, no_outputs, replaced
 
@@ -121,8 +121,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     slip_settings = settings._replace(standstill=True)
     # prismatic pairs: each slip segment freezes their block ends' signs, and ends where a load changes sign
     blocks = settings.kink_events and has_blocks(frictions_of(model.loads))
-    # the knots of the loads' tables in q and t: each ends a slip segment too (kinks of the loads)
-    tables = (tables_in(model.loads, "q"), tables_in(model.loads, "t")) if settings.kink_events else ((), ())
+    # the knots of the loads' tables in q, t and omega: each ends a slip segment too (kinks of the loads)
+    tables = tuple(tables_in(model.loads, v) for v in ("q", "t", "omega")) if settings.kink_events else ((), (), ())
     knotted = any(tables)
     slip_event = stop_event(slip_settings, switches=True, ends=blocks, knots=knotted)
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
@@ -169,7 +169,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
 
     def body(carry):
-        start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, last_ends, switched, _ = carry
+        start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, last_ends, switched, reached, _ = carry
         # which way does the segment go: sign(w), or at rest (the start, a standstill, a
         # break-away) the only direction it can start in; unless the last segment found it held
         side, rates, slopes, coeffs = start_kinematics(model, start, y, settings.bridge)
@@ -199,9 +199,14 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # does not move (direction 0), refused at its first step
         knots = pieces = None
         if knotted:  # the next knots, and the pieces the segment runs on up to them
-            knots = jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
-                               next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf])
-            pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0)])
+            # omega goes either way: its piece is the one it goes on into past a knot just reached
+            # (``reached``: +1 or -1), else the one it leaves a rest into, or any (on no knot)
+            side = jnp.where(reached != 0, reached, jnp.where(direction != 0, direction, 1.0))
+            bounds, in_omega = (piece_around(tables[2], y.omega, side) if tables[2]
+                                else (jnp.array([-jnp.inf, jnp.inf]), jnp.zeros((0, 2))))
+            knots = jnp.concatenate([jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
+                                                next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf]), bounds])
+            pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0), in_omega])
         run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, knots, pieces)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
@@ -259,9 +264,13 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         result = RESULTS.where(finished(result), segment_result, result)
         # the chunk's mean step (not a stick segment's: its steps follow the loads, not the motion)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
+        # a knot of a table in omega reached: the bound omega ended nearer to (a q or t knot: omega on none)
+        if knots is not None:
+            reached = jnp.where((code == KNOT) & ~stuck,
+                                jnp.where(knots[3] - y_end.omega < y_end.omega - knots[2], 1.0, -1.0), 0.0)
         return (end, y_next, direction, held, stuck & fired, saved, filled, steps, result, event, failed, step,
                 last_ends if block_ends is None else block_ends[0],
-                code == END_SWITCH, done)
+                code == END_SWITCH, reached, done)
 
     def cond(carry):
         return ~carry[-1]
@@ -272,10 +281,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
                                                                                   dtype=float), jnp.zeros((k_elements, 2)),
-             jnp.asarray(False), jnp.asarray(False))
+             jnp.asarray(False), jnp.asarray(0.0), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
-    end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, done = eqxi.while_loop(
+    end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
