@@ -374,7 +374,7 @@ def test_a_start_on_two_dead_points_then_a_jam():
     assert_reference_locks_at(reference, float(sol.q_final), float(sol.omega_final), drive=3.0)
 
 
-@pytest.mark.slow  # scaled masses (~7 s and ~13 s for the two scalings): the default suite keeps to 10 min
+@pytest.mark.slow  # ~7 s (and the lighter press below): the default suite keeps to 10 min
 def test_a_heavier_mechanism_moves_the_same(slider):
     """Every mass and inertia 1e5 times larger scales every force, the friction included, by
     1e5: the same motion. The friction solves' absolute tolerance was capped at 1 N m, which
@@ -1461,7 +1461,7 @@ def _press_weighing(factor: float):
     return aj.scene_from_dict(raw)
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # ~13 s (as test_a_heavier_mechanism_moves_the_same): the default suite keeps to 10 min
 def test_a_press_a_trillion_times_lighter_moves_the_same():
     # the friction solve's tolerance was absolute (N, N m): at 1e-12 of the masses and forces the
     # press's angle erred by 1.9e-3 rad after 1 s, and no tolerance of the run brought it down
