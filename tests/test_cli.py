@@ -525,6 +525,7 @@ def _bundled(name):
     return (importlib.resources.files("assurjax") / "scenes" / f"{name}.toml").read_text()
 
 
+@pytest.mark.slow  # ~9 s; the default suite keeps to 10 min
 def test_a_run_whose_solver_fails_exits_1_and_says_the_motion_is_not_to_be_trusted(tmp_path, capsys):
     """The slider-crank under gravity alone conserves T + V (physics). With constant steps of
     dt = 0.5 s the solver stops early (NaN ahead) after samples that break that law by

@@ -91,6 +91,7 @@ def test_fixed_steps_stop_at_lock_up():
     assert np.all(np.diff(sol.t) > 0)
 
 
+@pytest.mark.slow  # ~9 s; batches equal single runs by default in test_batch_with_fixed_steps_equals_single_runs and test_dynamics.py
 def test_small_batch_equals_single_runs(watt):
     """Fewer than AUTO_TABLE_BATCH starting states: the exact reduction, and every member
     equals its own single run."""

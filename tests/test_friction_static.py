@@ -20,6 +20,7 @@ PIVOT_INERTIA = INERTIA + MASS * ARM**2  # about O (its COM 0.15 m out)
 SWING = '[scene]\nname = "swing"\ngravity = [0.0, -9.81]\n[state]\nq0 = -1.5707963267948966\nomega0 = 3.0\nt1 = 1.5\n' + ROUGH_ARM
 
 
+@pytest.mark.slow  # ~10 s; the static coefficient against the joint-based reference stays in the default suite
 def test_breakaway_at_the_static_limit_then_the_kinetic_law(write_scene):
     """The hanging arm under a torque k t with mu_s = 0.45 > mu = 0.3: held (exactly) until
     k t = mu_s r m g, then moving with the kinetic law, its acceleration jumping from 0 to the

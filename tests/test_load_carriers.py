@@ -297,6 +297,7 @@ def test_point_names_starting_with_com_are_reserved():
         scene_from_dict(tomllib.loads(text))
 
 
+@pytest.mark.slow  # ~7 s; the default suite keeps to 10 min
 def test_with_friction_in_the_pin_the_carrier_changes_the_driving_effort():
     """docs/kinetostatics.md's example, by its recipe: the press's friction alone (mu = 0.15
     in O, A, B of radius 0.01 m and on the ram's 0.05 m block) and (-300, 0) N at B, at

@@ -143,6 +143,7 @@ def test_simulate_compiles_its_two_programs_once_side_by_side():
     assert first.points and first.kinetic is not None
 
 
+@pytest.mark.slow  # ~8 s; the default suite keeps to 10 min
 def test_simulate_agrees_with_the_single_program_of_simulate_core():
     """The split's own guard (a restructuring changes no result beyond 1e-12): simulate()'s two
     programs (diffrax's forward-mode loop) give what the one jitted program of simulate_core
