@@ -32,7 +32,6 @@ User functions are assumed to depend on velocity unless the load is given
 
 from __future__ import annotations
 
-
 import inspect
 import weakref
 from typing import Any, ClassVar

@@ -21,8 +21,8 @@ add_xla_flag(STALL_FREE_FLAG, "xla_cpu_enable_concurrency_optimized_scheduler")
 
 # The tests' own jitted checks (derivatives, vmapped references) compile with the options the
 # package compiles its programs with (assurjax._jit.COMPILER_OPTIONS): XLA's legacy loop
-# emitters and no library fusions, which compile these programs faster and run them the same
-# (benchmarks/bench_compile_options.py). Their files ran in 104 -> 77 s (test_sensitivities.py,
+# emitters and no library fusions, which compile these programs faster and run them as fast (outputs
+# the same to ~1e-12, benchmarks/bench_compile_options.py). Their files ran in 104 -> 77 s (test_sensitivities.py,
 # test_synthesis_optimize.py, test_dyads.py).
 for _setting, _value in COMPILER_OPTIONS.items():
     add_xla_flag(f"--{_setting}={str(_value).lower() if isinstance(_value, bool) else _value}", _setting)

@@ -199,11 +199,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # does not move (direction 0), refused at its first step
         knots = pieces = None
         if knotted:  # the next knots, and the pieces the segment runs on up to them
-            # omega goes either way: its piece is the one it goes on into past a knot just reached
-            # (``reached``: +1 or -1), else the one it leaves a rest into, or any (on no knot)
-            side = jnp.where(reached != 0, reached, jnp.where(direction != 0, direction, 1.0))
-            bounds, in_omega = (piece_around(tables[2], y.omega, side) if tables[2]
-                                else (jnp.array([-jnp.inf, jnp.inf]), jnp.zeros((0, 2))))
+            bounds, in_omega = jnp.array([-jnp.inf, jnp.inf]), jnp.zeros((0, 2))
+            if tables[2]:  # omega goes either way: its piece is the one it goes on into past a knot just
+                # reached (``reached``: +1 or -1), else the one it leaves a rest into, or any (on no knot)
+                omega_side = jnp.where(reached != 0, reached, jnp.where(direction != 0, direction, 1.0))
+                bounds, in_omega = piece_around(tables[2], y.omega, omega_side)
             knots = jnp.concatenate([jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
                                                 next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf]), bounds])
             pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0), in_omega])
@@ -265,7 +265,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # the chunk's mean step (not a stick segment's: its steps follow the loads, not the motion)
         step = jnp.where((accepted > 0) & ~stuck, (end - start) / jnp.maximum(accepted, 1), step)
         # a knot of a table in omega reached: the bound omega ended nearer to (a q or t knot: omega on none)
-        if knots is not None:
+        if tables[2]:
             reached = jnp.where((code == KNOT) & ~stuck,
                                 jnp.where(knots[3] - y_end.omega < y_end.omega - knots[2], 1.0, -1.0), 0.0)
         return (end, y_next, direction, held, stuck & fired, saved, filled, steps, result, event, failed, step,
