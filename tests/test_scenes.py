@@ -97,6 +97,28 @@ def test_settings_are_read_only_and_hashable(roberts_scene):
     hash(roberts_scene.state)
     s2 = roberts_scene.with_settings(state={"q0": 1.0})
     assert s2.state["q0"] == 1.0 and roberts_scene.state["q0"] != 1.0
+    for op in (lambda d: d.popitem(), lambda d: d.__ior__({"q0": 1.0})):
+        with pytest.raises(TypeError):
+            op(roberts_scene.state)
+
+
+@pytest.mark.parametrize("name", ["press_with_friction", "watt_sixbar"])
+def test_a_scene_pickles_and_copies_to_an_equal_scene(name):
+    """A scene crosses process boundaries (multiprocessing, joblib) and deep-copies: the copy
+    equals the original leaf by leaf, its settings are read-only again, and its static parts
+    hash alike (so jit finds the program compiled for the original)."""
+    import copy
+    import pickle
+
+    import equinox as eqx
+
+    scene = assurjax.load_scene(name)
+    for twin in (pickle.loads(pickle.dumps(scene)), copy.deepcopy(scene)):
+        assert bool(eqx.tree_equal(twin, scene))
+        assert jax.tree.structure(twin) == jax.tree.structure(scene)
+        assert type(twin.simulation) is type(scene.simulation) and twin.simulation == scene.simulation
+        with pytest.raises(TypeError):
+            twin.simulation["rtol"] = 1.0
 
 
 def documented_example() -> str:

@@ -20,7 +20,10 @@ class Settings(dict):
     def _readonly(self, *args, **kwargs):
         raise TypeError("scene settings are read-only; use Scene.with_settings")
 
-    __setitem__ = __delitem__ = update = pop = clear = setdefault = _readonly
+    __setitem__ = __delitem__ = update = pop = clear = setdefault = popitem = __ior__ = _readonly
+
+    def __reduce__(self):  # pickle and copy rebuild it whole (the default sets items one by one)
+        return (type(self), (dict(self),))
 
 
 def _freeze(v):
