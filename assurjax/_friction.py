@@ -324,6 +324,8 @@ def rates_and_slopes(mechanism, frictions, coeffs):
     exactly 0 where it is round-off (``_friction.without_roundoff``: a pair that never slips
     has neither a Coulomb sign nor a slope that would give it one just ahead); and the
     slopes as computed."""
+    if not frictions:  # a frictionless run in segments (at its loads' knots): no element
+        return (jnp.zeros((0,), dtype=jnp.result_type(coeffs.q)),) * 3
     if len(frictions) > SUMMED_TERMS:  # one array of terms: one sum, where one per element was a call each
         rates_at, inputs = stacked_rate_terms(mechanism, frictions, coeffs.names), coeffs.stacked
         size = lambda terms: jnp.sum(jnp.abs(terms), axis=-1)  # noqa: E731

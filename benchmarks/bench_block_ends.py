@@ -21,6 +21,11 @@ through 16, 12 and 8 by T = 0.3 s), d q(0.3 s)/d mu cut, cut everywhere but at t
 knots (``_stick.tables_in`` made to find no table in omega: the code before those cuts), and
 uncut.
 
+Third case (a run without friction: one diffrax solve before it was cut at its tables' knots
+too): the press with its motor line and process force alone, d q(T)/d stall (the motor's
+stall torque, 40 N m) at T = 0.35 and 0.5 s (past the process force's knots), cut and uncut;
+the reference as above in the stall torque (h = 2e-2 and 1e-2).
+
     python benchmarks/bench_block_ends.py [--out FILE]
 
 Writes results/block_ends.json unless told otherwise.
@@ -58,16 +63,31 @@ def press(mu, curve=False):
     return scene.with_loads(others + rough)
 
 
-def q_at(mu, t1, tol, curve=False):
-    return aj.synthesis.final_state(press(mu, curve), t1, rtol=tol, atol=tol, adjoint="forward")[0]
+STALL = 40.0  # N m, the press's motor line
 
 
-def reference(t1, curve=False):
-    def q(mu):
-        return float(aj.synthesis.final_state(press(mu, curve), t1, rtol=1e-12, atol=1e-12)[0])
+def frictionless_press(stall):
+    """The press with its motor line (stall torque ``stall``) and process force alone."""
+    scene = aj.load_scene("press_with_friction")
+    return scene.with_loads(tuple(load for load in scene.loads if isinstance(load, aj.PointForce)) + (aj.MotorLine(stall, 20.0),))
 
-    d = {h: (q(MU + h) - q(MU - h)) / (2 * h) for h in (2e-3, 1e-3)}
-    return (4 * d[1e-3] - d[2e-3]) / 3, d[1e-3]
+
+def scene_of(value, curve=False, frictionless=False):
+    """The scene at the differentiated value: mu, or (``frictionless``) the stall torque."""
+    return frictionless_press(value) if frictionless else press(value, curve)
+
+
+def q_at(value, t1, tol, curve=False, frictionless=False):
+    return aj.synthesis.final_state(scene_of(value, curve, frictionless), t1, rtol=tol, atol=tol, adjoint="forward")[0]
+
+
+def reference(t1, curve=False, frictionless=False):
+    def q(value):
+        return float(aj.synthesis.final_state(scene_of(value, curve, frictionless), t1, rtol=1e-12, atol=1e-12)[0])
+
+    at, (h1, h2) = (STALL, (2e-2, 1e-2)) if frictionless else (MU, (2e-3, 1e-3))
+    d = {h: (q(at + h) - q(at - h)) / (2 * h) for h in (h1, h2)}
+    return (4 * d[h2] - d[h1]) / 3, d[h2]
 
 
 _RUN = None
@@ -94,10 +114,10 @@ def cuts(on: bool, in_omega: bool = True) -> None:
     jax.clear_caches()  # the runs' programs are cached by their settings, which in_omega leaves as they are
 
 
-def measure(on: bool, t1: float, tol: float, curve: bool = False, in_omega: bool = True) -> dict:
+def measure(on: bool, t1: float, tol: float, curve: bool = False, in_omega: bool = True, frictionless: bool = False) -> dict:
     cuts(on, in_omega)
-    program = jax.jit(lambda mu, t: jax.jvp(lambda m: q_at(m, t, tol, curve), (mu,), (jnp.ones(()),)))
-    mu, t = jnp.asarray(MU), jnp.asarray(t1)
+    program = jax.jit(lambda mu, t: jax.jvp(lambda m: q_at(m, t, tol, curve, frictionless), (mu,), (jnp.ones(()),)))
+    mu, t = jnp.asarray(STALL if frictionless else MU), jnp.asarray(t1)
     start = time.perf_counter()
     q, slope = jax.block_until_ready(program(mu, t))
     first = time.perf_counter() - start
@@ -131,6 +151,16 @@ def main() -> None:
             print(f"table in omega, T 0.3 tol {tol:g} {label}: d q/d mu {row['slope']:.10f} (reference {ref:.10f}, "
                   f"h=1e-3 alone {plain:.10f}) error {row['slope_error']:.1e}; first call {row['first_call_s']:.1f} s, "
                   f"warm {row['warm_ms']:.1f} ms", flush=True)
+    for t1 in (0.35, 0.5):  # without friction: cut at the knots, or one solve across them
+        ref, plain = reference(t1, frictionless=True)
+        for tol in (1e-8, 1e-10):
+            for on in (True, False):
+                row = dict(case="without friction", T=t1, tol=tol, cuts=on, **measure(on, t1, tol, frictionless=True))
+                row["slope_error"] = abs(row["slope"] - ref) / abs(ref)
+                rows.append(row)
+                print(f"without friction, T {t1} tol {tol:g} {'cut  ' if on else 'uncut'}: d q/d stall {row['slope']:.10f} "
+                      f"(reference {ref:.10f}, h=1e-2 alone {plain:.10f}) error {row['slope_error']:.1e}; first call "
+                      f"{row['first_call_s']:.1f} s, warm {row['warm_ms']:.1f} ms", flush=True)
     cuts(True)
     scene = press(MU)
     simulate_ms = 1e3 * best_time(lambda: aj.simulate(scene, t1=0.5).q, repeats=7)

@@ -207,3 +207,75 @@ def test_a_piece_in_omega_is_bounded_by_its_knots_either_way():
         pad = 2 * KNOT_ROUNDOFF * (1 + omega)
         np.testing.assert_allclose(np.asarray(bounds), [low - pad, high + pad], rtol=1e-15)
         np.testing.assert_allclose(np.asarray(pieces), [[a, b]], rtol=1e-12, atol=1e-12)
+
+
+
+# ------------------------------------------------------------ without friction, and knots in t
+def _frictionless_press(stall):
+    """The press with its motor line (stall torque ``stall``) and process force alone: no friction."""
+    press = aj.load_scene("press_with_friction")
+    return press.with_loads(tuple(load for load in press.loads if isinstance(load, aj.PointForce)) + (aj.MotorLine(stall, 20.0),))
+
+
+def _pulsed_slider_crank(*extra):
+    """The slider-crank falling from rest (q decreasing) under a torque pulse given as a table
+    in t: 0 -> 0.5 N m at 0.1 s -> 0 at 0.2 s, against the fall."""
+    slider = aj.load_scene("slider_crank")
+    pulse = aj.Drive(aj.Table([0.0, 0.1, 0.2], [0.0, 0.5, 0.0], variable="t"))
+    return slider.with_loads(tuple(slider.loads) + (pulse,) + extra)
+
+
+def _moves_as_simulate(scene, t1):
+    """final_state (cut at the knots) against simulate() (one solve, or segments at Coulomb
+    switches only: never cut at knots) at a tolerance 100x tighter."""
+    q, omega = aj.synthesis.final_state(scene, t1, rtol=1e-10, atol=1e-10)
+    sol = aj.simulate(scene, t1=t1, rtol=1e-12, atol=1e-12, stop=None)
+    np.testing.assert_allclose([float(q), float(omega)], [float(sol.q_final), float(sol.omega_final)], rtol=0, atol=1e-8)
+    return sol
+
+
+def test_a_run_without_friction_is_cut_at_its_tables_knots_where_it_can_be_differentiated():
+    """Without friction, a differentiable entry point runs in segments at its load tables'
+    knots (simulate, never differentiated, in one solve; a tabulated reduction, saved solver
+    steps and diffrax's backsolve in one solve as well), and moves as simulate's one solve
+    does: the slider-crank falling through its torque pulse's knots in t. (Moving down with
+    no table in q, the missing q knot once read as -inf and hid the t knots: the segment ran
+    its first piece on, q(0.3 s) -1.411 rad became -0.502.)"""
+    from assurjax.dynamics._settings import Settings
+    from assurjax.dynamics._solve import in_segments
+
+    model = _pulsed_slider_crank().model
+    assert in_segments(model, Settings(), None) and in_segments(_frictionless_press(40.0).model, Settings(), None)
+    for settings in (Settings(kink_events=False), Settings(save_steps=True), Settings(adjoint="backsolve")):
+        assert not in_segments(model, settings, None)
+    assert not in_segments(aj.load_scene("slider_crank").model, Settings(), None)  # no table: one solve
+    sol = _moves_as_simulate(_pulsed_slider_crank(), 0.3)
+    assert float(sol.omega_final) < 0.0  # still falling: every segment ran down through the knots
+
+
+@pytest.mark.slow
+def test_a_run_with_friction_falling_through_knots_in_t_moves_as_simulate():
+    """The same with friction in the slider-crank's crank pivot: the knots in t end segments
+    of the friction run too (the bug above was in their shared margin)."""
+    _moves_as_simulate(_pulsed_slider_crank(aj.JointFriction("O", 0.1, radius=0.01)), 0.3)
+
+
+@pytest.mark.slow
+def test_gradient_without_friction_past_the_process_force_knots():
+    """The press without friction, d q(T)/d stall at T = 0.35 and 0.5 s (past the process
+    force's knots at 240, 300, 345 and 360 deg), forward and reverse mode, against
+    differences Richardson-extrapolated from h = 2e-2 and 1e-2 at rtol 1e-12: ~3e-10 off at
+    rtol 1e-10 (one solve stepping across the knots, as before these cuts: 1.2e-5 and
+    3.5e-5; benchmarks/README.md)."""
+    def q_at(stall, t1, adjoint="forward", tol=TOL):
+        return aj.synthesis.final_state(_frictionless_press(stall), t1, rtol=tol, atol=tol, adjoint=adjoint)[0]
+
+    forward = jax.jit(lambda s, t1: jax.jvp(lambda m: q_at(m, t1), (s,), (jnp.ones(()),))[1])
+    reverse = jax.jit(jax.grad(lambda s, t1: q_at(s, t1, "recursive")))
+    values = jax.jit(lambda s, t1: q_at(s, t1, "recursive", 1e-12))
+    stall = 40.0
+    for t1 in (0.35, 0.5):
+        d1, d2 = ((float(values(stall + h, t1)) - float(values(stall - h, t1))) / (2 * h) for h in (2e-2, 1e-2))
+        reference = (4 * d2 - d1) / 3
+        for program in (forward, reverse):
+            np.testing.assert_allclose(float(program(jnp.asarray(stall), jnp.asarray(t1))), reference, rtol=1e-8)

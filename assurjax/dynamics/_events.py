@@ -56,7 +56,9 @@ def knot_margin(t, y: State, args: FieldArgs):
     """The distance to the next knot of the loads' tables: in q, ahead in the segment's
     direction (none at rest), in t, and in omega to either of the piece's bounds (it may go
     either way); positive until one is reached."""
-    in_q = jnp.where(args.direction != 0, args.direction * (args.knots[0] - y.q), jnp.inf)
+    # no knot in q (inf): none ahead either way (moving down, direction * (inf - q) is -inf, which
+    # hid every other crossing: the segment ran past its t and omega knots on its first piece)
+    in_q = jnp.where((args.direction != 0) & jnp.isfinite(args.knots[0]), args.direction * (args.knots[0] - y.q), jnp.inf)
     in_omega = jnp.minimum(y.omega - args.knots[2], args.knots[3] - y.omega)
     return jnp.minimum(jnp.minimum(in_q, args.knots[1] - t), in_omega)
 

@@ -28,8 +28,10 @@ with warnings.catch_warnings():  # equinox warns that ``successful`` gets a mess
         start_not_assembled = "The mechanism cannot assemble at the starting state."
         start_singular = ("The mechanism starts exactly at a singular configuration of a group (a limit position, or "
                           "where two branches cross), where the driving coordinate does not carry the motion.")
-        max_segments_reached = ("The motion with joint friction needed more segments (rests, break-aways and changes of "
-                                "a joint's Coulomb sign) than a run allows before t1: shorten the time span.")
+        max_segments_reached = ("The motion needed more segments (with joint friction: rests, break-aways and changes of "
+                                "a joint's Coulomb sign; where derivatives are taken, also the kinks of the friction law "
+                                "and the knots of the loads' tables) than a run allows before t1: shorten the time span "
+                                "(or, where no derivative is taken, set kink_events=False).")
 
 
 def result_value(result):

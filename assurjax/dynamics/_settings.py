@@ -104,8 +104,9 @@ class Settings(NamedTuple):
     # with joint friction, slip segments end at the kinks of the law and the loads, so that derivatives see
     # them (accurate to the tolerance instead of ~its square root): where a prismatic pair's block-end load
     # changes sign (each segment freezes those signs; one more friction solve per step: the press's run 1.6x)
-    # and at the knots of the loads' tables in q, t and omega. The values move by the tolerance. Off in simulate()
-    # and the sweeps, never differentiated
+    # and at the knots of the loads' tables in q, t and omega; without friction a run with such tables then runs
+    # in segments too (one solve otherwise). The values move by the tolerance. Off in simulate() and the sweeps,
+    # never differentiated
     kink_events: bool = True
 
 

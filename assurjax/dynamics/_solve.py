@@ -23,6 +23,7 @@ from .._errors import AssemblyError, AssurjaxError
 from .._friction import frictions_of, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
+from .._loads import VARIABLES, tables_in
 from .._mechanism import Mechanism, check_values_once, positions
 from .._positions import assembled
 from .._model import Model, as_model, check_has_inertia
@@ -78,7 +79,9 @@ def simulate_core(mechanism: Mechanism | Model, gravity=None, loads=(), q0=0.0, 
 
     With joint friction, ``settings.kink_events`` (on by default) ends the segments at the
     kinks of the law and the loads as well, for derivatives that do not step across them;
-    off, the run is ``simulate``'s (cheaper where nothing is differentiated).
+    without friction, a model with load tables then runs in segments between their knots
+    (:func:`in_segments`); off, the run is ``simulate``'s (cheaper where nothing is
+    differentiated).
 
     **Example** (10 starting angles at once):
     >>> core = assurjax.jit(eqx.filter_vmap(
@@ -188,8 +191,7 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
         return _steps_solve(model, q0, omega0, t0, t1, settings, table), None, None
     ts = jnp.linspace(t0, t1, settings.samples) if ts is None else jnp.asarray(ts, dtype=float)
     y0 = _initial_state(model, q0, omega0, settings, table)
-    # in segments of frozen Coulomb signs; a smoothed law alone has none (one smooth field)
-    if frictions_of(model.loads) and table is None and not smoothed_only(frictions_of(model.loads)):
+    if in_segments(model, settings, table):
         return *stick_slip(model, q0, omega0, t0, t1, ts, dt, y0, settings), None
     user_signs = tuple(jnp.sign(jnp.asarray(c(t0, q0, omega0), dtype=float)) for c in settings.events) or None
     # the steps find a lock-up themselves: the field is NaN there, and such steps are rejected
@@ -219,6 +221,22 @@ def _motion(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, table)
     if event is not None:
         sol = _last_accepted_unless_event(sol, packing)
     return _package(model, sol, ts, args, settings, y0)
+
+
+def in_segments(model: Model, settings: Settings, table) -> bool:
+    """Whether the motion runs in segments (:func:`~assurjax.dynamics._stick.stick_slip`):
+    with joint friction of the exact law (segments of frozen Coulomb signs; a smoothed law
+    alone has none), and, where derivatives are taken (``settings.kink_events``), with load
+    tables: a segment ends at their next knot and reads them as one piece up to it, so that
+    no step straddles a kink. Not on a tabulated reduction, nor where the solver's own steps
+    are saved or diffrax's backsolve adjoint runs (one solve each)."""
+    if table is not None:
+        return False
+    frictions = frictions_of(model.loads)
+    if frictions:
+        return not smoothed_only(frictions)
+    return (settings.kink_events and not settings.save_steps and settings.adjoint != "backsolve"
+            and any(tables_in(model.loads, v) for v in VARIABLES))
 
 
 def _last_accepted_unless_event(sol, packing):

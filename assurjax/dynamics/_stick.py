@@ -39,6 +39,10 @@ ended waits at most one chunk for the next (the press, 16 starts: 15.6 -> 9.4 us
 member and step; a single run takes whole segments). The loop is equinox's checkpointed while loop
 (the one diffrax's own steps run in): reverse-mode derivatives go through it; with
 ``adjoint='forward'`` a plain while loop, for forward mode.
+
+A run without friction comes here only where it is cut at its load tables' knots
+(``_solve.in_segments``): its segments end at the knots and where w returns to 0 (the
+direction a q knot lies ahead in), and nothing holds it at rest.
 """
 
 from __future__ import annotations
@@ -66,6 +70,9 @@ from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for,
 from ._solution import Solution, limit_ahead, no_outputs, replaced
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
+# ... and where segments also end at the knots of the loads' tables: a measured table of 720
+# points a turn crosses 4096 knots in under six turns (the bound only sizes reverse mode's checkpoints)
+MAX_KNOTTED_SEGMENTS = 16 * MAX_SEGMENTS
 FIRST_STEP = 1e-4  # in chunks, the first call's first step, times t1 - t0 (the controller adapts it)
 BATCH_SEGMENT_STEPS = 16  # Settings.segment_steps of simulate's batches (benchmarks/bench_friction.py)
 
@@ -130,6 +137,10 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # (and no break-away event, two copies of the friction solve) is needed in the program,
     # unless user events are to be watched while it rests
     holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
+    # without friction (a run in segments only at its loads' knots) nothing holds the
+    # mechanism at rest: no stick segment, no start refused, no Coulomb rates in the state
+    frictionless = k_elements == 0
+    holds = holds and not frictionless
     flat_model = not any_mapped(model)  # read here, outside the segments' loop (see _jit.any_mapped)
     static = has_static(model.loads)
 
@@ -185,14 +196,14 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
 
             static_held = tested & jax.lax.cond(eqxi.unvmap_any(tested), holds_at_rest, lambda: jnp.asarray(False))
         go = jnp.where(at_rest, jnp.where(held | static_held, 0.0, side), jnp.sign(y.omega))
-        direction, stuck = jnp.where(go != 0, go, previous), go == 0
+        direction, stuck = jnp.where(go != 0, go, previous), (go == 0) & (not frictionless)
         # the signs of d phi_k/dq in the segment: those just ahead in the direction of motion, so
         # that a rate 0 to round-off (a switch just located, or a start on one) takes the sign it
         # goes on with
         signs = signs_ahead(rates, slopes, direction, y.q)
         # such an element starts just on that side: the event watches the smallest margin, and
         # one at or below 0 would hide every other crossing
-        start_rates = jnp.where(signs * rates > 0, rates, signs * 1e-200)
+        start_rates = None if frictionless else jnp.where(signs * rates > 0, rates, signs * 1e-200)
         y_start, direction = y._replace(friction_rates=start_rates), jnp.where(static_held, 0.0, direction)
         block_ends = _block_signs(model, start, y_start, direction, settings.bridge, signs, last_ends, switched) if blocks else None
         # held by the static coefficients with no stick segment to follow: a slip segment that
@@ -232,7 +243,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         # a start from rest that did not start (its first step ended at rest, see LockupController):
         # the friction holds it, from here on
         # (without stick segments a start is stuck only where the static coefficients hold it)
-        refused = at_rest & (~stuck if holds else True) & (segment_result == RESULTS.dt_min_reached) & (accepted == 0)
+        refused = (at_rest & (~stuck if holds else True) & (segment_result == RESULTS.dt_min_reached) & (accepted == 0)
+                   & (not frictionless))
         segment_result = RESULTS.where(refused, RESULTS.successful, segment_result)
         end = jnp.where(refused, start, end)
         y_end = jax.tree.map(lambda z_end, z: jnp.where(refused, z, z_end), y_end, y._replace(friction_rates=start_rates))
@@ -275,7 +287,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     def cond(carry):
         return ~carry[-1]
 
-    y0 = y0._replace(friction_rates=jnp.zeros(k_elements))  # set at each segment's start
+    y0 = y0._replace(friction_rates=None if frictionless else jnp.zeros(k_elements))  # set at each segment's start
     packing = packing_of(y0, settings.adjoint, solver)
     saved0 = jax.tree.map(lambda z: jnp.broadcast_to(z, (n,) + jnp.shape(z)).astype(float), y0)
     carry = (t0, y0, jnp.asarray(1.0), jnp.asarray(False), jnp.asarray(False), saved0, jnp.zeros(n, dtype=bool), jnp.asarray(0),
@@ -283,7 +295,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
                                                                                   dtype=float), jnp.zeros((k_elements, 2)),
              jnp.asarray(False), jnp.asarray(0.0), jnp.asarray(False))
     kind = "lax" if settings.adjoint == "forward" else "checkpointed"
-    calls = MAX_SEGMENTS if chunk is None else MAX_SEGMENTS + -(-settings.max_steps // chunk)
+    segments = MAX_KNOTTED_SEGMENTS if knotted else MAX_SEGMENTS
+    calls = segments if chunk is None else segments + -(-settings.max_steps // chunk)
     end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)

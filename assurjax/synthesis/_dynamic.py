@@ -157,8 +157,9 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     ``omega0`` there is the one-sided one, on the side the loads start it (central
     differences across 0 average the two sides). Its segments also end at the kinks of the
     friction law (a slide's block end lifting) and of the loads' tables (their knots in q, t
-    or omega), so that its derivatives do not step across them; ``simulate`` does not cut there, so
-    the two agree to the tolerance, not to round-off (``SimulationSettings.kink_events``)."""
+    or omega; with or without friction), so that its derivatives do not step across them;
+    ``simulate`` does not cut there, so the two agree to the tolerance, not to round-off
+    (``SimulationSettings.kink_events``)."""
     _check_start(scene, q0, omega0, t1, adjoint)
     if settings.get("stop") is not None:
         raise AssurjaxError(f"final_state runs to t1 without stop events (got stop={settings['stop']!r}): for the time "
