@@ -1500,3 +1500,18 @@ def test_a_coulomb_switch_is_located_at_tight_tolerances_and_in_float32(tmp_path
     rough3 = tuple(aj.JointFriction(j, 0.15, radius=0.01) for j in ("O", "A", "B"))
     q64 = float(aj.simulate(sc, loads=sc.loads + rough3 + (aj.Drive(5.0),), q0=0.0, t1=0.3, stop=None, rtol=1e-10, atol=1e-10).q_final)
     assert ok == "True" and abs(float(q32) - q64) < 1e-3  # float32 at 1e-5 against float64
+
+
+@pytest.mark.slow  # ~24 s: two friction programs of their own (no default test traces mu through a run to share one)
+def test_a_traced_friction_coefficient_that_is_not_finite_is_named_not_held(slider):
+    """A friction coefficient traced under the user's jit (an optimizer's step gone NaN)
+    cannot be checked before the run; it read as a mechanism held at rest (from rest, q(T) =
+    q0, a plausible answer) or as a jam. The run's result names it, and final_state is NaN."""
+    settings = aj.SimulationSettings(samples=2)
+    run = jax.jit(lambda mu: aj.simulate_core(slider.mechanism, slider.gravity, frictions(slider.mechanism, mu), 0.5, 0.0, 0.0,
+                                              0.3, settings=settings))
+    for mu in (np.nan, np.inf):
+        assert run(jnp.asarray(mu)).result == aj.RESULTS.nonfinite_friction
+    assert run(jnp.asarray(MU)).result == aj.RESULTS.successful
+    q, w = jax.jit(lambda mu: aj.synthesis.final_state(_with_friction(slider, mu), 0.3))(jnp.asarray(np.nan))
+    assert np.isnan(q) and np.isnan(w)

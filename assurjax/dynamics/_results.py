@@ -32,6 +32,8 @@ with warnings.catch_warnings():  # equinox warns that ``successful`` gets a mess
                                 "a joint's Coulomb sign; where derivatives are taken, also the kinks of the friction law "
                                 "and the knots of the loads' tables) than a run allows before t1: shorten the time span "
                                 "(or, where no derivative is taken, set kink_events=False).")
+        nonfinite_friction = ("A friction element's coefficient, radius, length or damping is not finite (a traced "
+                              "value, which cannot be checked before the run): no motion is computed from it.")
 
 
 def result_value(result):

@@ -61,6 +61,7 @@ from .._friction import frictions_of, has_blocks, has_static, iteration_toleranc
 from .._jit import any_mapped, jit
 from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
+from .._values import all_finite
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
                      rest_direction, start_kinematics)
@@ -300,6 +301,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
+    # a traced coefficient that is NaN or inf (checked on the host where it is concrete) read as a
+    # mechanism held at rest, or a jam: say what it is instead
+    values = eqx.filter(frictions_of(model.loads), eqx.is_inexact_array)
+    if jax.tree.leaves(values):
+        result = RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = held & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
