@@ -544,6 +544,7 @@ def test_a_pulse_shorter_than_the_steps_needs_max_step(write_scene):
         aj.simulate(scene, loads=loads, max_step=-1.0)
 
 
+@pytest.mark.slow  # ~10 s; test_breakaway_at_the_static_limit keeps the break-away under a torque in time by default
 def test_a_torque_that_reverses_while_held_breaks_away_the_other_way(write_scene):
     """L (0.5 + 2 t) sin(4 pi t): below the limit over its first half period (at most 0.76 L),
     so the arm stays; then negative, it reaches -L at t* (found by brentq on the closed form)
