@@ -137,11 +137,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # without loads that vary in time a mechanism held at rest stays held: no stick segment
     # (and no break-away event, two copies of the friction solve) is needed in the program,
     # unless user events are to be watched while it rests
-    holds = not first_rest and (bool(settings.events) or any(load.may_depend_on_time() for load in model.loads))
-    # without friction (a run in segments only at its loads' knots) nothing holds the
-    # mechanism at rest: no stick segment, no start refused, no Coulomb rates in the state
+    # (without friction, a run in segments only at its loads' knots, nothing holds the
+    # mechanism at rest: no stick segment, no start refused, no Coulomb rates in the state)
     frictionless = k_elements == 0
-    holds = holds and not frictionless
+    holds = not frictionless and not first_rest and (bool(settings.events)
+                                                     or any(load.may_depend_on_time() for load in model.loads))
     flat_model = not any_mapped(model)  # read here, outside the segments' loop (see _jit.any_mapped)
     static = has_static(model.loads)
 
