@@ -1257,6 +1257,8 @@ def test_friction_through_statics_solved_in_batches_obeys_the_law():
                                    rtol=1e-9, atol=1e-12, err_msg=joint)
 
 
+@pytest.mark.slow  # ~11 s; the default suite checks the stacked path (13 elements) against the joint-based
+# reference in test_friction_random.py
 def test_many_elements_take_the_stacked_path_to_the_same_friction():
     """Past SUMMED_TERMS elements the friction takes its stacked path (the reactions stacked
     at the elements' pairs, the revolutes' rates gathered from the link angles, the prismatic

@@ -315,15 +315,20 @@ def test_cannot_assemble_is_reported(scene, batch_positions):
     assert info.value.group == group
 
 
+def limited_triad():
+    """The triad on a crank of 0.25 m: a limit position at q* = 1.4309 rad."""
+    raw = raw_scene("triad_mechanism")
+    raw["links"]["crank"]["points"]["A"] = [0.25, 0.0]
+    return assurjax.scene_from_dict(raw).mechanism
+
+
 def test_a_tracked_sweep_ends_with_the_branch():
     """A triad on a crank of 0.25 m has a limit position at q* = 1.4309 rad. Past it the
     tracked sweep's Newton solves landed on another assembly (P2 jumping 0.22 m between
     samples 0.29 degrees apart, the median move 3 mm) and said ok; now the samples past it
     are flagged, where the position analysis on its own (continued from the guess) finds no
     assembly either, and those before it move continuously and close their loops."""
-    raw = raw_scene("triad_mechanism")
-    raw["links"]["crank"]["points"]["A"] = [0.25, 0.0]
-    mechanism = assurjax.scene_from_dict(raw).mechanism
+    mechanism = limited_triad()
     qs = jnp.linspace(1.3, 1.6, 61)
     tracked = assurjax.positions_tracked(mechanism, qs)
     alone = jax.vmap(lambda q: assurjax.positions(mechanism, q))(qs)
@@ -332,22 +337,27 @@ def test_a_tracked_sweep_ends_with_the_branch():
     assert 10 < np.count_nonzero(ok) < qs.size and not ok[np.argmin(ok):].any()  # from the limit on
     moves = np.linalg.norm(np.diff(np.asarray(tracked.points["P2"])[ok], axis=0), axis=-1)
     assert moves.max() < 10 * np.median(moves)
-    # steps that shrink towards the limit (0.105, 0.0105, then 0.0002 rad, q* - 1.4e-4 left):
-    # the same branch as the position analysis on its own, every sample ok
-    near_limit = jnp.asarray([1.0, 1.105, 1.21, 1.315, 1.42, 1.4305, 1.4307][:-1])
-    shrinking = assurjax.positions_tracked(mechanism, near_limit)
-    assert np.asarray(shrinking.ok).all()
-    alone = jax.vmap(lambda q: assurjax.positions(mechanism, q))(near_limit)
-    np.testing.assert_allclose(np.asarray(shrinking.angles["T"]), np.asarray(alone.angles["T"]), rtol=0, atol=1e-12)
-    # a sweep that starts where the branch does not exist has none to track (it went on
-    # another assembly, 2.3 rad away from the position analysis' own where both said ok)
-    from_beyond = assurjax.positions_tracked(mechanism, jnp.arange(2.0, 0.0, -np.radians(5)))
-    assert not np.asarray(from_beyond.ok)[:, 1].any()
     ref = LoopEquations("triad_mechanism")
     ref.links["crank"]["A"] = np.array([0.25, 0.0])
     for i in np.flatnonzero(ok):  # the loop equations, written apart, hold where it is ok
         x = np.concatenate([np.asarray(tracked.points[p])[i] for p in ref.internal])
         assert np.max(np.abs(ref.residual(x, float(qs[i])))) < TOL
+
+
+@pytest.mark.slow  # ~8 s of compiles (two more sweep lengths); the default suite keeps the sweep past the limit above
+def test_a_tracked_sweep_closing_in_on_the_limit_or_starting_past_it():
+    """The same triad: steps that shrink towards the limit (0.105, 0.0105, then 0.0002 rad,
+    q* - 1.4e-4 left) stay on the position analysis' own branch, every sample ok; a sweep
+    that starts where the branch does not exist has none to track (it went on another
+    assembly, 2.3 rad away from the position analysis' own where both said ok)."""
+    mechanism = limited_triad()
+    near_limit = jnp.asarray([1.0, 1.105, 1.21, 1.315, 1.42, 1.4305])
+    shrinking = assurjax.positions_tracked(mechanism, near_limit)
+    assert np.asarray(shrinking.ok).all()
+    alone = jax.vmap(lambda q: assurjax.positions(mechanism, q))(near_limit)
+    np.testing.assert_allclose(np.asarray(shrinking.angles["T"]), np.asarray(alone.angles["T"]), rtol=0, atol=1e-12)
+    from_beyond = assurjax.positions_tracked(mechanism, jnp.arange(2.0, 0.0, -np.radians(5)))
+    assert not np.asarray(from_beyond.ok)[:, 1].any()
 
 
 @pytest.mark.slow  # an eight-bar's positions and tracked sweep (~10 s of compiles)

@@ -64,6 +64,7 @@ def test_changed_options_and_scene_tables_are_simulated_anew():
     np.testing.assert_array_equal(pointed.points["E"], expected.points["E"])
 
 
+@pytest.mark.slow  # ~10 s (the table's programs); the default suite keeps a changed scene simulated anew (gravity)
 def test_table_is_rebuilt_for_a_changed_scene():
     scene = aj.load_scene("watt_sixbar")
     tabulated = dict(reduction="table", **LEAN)
