@@ -15,12 +15,16 @@ import types
 from collections.abc import Callable
 
 
-def _cell_key(value):
-    """How a closure value takes part in the comparison: by value when hashable, else by identity."""
+def _cell_key(value, active: frozenset = frozenset()):
+    """How a closure value takes part in the comparison: functions by structure, tuples (an
+    optax transformation is a NamedTuple of closures) item by item, other values by value
+    when hashable, else by identity. ``active``: the functions whose keys are being built."""
     if isinstance(value, types.FunctionType):
-        return _key(value)
+        return _key(value, active)
     if isinstance(value, StructuralFunction):
         return value._key
+    if isinstance(value, tuple):
+        return (type(value), tuple(_cell_key(v, active) for v in value))
     try:
         hash(value)
     except TypeError:
@@ -28,9 +32,13 @@ def _cell_key(value):
     return ("value", type(value), value)
 
 
-def _key(fn: types.FunctionType):
-    cells = tuple(_cell_key(c.cell_contents) for c in (fn.__closure__ or ()))
-    return (fn.__code__, fn.__defaults__ and tuple(map(_cell_key, fn.__defaults__)), id(fn.__globals__), cells)
+def _key(fn: types.FunctionType, active: frozenset = frozenset()):
+    if id(fn) in active:  # a closure that holds itself (a recursive inner function): its code stands for it
+        return ("recursive", fn.__code__)
+    active = active | {id(fn)}
+    cells = tuple(_cell_key(c.cell_contents, active) for c in (fn.__closure__ or ()))
+    defaults = fn.__defaults__ and tuple(_cell_key(d, active) for d in fn.__defaults__)
+    return (fn.__code__, defaults, id(fn.__globals__), cells)
 
 
 class StructuralFunction:
@@ -60,3 +68,12 @@ def by_structure(fn):
     if isinstance(fn, types.FunctionType):
         return StructuralFunction(fn)
     return fn
+
+
+def transformation_by_structure(method):
+    """An optax ``GradientTransformation`` (a NamedTuple of closures: ``optax.adam(0.1)``
+    built anew in a cell run again) with its functions compared by structure; a factory
+    (``optax.adam``) or anything else unchanged."""
+    if isinstance(method, tuple) and hasattr(method, "_replace") and {"init", "update"} <= set(method._fields):
+        return method._replace(init=by_structure(method.init), update=by_structure(method.update))
+    return method

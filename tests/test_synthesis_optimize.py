@@ -192,6 +192,39 @@ def test_new_starts_bounds_options_and_schedules_do_not_recompile():
     assert len(traces) == after_first
 
 
+def test_a_transformation_built_again_does_not_recompile():
+    """``optax.adam(0.05)`` written again (a notebook cell run twice) is a new object of new
+    closures: it used to trace and compile the whole loop again. Its functions now compare
+    by structure (code and closure values, item by item through optax's chain); another
+    rate is another program, never a stale one."""
+    from assurjax._structure import by_structure, transformation_by_structure
+
+    traces = []
+
+    def objective(m):
+        traces.append(1)  # runs only while JAX traces
+        pts, ok = syn.coupler_curve(m, "P", Q_PATH)
+        return jnp.mean(jnp.sum((pts - GOAL) ** 2, -1)), {"ok": ok}
+
+    first = syn.optimize(_four_bar_design(), objective, optax.adam(0.05), 20, has_aux=True)
+    after_first = len(traces)
+    again = syn.optimize(_four_bar_design(), objective, optax.adam(0.05), 20, has_aux=True)
+    assert len(traces) == after_first, "the same method built again recompiled"
+    assert again.loss == first.loss
+    same = transformation_by_structure
+    assert same(optax.adam(0.05)) == same(optax.adam(0.05)) and same(optax.lbfgs()) == same(optax.lbfgs())
+    assert same(optax.adam(0.05)) != same(optax.adam(0.02))
+    assert same(optax.adam(0.05)) != same(optax.sgd(0.05))
+    assert same(optax.adam) is optax.adam  # a factory stays as it is
+
+    def recursive():  # a closure that holds itself keys without recursing for ever
+        def walk(n):
+            return 0 if n == 0 else walk(n - 1)
+        return walk
+
+    assert by_structure(recursive()) == by_structure(recursive())
+
+
 def test_inverse_kinematics_with_a_fresh_lambda_does_not_recompile():
     mech = syn.roberts_like(syn.roberts_lengths())
     traces = []

@@ -22,7 +22,7 @@ import optax
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
 from .._mechanism import Mechanism
-from .._structure import by_structure
+from .._structure import by_structure, transformation_by_structure
 from .._values import all_finite, check_value, check_values
 from ._design import Design, check_inside
 
@@ -394,7 +394,9 @@ def optimize(
       ``options`` (recommended: numeric options such as ``learning_rate`` are
       then traced, so changing them does not recompile; e.g. ``optax.lbfgs`` or
       ``optax.adam`` with ``options={"learning_rate": 0.05}``), or as a built
-      ``optax.GradientTransformation`` (compiled per object: reuse the object).
+      ``optax.GradientTransformation`` (its values compiled in: the same method
+      built again with the same values, e.g. ``optax.adam(0.05)`` in a cell run
+      twice, reuses the program; other values compile anew).
       Line-search methods (``optax.lbfgs()``, ``optax.scale_by_zoom_linesearch``
       ...) get ``value``, ``grad`` and ``value_fn`` as optax documents; designs
       that cannot assemble have value +inf there, so the search steps back.
@@ -461,7 +463,8 @@ def optimize(
         raise AssurjaxError(f"optimize: seed must be a non-negative integer, got {seed!r}")
     started = time.perf_counter()
     numeric, static = _split_options(optimizer, options)
-    problem = _Problem(design=design, objective=by_structure(objective), feasible=by_structure(feasible), method=optimizer,
+    problem = _Problem(design=design, objective=by_structure(objective), feasible=by_structure(feasible),
+                       method=transformation_by_structure(optimizer),
                        method_static=static, has_aux=has_aux, takes_params=schedule is not None,
                        capacity=int(2 ** np.ceil(np.log2(steps + 2))))
     run_options = dict(method=numeric, steps=jnp.asarray(steps), target=jnp.asarray(-np.inf if target is None else target, dtype=float),
