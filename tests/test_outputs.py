@@ -91,27 +91,21 @@ def test_peak_search_reruns_the_programs_of_the_run_it_refines():
     program per refinement shape cost the command seconds), and what it finds is the
     largest value around it (the magnitudes at 41 times within 1.25 ms of it, where the run
     saved every 50 ms, are not above it) and no sample of the run is above it."""
-    import jax
+    from compile_events import TRACE, EventCounter
 
     from assurjax._peaks import magnitudes
 
-    traced, active = [], [False]
-
-    def listen(event, duration, **kwargs):
-        if active[0] and event == "/jax/core/compile/jaxpr_trace_duration":
-            traced.append(kwargs.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
+    traces = EventCounter(TRACE)
     scene = assurjax.load_scene("slider_crank")
     ts = np.linspace(0.0, 2.0, 41)
     sol = assurjax.simulate(scene, saveat=ts)
     grid = magnitudes(scene, sol)
-    active[0] = True
+    traces.active = True
     try:
         peaks = peak_reactions(scene, sol, grid=grid, saveat=ts)
     finally:
-        active[0] = False
-    assert traced == []
+        traces.active = False
+    assert traces.counts == {}
     for name, peak in peaks.items():
         assert peak.value >= np.max(grid[name]), name
         if name == "driving":  # round-off (no drive in this scene)

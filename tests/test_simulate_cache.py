@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import assurjax as aj
+from compile_events import BACKEND_COMPILE, EventCounter
 from assurjax.dynamics._solve import _PREPARED
 
 LEAN = dict(stop=None, steps=40, t1=0.5, points=(), angles=(), energies=False)  # one small program for the module
@@ -109,20 +110,7 @@ def test_start_checks_of_python_numbers_agree_with_numpy_scalars(values):
         assert plain[0] == numpy[0]
 
 
-class CompileCounter:
-    """XLA compiles per function name while active (JAX's own compile events)."""
-
-    def __init__(self):
-        self.counts, self.active = {}, False
-        jax.monitoring.register_event_duration_secs_listener(self.listen)
-
-    def listen(self, event, duration, **kwargs):
-        if self.active and event == "/jax/core/compile/backend_compile_duration":
-            name = kwargs.get("fun_name", "?")
-            self.counts[name] = self.counts.get(name, 0) + 1
-
-
-COMPILES = CompileCounter()
+COMPILES = EventCounter(BACKEND_COMPILE)
 
 
 def test_simulate_compiles_its_two_programs_once_side_by_side():

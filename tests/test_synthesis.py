@@ -16,6 +16,7 @@ import pytest
 import assurjax
 from assurjax import AssemblyError, AssurjaxError
 from assurjax import synthesis as syn
+from compile_events import TRACE, EventCounter
 from joint_reference import circle_intersection
 
 Q0 = math.acos(1.0 / 3.0)
@@ -363,6 +364,28 @@ def test_standstill_objective_gradient_matches_finite_differences(standstill_run
     h = 1e-4
     fd = np.array([(4 * d(h / 2, i) - d(h, i)) / 3 for i in range(2)])
     np.testing.assert_allclose(grad, fd, rtol=1e-6)
+
+
+TRACES = EventCounter(TRACE)
+
+
+def test_the_standstill_problem_made_again_reuses_the_compiled_loop(standstill_run):
+    """The problem built again from a scene loaded again, with the method built again (a
+    notebook's cells run twice): the optimizer's loop is not traced again (it was, 11-18 s
+    of compiling each time) and finds the same design."""
+    scene, design, objective, build, result = standstill_run
+    again = syn.standstill_time_problem(assurjax.load_scene("watt_sixbar"), STANDSTILL_TARGET, **SIM3)
+    TRACES.counts, TRACES.active = {}, True
+    try:
+        rerun = syn.optimize(again[0], again[1], optax.adam(0.2), 120, has_aux=True, target=1e-8)
+    finally:
+        TRACES.active = False
+    assert "_run" not in TRACES.counts, TRACES.counts
+    np.testing.assert_array_equal(np.asarray(rerun.values), np.asarray(result.values))
+    # its build is the objective's: the counterweight on the crank
+    crank = scene.mechanism.driver.links[0]
+    mass = float(again[2](rerun.values).mechanism.links[crank].mass - scene.mechanism.links[crank].mass)
+    assert mass == pytest.approx(float(rerun.values[0]), rel=1e-12)
 
 
 STRAIGHT_LINE_MISTAKES = {

@@ -40,6 +40,7 @@ from ._objectives import (
 )
 from ._problems import (
     ROBERTS_Q0 as ROBERTS_Q0,
+    StandstillObjective as StandstillObjective,
     StraightLineObjective as StraightLineObjective,
     add_point_mass as add_point_mass,
     standstill_time_problem as standstill_time_problem,

@@ -191,8 +191,9 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
     omega(t*) = 0, forward sensitivities: ``adjoint``, see :func:`standstill_time`).
     Aux: ``standstill`` (s), ``ok`` (a standstill happened before ``t1``). The
     sensitivity routes do not check assembly along the motion: check the final design
-    with :func:`assurjax.simulate`. Returns ``(design, objective, build)``; ``build(values)``
-    gives the scene with the counterweight.
+    with :func:`assurjax.simulate`. Returns ``(design, objective, build)``: the objective
+    a :class:`StandstillObjective` (its scene's arrays and the target traced: the problem
+    made again reuses the compiled loop), ``build(values)`` the scene with the counterweight.
 
     **Example** (the Watt six-bar stops at 1.385 s; make it 1.6 s):
     >>> design, objective, build = syn.standstill_time_problem(assurjax.load_scene("watt_sixbar"), 1.6)
@@ -221,16 +222,45 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
         _checked_table(scene, _settings(scene, settings, standstill=True, adjoint=adjoint))
     base = (jnp.asarray(mass[0], dtype=float), jnp.asarray(position[0], dtype=float))
     design = Design(base, lambda v: v, lower=(mass[1], position[1]), upper=(mass[2], position[2]))
+    objective = StandstillObjective(scene=scene, target=jnp.asarray(target, dtype=float), link=link, horizon=float(horizon),
+                                    adjoint=adjoint, settings=_plain_settings(settings))
+    return design, objective, objective.build
 
-    def build(values):
+
+class StandstillObjective(eqx.Module):
+    """The objective of :func:`standstill_time_problem`: ``objective(values)`` ->
+    (((t* - target) / target)^2, aux with ``standstill`` and ``ok``); ``build(values)``
+    gives the scene with the counterweight. Its scene's arrays and the target are traced,
+    so the problem made again (a notebook cell run twice, a scene of the same structure,
+    another target with the same ``t1``) reuses the optimizer's compiled loop."""
+
+    scene: Any
+    target: jax.Array
+    link: str = eqx.field(static=True)
+    horizon: float = eqx.field(static=True)
+    adjoint: str = eqx.field(static=True)
+    settings: tuple = eqx.field(static=True)  # (name, value) pairs for standstill_time
+
+    def build(self, values):
         m, x = values
-        mech = add_point_mass(scene.mechanism, link, m, jnp.stack([x, jnp.zeros_like(x)]))
-        return eqx.tree_at(lambda s: s.mechanism, scene, mech)
+        mech = add_point_mass(self.scene.mechanism, self.link, m, jnp.stack([x, jnp.zeros_like(x)]))
+        return eqx.tree_at(lambda s: s.mechanism, self.scene, mech)
 
-    def objective(values):
-        trial = build(values)
-        t_star, fired = standstill_time(trial, t1=horizon, adjoint=adjoint, **settings)
-        return ((t_star - target) / target) ** 2, {"ok": fired, "standstill": t_star}
+    def __call__(self, values):
+        t_star, fired = standstill_time(self.build(values), t1=self.horizon, adjoint=self.adjoint, **dict(self.settings))
+        return ((t_star - self.target) / self.target) ** 2, {"ok": fired, "standstill": t_star}
 
-    return design, objective, build
+
+def _plain_settings(settings: dict) -> tuple:
+    """The settings as hashable (name, value) pairs (part of the compiled structure): 0-d
+    arrays as the numbers they hold."""
+    pairs = tuple(sorted((k, v.item() if isinstance(v, (np.ndarray, jax.Array)) and np.ndim(v) == 0 else v)
+                         for k, v in settings.items()))
+    for name, value in pairs:
+        try:
+            hash(value)
+        except TypeError:
+            raise AssurjaxError(f"standstill_time_problem: the setting {name} = {value!r} must be a number, a string "
+                                "or None") from None
+    return pairs
 
