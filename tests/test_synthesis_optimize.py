@@ -17,7 +17,7 @@ from scipy.optimize import brentq, minimize
 import assurjax
 from assurjax import AssurjaxError
 from assurjax import synthesis as syn
-from test_synthesis import Q0, roberts_point
+from test_synthesis import Q0, TRACES, roberts_point
 
 STROKE = 0.2
 
@@ -227,19 +227,55 @@ def test_a_transformation_built_again_does_not_recompile():
 
 def test_inverse_kinematics_with_a_fresh_lambda_does_not_recompile():
     mech = syn.roberts_like(syn.roberts_lengths())
-    traces = []
-
-    def x_of_p(pose):
-        traces.append(1)
-        return pose.points["P"][0]
-
-    for x in (0.01, 0.02, 0.03):
-        q, _ = assurjax.inverse_kinematics(mech, lambda pose: x_of_p(pose), x, Q0)
+    for i, x in enumerate((0.01, 0.02, 0.03)):
+        TRACES.counts, TRACES.active = {}, True
+        try:
+            q, _ = assurjax.inverse_kinematics(mech, lambda pose: pose.points["P"][0], x, Q0)
+        finally:
+            TRACES.active = False
+        assert ("_inverse_jit" in TRACES.counts) == (i == 0), TRACES.counts  # traced while the first solve compiled
         q2, pose = assurjax.inverse_kinematics(mech, ("P", "x"), x, Q0)
         assert abs(float(q - q2)) < 1e-12 and abs(float(pose.points["P"][0]) - x) < 1e-10
-    assert len(traces) <= 4  # traced while the first solve compiled, never again
     with pytest.raises(AssurjaxError, match="quantity"):
         assurjax.inverse_kinematics(mech, ("Q", "x"), 0.01, Q0)
+
+
+OFFSET = 0.0  # a global the next test's lambdas read
+
+
+def test_a_fresh_lambda_reading_changed_values_is_traced_anew():
+    """The same lambda written again where a global it reads changed (a notebook's cell run
+    after another set it) was served the program traced with the old value: P_x + 0.01
+    solved to 0.02 gave P_x = 0.02, not 0.01. The globals a function names are part of its
+    structure now; a NumPy array it closes over, changed in place, makes it compare by
+    identity (as jax.jit), so a fresh lambda is traced anew."""
+    from assurjax._structure import by_structure
+
+    global OFFSET
+    mech = syn.roberts_like(syn.roberts_lengths())
+    shift = np.zeros(1)
+    try:
+        for offset in (0.0, 0.01):
+            OFFSET = offset
+            _, pose = assurjax.inverse_kinematics(mech, lambda pose: pose.points["P"][0] + OFFSET, 0.02, Q0)
+            assert float(pose.points["P"][0]) == pytest.approx(0.02 - offset, abs=1e-10)
+            shift[0] = offset
+            _, pose = assurjax.inverse_kinematics(mech, lambda pose: pose.points["P"][0] + shift[0], 0.02, Q0)
+            assert float(pose.points["P"][0]) == pytest.approx(0.02 - offset, abs=1e-10)
+    finally:
+        OFFSET = 0.0
+    reads = lambda: lambda x: x + OFFSET  # noqa: E731
+    assert by_structure(reads()) == by_structure(reads())
+    before = by_structure(reads())
+    OFFSET = 1.0
+    try:
+        assert by_structure(reads()) != before
+    finally:
+        OFFSET = 0.0
+    closes = lambda: lambda x: x + shift[0]  # noqa: E731
+    assert by_structure(closes()) != by_structure(closes())  # an array that can change in place: by identity
+    fn = closes()
+    assert by_structure(fn) == by_structure(fn)
 
 
 # ----------------------------------------------------------------------------- methods, starts, variables
