@@ -20,8 +20,18 @@ from collections.abc import Callable
 
 import equinox as eqx
 import jax
+import numpy as np
 
-_IMMUTABLE_LEAVES = (jax.Array, bool, int, float, complex, str, types.FunctionType)
+_IMMUTABLE_LEAVES = (jax.Array, bool, int, float, complex, str, np.generic, types.FunctionType,
+                     types.BuiltinFunctionType, types.MethodType)
+
+
+def immutable(x) -> bool:
+    """True when ``x`` cannot change after it is built: not a Module, or a Module all of
+    whose leaves are immutable (a NumPy array inside could be changed in place)."""
+    if not isinstance(x, eqx.Module):
+        return True
+    return all(isinstance(leaf, _IMMUTABLE_LEAVES) for leaf in jax.tree.leaves(x))
 
 
 class _Mutable(Exception):
@@ -57,8 +67,7 @@ def _value_key(value, active: frozenset):
     try:
         hash(value)
     except TypeError:
-        if isinstance(value, jax.Array) or (
-                isinstance(value, eqx.Module) and all(isinstance(x, _IMMUTABLE_LEAVES) for x in jax.tree.leaves(value))):
+        if isinstance(value, (jax.Array, eqx.Module)) and immutable(value):
             return _Same(value)
         raise _Mutable from None
     return ("value", type(value), value)
@@ -119,17 +128,12 @@ class StructuralFunction:
 
 
 def by_structure(fn):
-    """``fn`` wrapped to compare by structure when it is a plain Python function (def or lambda);
-    anything else (an equinox Module, a builtin, None) is returned unchanged."""
+    """``fn`` wrapped to compare by structure when it is a plain Python function (def or lambda),
+    item by item when it is a NamedTuple (an optax ``GradientTransformation`` is one of
+    closures: ``optax.adam(0.1)`` built again in a cell run twice); anything else (an equinox
+    Module, a builtin, None) is returned unchanged."""
     if isinstance(fn, types.FunctionType):
         return StructuralFunction(fn)
+    if isinstance(fn, tuple) and hasattr(fn, "_fields"):
+        return type(fn)(*map(by_structure, fn))
     return fn
-
-
-def transformation_by_structure(method):
-    """An optax ``GradientTransformation`` (a NamedTuple of closures: ``optax.adam(0.1)``
-    built anew in a cell run again) with its functions compared by structure; a factory
-    (``optax.adam``) or anything else unchanged."""
-    if isinstance(method, tuple) and hasattr(method, "_replace") and {"init", "update"} <= set(method._fields):
-        return method._replace(init=by_structure(method.init), update=by_structure(method.update))
-    return method

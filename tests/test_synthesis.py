@@ -386,6 +386,10 @@ def test_the_standstill_problem_made_again_reuses_the_compiled_loop(standstill_r
     crank = scene.mechanism.driver.links[0]
     mass = float(again[2](rerun.values).mechanism.links[crank].mass - scene.mechanism.links[crank].mass)
     assert mass == pytest.approx(float(rerun.values[0]), rel=1e-12)
+    # a setting given as a list (valid for the recursive adjoint) is part of that structure too
+    listed = syn.standstill_time_problem(scene, STANDSTILL_TARGET, adjoint="recursive", points=["E"])[1]
+    assert hash(jax.tree_util.tree_structure(listed)) == hash(jax.tree_util.tree_structure(
+        syn.standstill_time_problem(scene, STANDSTILL_TARGET, adjoint="recursive", points=("E",))[1]))
 
 
 STRAIGHT_LINE_MISTAKES = {

@@ -15,7 +15,6 @@ then takes the full path every time.
 from __future__ import annotations
 
 import threading
-import types
 from collections import OrderedDict
 from collections.abc import Mapping
 
@@ -23,11 +22,11 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from .._structure import immutable
+
 MAX_ENTRIES = 64  # distinct (scene, options) combinations kept; the least recently used goes first
 
 _ATOMS = (type(None), type(...), bool, int, float, complex, str)
-_IMMUTABLE_LEAVES = (jax.Array, bool, int, float, complex, str, np.generic, types.FunctionType,
-                     types.BuiltinFunctionType, types.MethodType)
 
 
 class _Unkeyable(Exception):
@@ -90,11 +89,3 @@ def _frozen(x, refs: list):
         refs.append(x)
         return "id", id(x)
     raise _Unkeyable
-
-
-def immutable(x) -> bool:
-    """True when ``x`` cannot change after it is built: not a Module, or a Module all of
-    whose leaves are immutable (a NumPy array inside could be changed in place)."""
-    if not isinstance(x, eqx.Module):
-        return True
-    return all(isinstance(leaf, _IMMUTABLE_LEAVES) for leaf in jax.tree.leaves(x))

@@ -22,7 +22,7 @@ import optax
 from .._errors import AssemblyError, AssurjaxError
 from .._jit import QUICK_OPTIONS, jit
 from .._mechanism import Mechanism
-from .._structure import by_structure, transformation_by_structure
+from .._structure import by_structure
 from .._values import all_finite, check_value, check_values
 from ._design import Design, check_inside
 
@@ -464,7 +464,7 @@ def optimize(
     started = time.perf_counter()
     numeric, static = _split_options(optimizer, options)
     problem = _Problem(design=design, objective=by_structure(objective), feasible=by_structure(feasible),
-                       method=transformation_by_structure(optimizer),
+                       method=by_structure(optimizer) if isinstance(optimizer, optax.GradientTransformation) else optimizer,
                        method_static=static, has_aux=has_aux, takes_params=schedule is not None,
                        capacity=int(2 ** np.ceil(np.log2(steps + 2))))
     run_options = dict(method=numeric, steps=jnp.asarray(steps), target=jnp.asarray(-np.inf if target is None else target, dtype=float),

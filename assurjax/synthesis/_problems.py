@@ -252,15 +252,6 @@ class StandstillObjective(eqx.Module):
 
 
 def _plain_settings(settings: dict) -> tuple:
-    """The settings as hashable (name, value) pairs (part of the compiled structure): 0-d
-    arrays as the numbers they hold."""
-    pairs = tuple(sorted((k, v.item() if isinstance(v, (np.ndarray, jax.Array)) and np.ndim(v) == 0 else v)
-                         for k, v in settings.items()))
-    for name, value in pairs:
-        try:
-            hash(value)
-        except TypeError:
-            raise AssurjaxError(f"standstill_time_problem: the setting {name} = {value!r} must be a number, a string "
-                                "or None") from None
-    return pairs
-
+    """The checked settings as (name, value) pairs, lists as tuples: hashable, for they are
+    part of the compiled structure (``points=["E"]`` is a valid setting)."""
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in settings.items()))
