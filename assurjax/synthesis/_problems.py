@@ -192,7 +192,7 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
     Aux: ``standstill`` (s), ``ok`` (a standstill happened before ``t1``). The
     sensitivity routes do not check assembly along the motion: check the final design
     with :func:`assurjax.simulate`. Returns ``(design, objective, build)``: the objective
-    a :class:`StandstillObjective` (its scene's arrays and the target traced: the problem
+    a :class:`StandstillObjective` (its scene's arrays, the target and the horizon traced: the problem
     made again reuses the compiled loop), ``build(values)`` the scene with the counterweight.
 
     **Example** (the Watt six-bar stops at 1.385 s; make it 1.6 s):
@@ -222,7 +222,7 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
         _checked_table(scene, _settings(scene, settings, standstill=True, adjoint=adjoint))
     base = (jnp.asarray(mass[0], dtype=float), jnp.asarray(position[0], dtype=float))
     design = Design(base, lambda v: v, lower=(mass[1], position[1]), upper=(mass[2], position[2]))
-    objective = StandstillObjective(scene=scene, target=jnp.asarray(target, dtype=float), link=link, horizon=float(horizon),
+    objective = StandstillObjective(scene=scene, target=jnp.asarray(target, dtype=float), link=link, horizon=jnp.asarray(horizon, dtype=float),
                                     adjoint=adjoint, settings=_plain_settings(settings))
     return design, objective, objective.build
 
@@ -230,14 +230,14 @@ def standstill_time_problem(scene, target: float, *, link: str | None = None, ma
 class StandstillObjective(eqx.Module):
     """The objective of :func:`standstill_time_problem`: ``objective(values)`` ->
     (((t* - target) / target)^2, aux with ``standstill`` and ``ok``); ``build(values)``
-    gives the scene with the counterweight. Its scene's arrays and the target are traced,
+    gives the scene with the counterweight. Its scene's arrays, the target and the horizon are traced,
     so the problem made again (a notebook cell run twice, a scene of the same structure,
-    another target with the same ``t1``) reuses the optimizer's compiled loop."""
+    another target or horizon) reuses the optimizer's compiled loop."""
 
     scene: Any
     target: jax.Array
+    horizon: jax.Array  # t1 (s); traced, as a new target's default horizon (1.5 x target) changes with it
     link: str = eqx.field(static=True)
-    horizon: float = eqx.field(static=True)
     adjoint: str = eqx.field(static=True)
     settings: tuple = eqx.field(static=True)  # (name, value) pairs for standstill_time
 
