@@ -501,6 +501,9 @@ def test_fixed_step_solvers_show_their_order(watt, solver, order, steps):
         sol = aj.simulate(watt, q0=0.3, stop=None, t1=1.2, saveat=np.array([1.2]), solver=solver, dt=dt,
                           check_assembly=False, energies=False, points=(), angles=())
         errors.append(abs(sol.q[-1] - r.q[-1]))
+        # one step per grid interval: steps ending a round-off short of their grid point were
+        # each followed by one of ~1e-17 s (75 where 60 were due at dt = 0.02)
+        assert int(sol.num_steps) == round(1.2 / dt), (dt, int(sol.num_steps))
     slopes = np.diff(np.log(errors)) / np.diff(np.log(steps))
     assert np.all(np.abs(slopes - order) < 0.5), (errors, slopes)
 
@@ -628,13 +631,15 @@ def test_point_and_link_rates_along_a_simulation(watt):
 def test_options_that_a_path_cannot_honour_are_refused(watt):
     """steps= ignored saveat and dt, and called its blow-up a lock-up of group 'None'; the
     baseline ignored events and saveat and ended at a standstill without saying why; bridge=
-    without a tracked branch did nothing; an event of two arguments was a raw TypeError."""
+    without a tracked branch did nothing; an event of two arguments was a raw TypeError; Euler
+    with adaptive steps was diffrax's RuntimeError."""
     slider = aj.load_scene("slider_crank")
     for kwargs, message in ((dict(steps=200, saveat=[0.1, 0.5]), "steps= .* takes no saveat"),
                             (dict(steps=200, dt=1e-3), "steps= .* takes no dt"),
                             (dict(solver="seed_euler", events=[lambda t, q, w: q - 0.2]), "seed_euler.* takes no events"),
                             (dict(solver="seed_euler", saveat=[0.1, 0.2]), "seed_euler.* takes no saveat"),
                             (dict(bridge=5e-3), "'bridge' .* needs branch='tracked'"),
+                            (dict(solver="euler"), "'euler' has no error estimate .* give a fixed step"),
                             (dict(events=[lambda t, q: q]), "events: each cond\\(t, q, omega\\) takes")):
         with pytest.raises(aj.AssurjaxError, match=message):
             aj.simulate(slider, t1=1.0, stop=None, **kwargs)

@@ -36,6 +36,8 @@ SOLVERS: dict[str, Callable[[], diffrax.AbstractSolver]] = {
     "euler": diffrax.Euler,
 }
 BASELINES = ("seed_euler",)
+# solvers without an embedded error estimate: the step-size controller has nothing to control
+FIXED_STEP_SOLVERS = ("euler",)
 # Chosen from the work-precision run (benchmarks/README.md): on the Watt six-bar, Tsit5 at
 # rtol = atol = 1e-8 keeps the angle within 3.2e-7 rad of the converged motion over 2 s from
 # 64 starting angles (1e-7 lets it reach 4e-6), faster than Dopri5 or Dopri8 reaching that.
@@ -383,6 +385,9 @@ def check(settings: Settings) -> None:
     """Types and ranges of every field, with errors naming the field."""
     if settings.solver not in SOLVERS and settings.solver not in BASELINES:
         raise AssurjaxError(f"unknown solver {settings.solver!r}; choose one of {sorted(SOLVERS) + list(BASELINES)}")
+    if settings.solver in FIXED_STEP_SOLVERS and adaptive(settings) and settings.steps is None:
+        raise AssurjaxError(f"solver {settings.solver!r} has no error estimate to choose its steps by: give a fixed step "
+                            "(setting 'dt' or 'steps'), or an adaptive solver ('heun' is the lowest order with one)")
     for key in ("rtol", "atol", "max_steps", "samples", "branch", "table_nodes", "save_steps", "bridge"):
         problem = setting_problem(key, getattr(settings, key))
         if problem is not None:
@@ -606,11 +611,14 @@ class ConstantStepsUntilLockup(diffrax.ConstantStepSize):
         met = nan | turned  # a turn at a limit is halved as a NaN step
         completed, count, start, end = controller_state
         grid_here = jnp.where(completed == count, end, start + (end - start) * completed / count)  # where this step should end
-        on_grid = t1 >= grid_here
+        shortest = 2.0**-30 * (end - start) / count
+        # on the grid up to round-off (t0 + dt0 and the grid's own sum differ by ulps: taken as
+        # short, each such step was followed by one of ~1e-17 s, 25 extra steps in 100); a halved
+        # step falls short by at least half its step, far more than this
+        on_grid = t1 >= grid_here - 0.5 * shortest
         # kept on the grid: on to the next grid point; kept short of it (after a halving): on to this one
         next_t1 = jnp.where(met, t0 + 0.5 * (t1 - t0), jnp.where(on_grid, grid_next, grid_here))
         state = jax.tree.map(lambda new, old: jnp.where(~met & on_grid, new, old), grid_state, controller_state)
-        shortest = 2.0**-30 * (end - start) / count
         held = _held_at_rest(y0, y1_candidate)  # as LockupController
         located = diffrax.RESULTS.where(held, diffrax.RESULTS.dt_min_reached,
                                         _located(t0, t1, y0, nan, shortest, turned=turned, reach=reach))
