@@ -128,6 +128,9 @@ def cmd_validate(args) -> int:
     scene = _load(args.scene)
     mech = scene.mechanism
     pose = _pose_at_q0(scene)
+    massless = bool(massless_members(mech).size)
+    if not massless:  # what `run` would refuse (without masses it refuses to run at all: said below)
+        _check_runnable(_as_run(scene), _samples(args, scene))
     print(f"{scene.name}: OK ({scene.source})")
     if scene.description:
         print(f"  {scene.description}")
@@ -137,7 +140,7 @@ def cmd_validate(args) -> int:
     print(f"  assembles at q0 = {scene.state['q0']:.6g} {_units(_driver_kind(mech))['q']} ({len(pose.points)} points)")
     for note in scene.notes:
         print(f"  note: {note}")
-    if massless_members(mech).size:
+    if massless:
         print("  note: no link has a mass or a moment of inertia: kinematics and statics only (`run` needs masses)")
     lo, hi = _sweep_range(scene, None, None)
     print("  over the driving range: " + _assembly_text(mech, np.linspace(lo, hi, VALIDATE_SAMPLES)).replace("\n", "\n  "))
@@ -305,7 +308,8 @@ def _range_text(values) -> str:
 
 def _samples(args, scene) -> int:
     """Output times: --samples, else the scene's [simulation] samples, else RUN_SAMPLES."""
-    n = args.samples if args.samples is not None else int(scene.simulation.get("samples", RUN_SAMPLES))
+    given = getattr(args, "samples", None)  # validate has no --samples
+    n = given if given is not None else int(scene.simulation.get("samples", RUN_SAMPLES))
     _check_count("--samples", n, MAX_SAMPLES)
     return n
 
@@ -344,7 +348,6 @@ def _simulate(scene, samples: int):
 
     import assurjax
 
-    ts = _output_times(scene, samples)
     spans = []  # (start, end) of each trace and compilation: they nest and run side by side
 
     def listen(event, duration, **kwargs):
@@ -355,15 +358,50 @@ def _simulate(scene, samples: int):
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
         t0 = time.perf_counter()
-        sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
+        sol = assurjax.simulate(scene, **_run_keywords(scene, samples))
         first = time.perf_counter() - t0
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     if first - _covered(spans) > RERUN_LIMIT:
         return sol, first, None
     t0 = time.perf_counter()
-    sol = assurjax.simulate(scene, saveat=ts, save_steps=_with_solver_steps(scene))
+    sol = assurjax.simulate(scene, **_run_keywords(scene, samples))
     return sol, first, time.perf_counter() - t0
+
+
+def _run_keywords(scene, samples: int) -> dict:
+    """simulate()'s keywords for the command's runs: its output grid, and the solver's steps."""
+    return dict(saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
+
+
+def _as_run(scene):
+    """The scene as the command runs it. ``[simulation] steps`` (equal steps by lax.scan, saved
+    at each, no events) becomes the same equal step as ``dt``: the command saves on its own grid
+    and locates peaks on the dense output, which the scan's run has not."""
+    import dataclasses
+
+    steps = scene.simulation.get("steps")
+    if steps is None:
+        return scene
+    if "dt" in scene.simulation:
+        raise UserError(f"{scene.source or scene.name}: [simulation] steps = {steps} and dt = {scene.simulation['dt']} "
+                        "both set the fixed step: give one of them")
+    span = float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))
+    simulation = {k: v for k, v in scene.simulation.items() if k != "steps"} | {"dt": span / steps}
+    return dataclasses.replace(scene, simulation=type(scene.simulation)(simulation))
+
+
+def _check_runnable(scene, samples: int) -> None:
+    """What simulate() would refuse in the command's run of ``scene``, before anything compiles,
+    named with the file: a setting of its [simulation] that does not go with the mechanism,
+    its loads or the other settings (validate says it; run and reactions stop there)."""
+    from ._errors import AssurjaxError
+    from .dynamics._solve import check_simulate
+
+    try:
+        check_simulate(scene, **_run_keywords(scene, samples))
+    except AssurjaxError as e:
+        raise UserError(f"{scene.source or scene.name}: its [simulation] settings cannot run: {e}") from None
 
 
 def _with_solver_steps(scene) -> bool:
@@ -482,7 +520,7 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     elif not sol.successful:
         before = float(sol.t_final)
     return peak_reactions(scene, sol, joints=list(joints) if joints else None, grid=grid,
-                          saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene), before=before)
+                          before=before, **_run_keywords(scene, samples))
 
 
 def _force_peaks(peaks: dict) -> list:
@@ -855,10 +893,12 @@ def _rest_line(scene, sol) -> str | None:
 
 def cmd_run(args) -> int:
     t0 = time.perf_counter()
-    scene = _load(args.scene)
+    loaded = _load(args.scene)
+    scene = _as_run(loaded)
     load_time = time.perf_counter() - t0
     _check_count("--frames", args.frames, MAX_FRAMES)
     samples = _samples(args, scene)
+    _check_runnable(scene, samples)
     out = _out_dir(args.out, scene)
     units = _units(_driver_kind(scene.mechanism))
     _pose_at_q0(scene)  # a start that does not assemble: why, before the simulation compiles
@@ -925,6 +965,9 @@ def cmd_run(args) -> int:
     spacing = (float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))) / (samples - 1)
     grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
     print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps tried (rejected ones included)")
+    if scene is not loaded:
+        print(f"  fixed steps: [simulation] steps = {loaded.simulation['steps']} run as equal steps of dt = "
+              f"{scene.simulation['dt']:.6g} s (the command saves on its own grid)")
     if peaks:
         _print_peaks(peaks, units, scene, sol, moves=_moves(sol))
     for line in _friction_lines(scene, sol, along, peaks) if along else _friction_total_line(scene, sol):
@@ -968,10 +1011,12 @@ def cmd_reactions(args) -> int:
         if rough:
             print(_band_line(*(float(edge) for edge in assurjax.breakaway_band(scene, q0)), units))
         return 0
-    out = _out_dir(args.out, scene)
+    scene = _as_run(scene)
     samples = _samples(args, scene)
+    _check_runnable(scene, samples)
+    out = _out_dir(args.out, scene)
     # once: this command reports no simulation timings
-    sol = assurjax.simulate(scene, saveat=_output_times(scene, samples), save_steps=_with_solver_steps(scene))
+    sol = assurjax.simulate(scene, **_run_keywords(scene, samples))
     failed = _solver_failed(sol)
     if failed and _ran_away(sol):  # no reactions along it: nothing to write
         print(f"{scene.name}: {sol.status}")

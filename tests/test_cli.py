@@ -725,3 +725,49 @@ def test_single_line_panels_carry_no_legend():
     q_axes, omega_axes = fig.axes[:2]
     assert q_axes.get_title() == "driving coordinate" and omega_axes.get_title() == "driving velocity"
     assert q_axes.get_legend() is None and omega_axes.get_legend() is None
+
+
+def _bundled_text(name: str) -> str:
+    import importlib.resources
+
+    return (importlib.resources.files("assurjax") / "scenes" / f"{name}.toml").read_text()
+
+
+# [simulation] settings that `validate` passed and `run` then refused (or ended in an internal error)
+UNRUNNABLE = {
+    "euler without a step": ("slider_crank", 'solver = "euler"', "solver 'euler' has no error estimate"),
+    "baseline with friction": ("press_with_friction", 'solver = "seed_euler"', "has no joint friction"),
+    "table with velocity loads": ("press_with_friction", 'reduction = "table"', "depend on the driving velocity"),
+    "steps and dt": ("slider_crank", "steps = 100\ndt = 0.01", "steps = 100 and dt = 0.01 both set the fixed step"),
+}
+
+
+@pytest.mark.parametrize("case", UNRUNNABLE)
+def test_validate_refuses_what_run_would_refuse(case, write_scene, capsys):
+    name, settings, reason = UNRUNNABLE[case]
+    path = write_scene(_bundled_text(name) + f"\n[simulation]\n{settings}\n")
+    for command in ("validate", "run"):
+        assert main([command, "--quiet", str(path)] if command == "run" else [command, str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"assurjax: error: {path}: ") and reason in err, err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_run_takes_the_scene_fixed_steps_as_its_step(write_scene, tmp_path, capsys):
+    """[simulation] steps = 200 (equal steps by lax.scan, which saves no grid of the command's
+    own): run as dt = t1 / 200 over the command's output grid, which is where simulate()'s
+    own steps=200 run ends (the same solver steps)."""
+    import assurjax
+
+    path = write_scene(_bundled_text("slider_crank").replace("t1 = 2.0", "t1 = 0.4") + "\n[simulation]\nsteps = 200\n")
+    out = tmp_path / "out"
+    assert main(["validate", str(path)]) == 0
+    assert main(["run", str(path), "--out", str(out), "--no-animation", "--quiet", "--samples", "41"]) == 0
+    text = capsys.readouterr().out
+    assert "fixed steps: [simulation] steps = 200 run as equal steps of dt = 0.002 s" in text
+    assert "200 solver steps tried" in text
+    cols = read_csv(out / "solution.csv")
+    scan = assurjax.simulate(assurjax.load_scene(str(path)))
+    middle = np.flatnonzero(np.abs(cols["t"] - 0.2) < 1e-13)[0]
+    for row, step in ((middle, 100), (-1, 200)):
+        assert abs(cols["q"][row] - scan.q[step]) < 1e-12, (row, cols["q"][row], scan.q[step])

@@ -9,6 +9,7 @@ the stop events of ``_events`` and the outputs of ``_solution``. Durango et al.'
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -41,7 +42,7 @@ from ._call_cache import CallCache
 from ._solution import (SAVED_FIELDS, Solution, any_outputs, batch_summary, no_outputs, outputs, quadratures, replaced,
                         saved_rows, to_host, trim)
 from ._stick import batch_settings, jammed_members, stick_slip, with_jam_status
-from ._table import ReducedTable, build_table, build_table_core, check_table_matches
+from ._table import ReducedTable, build_table, build_table_core, check_table_matches, check_tabulable
 
 AUTO_TABLE_BATCH = 64  # starting states from which reduction="auto" tabulates (a build costs ~15 exact runs)
 
@@ -545,40 +546,94 @@ def simulate(
     >>> float(sol.t_stop)   # first standstill after falling from rest (the scene asks for stop = "standstill")
     >>> batch = assurjax.simulate(scene, q0=np.linspace(0, 6, 10_000), stop=None)
     """
-    refuse_traced("simulate", q0=q0, omega0=omega0, t0=t0, t1=t1, dt=dt, saveat=saveat, gravity=gravity, rtol=rtol,
-                  atol=atol, max_step=max_step, bridge=bridge, samples=samples, max_steps=max_steps, steps=steps,
-                  table_nodes=table_nodes)
-    if not isinstance(throw, (bool, np.bool_)):  # a string 'no' read as True
-        raise AssurjaxError(f"setting 'throw': expected True or False, got {throw!r}")
     options = dict(stop=stop, solver=solver, rtol=rtol, atol=atol, dt=dt, max_steps=max_steps, samples=samples,
                    events=events, check_assembly=check_assembly, points=points, angles=angles, energies=energies,
                    velocities=velocities, accelerations=accelerations, coms=coms, branch=branch, reduction=reduction,
                    table_nodes=table_nodes, steps=steps, save_steps=save_steps, bridge=bridge, max_step=max_step)
+    request = checked_request(scene, options, q0=q0, omega0=omega0, t0=t0, t1=t1, saveat=saveat, gravity=gravity,
+                              mechanism=mechanism, loads=loads, table=table, throw=throw)
+    prepared = request.prepared
+    model, settings = prepared.model, prepared.settings
+    if settings.solver in BASELINES:
+        from ._baseline import simulate_seed_euler
+
+        return simulate_seed_euler(model.mechanism, model.gravity, model.loads, request.q0, request.omega0, t0=request.t0,
+                                   t1=request.t1, dq=request.step or 1e-3, standstill=settings.standstill,
+                                   max_steps=max_steps)
+    q0, omega0, batch = request.q0, request.omega0, request.batch
+    settings, table = prepared.resolved(table, batch, request.max_steps)
+    if batch is not None:
+        q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
+    args = (q0, omega0, request.t0, request.t1, request.saveat, request.step, settings, table)
+    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
+        sol = prepared.run(args, batch)
+    if batch is None:
+        try:
+            sol = trim(sol, model.mechanism, settings, q0)
+        except AssemblyError as e:  # a start that does not assemble: why (the lengths), as kinematics says
+            raise with_reason(e, model.mechanism, q0) from None
+        sol = with_jam_status(sol, model, settings)
+        if throw and not sol.successful:
+            raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
+        return sol
+    sol = replaced(to_host(sol), mechanism_points=model.mechanism.point_names)
+    sols = batch_summary(sol, jammed_members(sol, model), groups=model.mechanism.group_names)
+    if throw and not sols.successful:
+        raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
+    return sols
+
+
+def check_simulate(scene, **keywords) -> None:
+    """Every check ``simulate(scene, **keywords)`` makes before it runs, without running it:
+    raises :class:`assurjax.AssurjaxError` naming the setting at fault."""
+    bound = inspect.signature(simulate).bind(scene, **keywords)
+    bound.apply_defaults()
+    given = dict(bound.arguments)
+    extras = {k: given.pop(k) for k in ("scene", "q0", "omega0", "t0", "t1", "saveat", "gravity", "mechanism", "loads",
+                                        "table", "throw")}
+    checked_request(extras.pop("scene"), given, **extras)
+
+
+class Request(NamedTuple):
+    """A checked request of :func:`simulate`: the prepared model and settings, the start and
+    span (NumPy arrays; as given for a baseline), the save times, the fixed step, the batch
+    shape (None: one run) and the step budget (None: a baseline's own)."""
+
+    prepared: "_Prepared"
+    q0: object
+    omega0: object
+    t0: object
+    t1: object
+    saveat: np.ndarray | None
+    step: object
+    batch: tuple | None
+    max_steps: int | None
+
+
+def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=None, saveat=None, gravity=None,
+                    mechanism=None, loads=None, table=None, throw=False) -> Request:
+    """Every check :func:`simulate` makes before it runs (``options``: its settings keywords):
+    raises :class:`assurjax.AssurjaxError` naming the setting at fault. The command's
+    ``validate`` asks it what ``run`` would be refused."""
+    refuse_traced("simulate", q0=q0, omega0=omega0, t0=t0, t1=t1, saveat=saveat, gravity=gravity,
+                  **{k: options[k] for k in ("dt", "rtol", "atol", "max_step", "bridge", "samples", "max_steps", "steps",
+                                             "table_nodes")})
+    if not isinstance(throw, (bool, np.bool_)):  # a string 'no' read as True
+        raise AssurjaxError(f"setting 'throw': expected True or False, got {throw!r}")
     prepared = _PREPARED.get(
         (scene, getattr(scene, "simulation", None), getattr(scene, "outputs", None), mechanism, gravity, loads, table,
          *options.values()),
-        lambda: _prepare(scene, mechanism, gravity, loads, options))
+        lambda: _prepare(scene, mechanism, gravity, loads, table, options))
     model, scene_or_none, settings = prepared.model, prepared.scene, prepared.settings
     state = {} if scene_or_none is None else scene_or_none.state
     q0, omega0, t0, t1 = (v if v is not None else state.get(k, d)
                           for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
     if (problem := state_problem(q0, omega0, t0, t1)) is not None:
         raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
-    step = fixed_step_from(scene_or_none, dt)
+    step = fixed_step_from(scene_or_none, options["dt"])
     if settings.solver in BASELINES:
-        from ._baseline import simulate_seed_euler
-
-        if np.ndim(q0) or np.ndim(omega0):
-            raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
-        if frictions_of(model.loads):
-            raise AssurjaxError(f"solver={settings.solver!r} (a baseline, Durango et al.'s scheme) has no joint friction; "
-                                "the scene has friction elements: use the default solver")
-        for given, name in ((settings.events, "events"), (saveat, "saveat")):
-            if given:
-                raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q, samples every dq of travel) "
-                                    f"takes no {name}: use the default solver")
-        return simulate_seed_euler(model.mechanism, model.gravity, model.loads, q0, omega0, t0=t0, t1=t1, dq=step or 1e-3,
-                                   standstill=settings.standstill, max_steps=max_steps)
+        _check_baseline_request(settings, model, q0, omega0, saveat)
+        return Request(prepared, q0, omega0, t0, t1, saveat, step, None, None)
     if settings.steps is not None:
         check_steps_request(settings, model, saveat, step)
     if step is not None:
@@ -601,26 +656,19 @@ def simulate(
             raise AssurjaxError(f"save_steps saves every solver step: max_steps must be at most {SAVED_STEPS_LIMIT} with it, "
                                 f"got {max_steps} (use samples or saveat for longer runs)")
     step = None if step is None else np.asarray(step, dtype=float)
-    settings, table = prepared.resolved(table, batch, max_steps)
-    if batch is not None:
-        q0, omega0 = np.broadcast_to(q0, batch), np.broadcast_to(omega0, batch)
-    args = (q0, omega0, t0, t1, saveat, step, settings, table)
-    with checks_without_callbacks():  # saveat and the rest were checked above: see _jit
-        sol = prepared.run(args, batch)
-    if batch is None:
-        try:
-            sol = trim(sol, model.mechanism, settings, q0)
-        except AssemblyError as e:  # a start that does not assemble: why (the lengths), as kinematics says
-            raise with_reason(e, model.mechanism, q0) from None
-        sol = with_jam_status(sol, model, settings)
-        if throw and not sol.successful:
-            raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sol.status}")
-        return sol
-    sol = replaced(to_host(sol), mechanism_points=model.mechanism.point_names)
-    sols = batch_summary(sol, jammed_members(sol, model), groups=model.mechanism.group_names)
-    if throw and not sols.successful:
-        raise AssurjaxError(f"simulation of '{model.mechanism.name}': {sols.status}")
-    return sols
+    return Request(prepared, q0, omega0, t0, t1, saveat, step, batch, max_steps)
+
+
+def _check_baseline_request(settings: Settings, model: Model, q0, omega0, saveat) -> None:
+    if np.ndim(q0) or np.ndim(omega0):
+        raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
+    if frictions_of(model.loads):
+        raise AssurjaxError(f"solver={settings.solver!r} (a baseline, Durango et al.'s scheme) has no joint friction; "
+                            "the scene has friction elements: use the default solver")
+    for given, name in ((settings.events, "events"), (saveat, "saveat")):
+        if given:
+            raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q, samples every dq of travel) "
+                                f"takes no {name}: use the default solver")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -694,7 +742,7 @@ def finished_in_chunks(finish, out: tuple, chunk: int) -> Solution:
     return replaced(pieces[0], **joined)
 
 
-def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
+def _prepare(scene, mechanism, gravity, loads, table, options: dict) -> _Prepared:
     refuse_traced("simulate", scene=jax.tree.leaves(scene), mechanism=jax.tree.leaves(mechanism),
                   loads=jax.tree.leaves(loads))
     model = as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads, what="simulate")
@@ -703,6 +751,9 @@ def _prepare(scene, mechanism, gravity, loads, options: dict) -> _Prepared:
     scene_or_none = None if isinstance(scene, (Model, Mechanism)) else scene
     settings = settings_from(scene_or_none, **options)
     _check_outputs(model.mechanism, settings)
+    if settings.reduction == "table" and table is None:  # what the table's build would refuse, before any run
+        _tabulated(settings)
+        check_tabulable(model.mechanism, model.loads)
     budget_per_span = options["max_steps"] is None and "max_steps" not in simulation_table(scene_or_none)
     return _Prepared(model, scene_or_none, settings, budget_per_span, split_arrays(model))
 
