@@ -179,6 +179,8 @@ more; 'ram/guide': a prismatic pair), which no point's name may hold."""
 def check_point_names(names: Iterable[str]) -> None:
     """Refuse the point names the package generates for other things (a centre of mass, a pair)."""
     for name in names:
+        if not name:  # nothing for a load, an output or a message to name it by
+            raise MechanismError("a point has an empty name ''; give it one (e.g. 'C')")
         if name.startswith(COM_PREFIX):
             raise MechanismError(f"point name '{name}': names starting with '{COM_PREFIX}' are reserved for centres of "
                                  "mass ('com:<link>')")

@@ -37,6 +37,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._errors import AssurjaxError
+from ._listing import few
 from ._jit import jit
 from ._kinematics import Kinematics, _kinematics_batch
 from ._mechanism import Mechanism, value_fields
@@ -61,15 +62,44 @@ def stack_mechanisms(mechanisms: Sequence[Any]) -> Any:
     mechanisms = list(mechanisms)
     if not mechanisms:
         raise AssurjaxError("stack_mechanisms: empty sequence")
-    arrays0, static0 = eqx.partition(mechanisms[0], eqx.is_array)
-    treedef0 = jax.tree.structure(arrays0)
+    for i, m in enumerate(mechanisms):  # a number was returned as the "batch" ([1, 2] gave 1)
+        if not isinstance(m, eqx.Module):
+            raise AssurjaxError(f"stack_mechanisms: item {i} is {type(m).__name__} {m!r:.40}, not an assurjax Mechanism "
+                                "(or Scene)")
     for i, m in enumerate(mechanisms):
-        arrays, static = eqx.partition(m, eqx.is_array)
-        if jax.tree.structure(arrays) != treedef0 or jax.tree.structure(static) != jax.tree.structure(static0):
-            raise AssurjaxError(f"stack_mechanisms: item {i} has a different structure than item 0 (groups, links, points or modes differ)")
+        difference = structure_difference(m, mechanisms[0])
+        if difference is None and _structure(m) != _structure(mechanisms[0]):  # stacked as one tree: names too
+            difference = "its name or its order of points differs"
+        if difference is not None:
+            raise AssurjaxError(f"stack_mechanisms: item {i} has a different structure than item 0: {difference}")
     # by name, in item 0's order (eqx.combine of the partitioned arrays rebuilt every dict sorted)
     return map_keep_order(lambda x, *xs: jnp.stack([jnp.asarray(y) for y in (x, *xs)]) if eqx.is_array(x) else x,
                           *mechanisms)
+
+
+def structure_difference(candidate: Any, reference: Any) -> str | None:
+    """What differs between the static structures of ``candidate`` and ``reference`` (mechanisms,
+    scenes or batches of them: the batch axis does not count), in words, or None."""
+    if isinstance(candidate, Mechanism) and isinstance(reference, Mechanism):
+        for what, names in (("groups", lambda m: m.group_names), ("links", lambda m: tuple(sorted(m.links))),
+                            ("points", lambda m: tuple(sorted(m.point_names)))):
+            if names(candidate) != names(reference):
+                return f"its {what} are {few(names(candidate))}, not {few(names(reference))}"
+        for g, h in zip(candidate.groups, reference.groups):
+            if _structure(g) != _structure(h):
+                return f"{g.describe()} differs from {h.describe()} (its kind, links, joints or mode)"
+        # the mechanism's name is a label: a batch built from a sketch runs under a scene of another name
+        same = _structure((candidate.ground, candidate.links)) == _structure((reference.ground, reference.links))
+        return None if same else "its links carry other points"
+    if _structure(candidate) != _structure(reference):
+        return "its groups, links, points or modes differ"
+    return None
+
+
+def _structure(tree: Any) -> tuple:
+    """The tree structures of the arrays and of the rest (names, modes) of ``tree``."""
+    arrays, static = eqx.partition(tree, eqx.is_array)
+    return jax.tree.structure(arrays), jax.tree.structure(static)
 
 
 def broadcast_batch(mechanism: Any, n: int) -> Any:
@@ -237,6 +267,8 @@ def sweep(
       (``chunk_size`` is rounded up to a multiple of the device count).
     - ``progress``: tqdm bar (default: only when stderr is a terminal).
     """
+    if not callable(fn):
+        raise AssurjaxError(f"sweep: fn must be a function of one item of the batch, got {fn!r:.60}")
     if isinstance(batch, (bool, float, complex, np.floating)):
         raise AssurjaxError(f"sweep: batch must be a pytree of arrays with a leading batch axis or a whole number of "
                             f"items, got {batch!r}")
@@ -460,6 +492,10 @@ def batch_simulate(
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     t0, t1 = state.get("t0", 0.0), state.get("t1", 1.0) if t1 is None else t1
     check_single_start(q0, omega0, t0, t1)
+    difference = structure_difference(mechanisms, scene.mechanism)  # its outputs and loads name the scene's parts
+    if difference is not None:
+        raise AssurjaxError(f"batch_simulate: the mechanisms are not of the scene's structure: {difference} (build the "
+                            "batch from scene.mechanism, e.g. with assurjax.perturb)")
     batch_size(mechanisms)  # a ragged batch is named before its values are read
     check_batch_values(mechanisms, "batch_simulate")
     check_has_inertia(mechanisms)

@@ -57,7 +57,6 @@ def branch_rates(reduction, near: dict, omega) -> dict:
     return {k: reduction.angle_rates[k] * omega for k in near}
 
 
-@jit
 def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, points: Iterable[str] | None = None) -> Pose:
     """Positions along a 1-D path of driving coordinates ``qs`` (rad or m), staying
     on one continuous assembly branch through singular configurations.
@@ -75,7 +74,13 @@ def positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None = None, 
     >>> scene = assurjax.n_four_bar(3)
     >>> pose = assurjax.positions_tracked(scene.mechanism, jnp.linspace(1.6, -4.7, 600))
     """
-    check_value(MechanismError, "positions_tracked: qs", qs)
+    check_value(MechanismError, "positions_tracked: qs", qs)  # before jit, where an array of qs is still concrete
+    return _positions_tracked(mechanism, qs, near=near, points=points)
+
+
+@jit
+def _positions_tracked(mechanism: Mechanism, qs, *, near: Mapping | None, points: Iterable[str] | None) -> Pose:
+    """:func:`positions_tracked`, its values checked."""
     if np.ndim(qs) != 1 or np.shape(qs)[0] < 1:
         raise MechanismError(f"positions_tracked: qs must be a 1-D path of driving coordinates, got shape {np.shape(qs)}")
     check_state_count(MechanismError, "positions_tracked: qs", np.shape(qs))

@@ -13,6 +13,11 @@ import numpy as np
 # on the values (squared lengths, energies, Newton residuals) stops meaning anything.
 MAGNITUDE_LIMIT = 1e12
 
+# The shortest length (m) or direction vector the package takes: the square of a shorter one
+# underflows to a subnormal, which JAX's CPU flushes to zero (a guide direction of length
+# 1.4e-160 placed every slider at its guide point, ok=True, with NaN derivatives)
+MIN_LENGTH = 1e-100
+
 
 def all_finite(tree) -> jax.Array:
     """True where every value in the pytree is finite (traced: for use inside jit)."""
@@ -50,7 +55,7 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
                   nonzero_vector: bool = False) -> str | None:
     """What is wrong with a concrete number or array ``x`` ("must be finite, got inf"...), or None.
     ``shape``: the shape it must have (checked on tracers too; their values are not checked).
-    ``nonzero_vector``: the last axis holds vectors that must not be zero."""
+    ``nonzero_vector``: the last axis holds vectors at least MIN_LENGTH long (not zero)."""
     if type(x) in (int, float) and shape in (None, ()) and _plain_number_ok(x, positive, nonnegative):
         return None  # the common case, decided without NumPy (~25 us less per value)
     if shape is not None and (problem := shape_problem(x, shape)) is not None:
@@ -67,8 +72,8 @@ def value_problem(x, *, shape: tuple[int, ...] | None = None, positive: bool = F
         return f"must be positive, got {shown}"
     if nonnegative and not np.all(v >= 0):
         return f"must be non-negative, got {shown}"
-    if nonzero_vector and v.ndim >= 1 and np.any(np.linalg.norm(v, axis=-1) == 0):
-        return f"must be a non-zero vector, got {shown}"
+    if nonzero_vector and v.ndim >= 1 and np.any(np.hypot.reduce(v, axis=-1) < MIN_LENGTH):
+        return f"must be a non-zero vector at least {MIN_LENGTH:g} long (a shorter one underflows), got {shown}"
     return None
 
 

@@ -127,6 +127,16 @@ def test_unknown_fields_get_the_field_they_misspell(edit, where, typed, meant):
         scene(edit)
 
 
+@pytest.mark.parametrize("value, stray", [
+    ({"polynomial": [1.0], "x": [0.0, 1.0], "values": [0.0, 1.0]}, "['x', 'values']"),
+    ({"polynomial": [1.0], "period": 6.283185307179586}, "['period']"),
+])
+def test_a_load_value_takes_one_form(value, stray):
+    """A polynomial given a table's entries was read as the polynomial alone, the rest dropped unsaid."""
+    with raises(SceneError, "bad.toml", "[[loads]] #1 (drive), field 'value'", f"'polynomial' does not go with {stray}"):
+        scene(lambda d: d.update(loads=[{"type": "drive", "value": value}]))
+
+
 def test_an_unknown_field_like_no_known_one_lists_the_known_ones():
     with raises(SceneError, "[links.crank]: unknown field(s) ['colour']; rename or remove it",
                 "known fields: com, inertia, mass, points") as info:
@@ -225,7 +235,10 @@ def test_negative_mass_or_inertia_in_python(field):
         Mechanism(mech.ground, links, mech.groups)
 
 
-def test_zero_guide_direction():
+@pytest.mark.parametrize("direction, fragment", [([0.0, 0.0], "non-zero"),
+                                                 # NumPy's length 1.4e-160, squared 2e-320, flushed to 0 by JAX
+                                                 ([1e-160, 1e-160], "at least 1e-100 long")])
+def test_zero_guide_direction(direction, fragment):
     data = {
         "ground": {"O": [0.0, 0.0]},
         "links": {
@@ -235,10 +248,10 @@ def test_zero_guide_direction():
         },
         "formation": [
             {"group": "crank", "link": "crank", "pivot": "O"},
-            {"group": "RRP", "name": "rod_slider", "links": ["rod", "slider"], "joints": ["A", "B"], "guide_point": "O", "direction": [0.0, 0.0], "mode": "forward"},
+            {"group": "RRP", "name": "rod_slider", "links": ["rod", "slider"], "joints": ["A", "B"], "guide_point": "O", "direction": direction, "mode": "forward"},
         ],
     }
-    with raises(SceneError, "'rod_slider'", "direction", "non-zero"):
+    with raises(SceneError, "'rod_slider'", "field 'direction'", fragment):
         assurjax.scene_from_dict(data, source="bad.toml")
 
 
@@ -360,7 +373,13 @@ def test_unknown_point_in_kinematics():
         (lambda m: assurjax.reactions(m, ([0.1, 0.2], np.nan, 0.0)), ["state: omega", "finite"]),
         (lambda m: assurjax.reactions(m, (np.zeros(3), np.zeros(2), 0.0)), ["must broadcast together", "q (3,)", "omega (2,)"]),
         (lambda m: assurjax.static_torque(m, [0.1, np.inf]), ["state: q", "finite"]),
-        (lambda m: assurjax.breakaway_band(m, "0.1 rad"), ["state: q", "must be a number", "'0.1 rad'"]),
+        (lambda m: assurjax.breakaway_band(assurjax.Model(m), "0.1 rad"), ["state: q", "must be a number", "'0.1 rad'"]),
+        # a bare mechanism has no gravity, loads or friction: its band was (-0, -0)
+        (lambda m: assurjax.breakaway_band(m, 0.3), ["breakaway_band: takes a scene", "got a Mechanism"]),
+        (lambda m: assurjax.inverse_dynamics(m, lambda t, x: t, [0.0, 0.1]),
+         ["inverse_dynamics: motion must be a function of the time alone, q(t)", "takes (t, x)"]),
+        (lambda m: assurjax.sweep(3, jnp.arange(4.0)), ["sweep: fn must be a function", "got 3"]),
+        (lambda m: assurjax.stack_mechanisms([1, 2]), ["stack_mechanisms: item 0 is int 1, not an assurjax Mechanism"]),
         (lambda m: assurjax.reactions(m, (0.1, "fast", 0.0)), ["state: omega", "must be a number", "'fast'"]),
         (lambda m: assurjax.inverse_dynamics(m, lambda t: t, [0.0, np.nan]), ["inverse_dynamics: t", "finite"]),
         (lambda m: assurjax.inverse_dynamics(m, lambda t: jnp.stack([t, t]), [0.0, 0.1]),
@@ -721,6 +740,7 @@ def test_position_analyses_name_what_they_are_given():
         (lambda: assurjax.pose_at(mech, [0.1, 0.2]), "q .* must be a single number"),
         (lambda: assurjax.positions_tracked(mech, []), "positions_tracked: qs must be a 1-D path"),
         (lambda: assurjax.positions_tracked(mech, 0.3), "positions_tracked: qs must be a 1-D path"),
+        (lambda: assurjax.positions_tracked(mech, np.array([0.0, np.nan])), "positions_tracked: qs must be finite"),
         (lambda: assurjax.positions_tracked(mech, [0.1, 0.2], points=["Q"]), "positions_tracked: unknown point"),
         (lambda: assurjax.coefficients(mech, 0.3, order=7), "coefficients: order must be 0, 1 or 2"),
         (lambda: assurjax.bridged_coefficients(mech, 0.3, near=None), "bridged_coefficients: near must map"),

@@ -332,6 +332,13 @@ BAD = {
     "ground as one string": (four(ground="AD"), "ground: expected a list of joint names, got 'AD'"),
     "no ground list": (four(ground=None), "ground: expected a list of joint names, got None"),
     "a joint beyond 1e12 m": (four(joints={"C": (1e200, 0.3)}), "joint 'C': a point \\[x, y\\] \\(m\\) must be at most 1e\\+12 in magnitude"),
+    "an empty joint name": ({**FOUR, "joints": {"A": (0, 0), "B": (0.1, 0.2), "": (0.5, 0.3), "D": (0.4, 0)},
+                             "links": {"crank": ["A", "B"], "coupler": ["B", ""], "rocker": ["D", ""]}},
+                            "a point has an empty name ''"),
+    # length 1.4e-160: its square 2e-320 is flushed to zero by JAX, as a drawing's below 1e-100 m
+    "a slide direction too short to square": (
+        four(slides=[{"link": "rocker", "on": "ground", "direction": (1e-160, 1e-160)}]),
+        "slide of 'rocker' on 'ground': the direction must be a non-zero vector at least 1e-100 long"),
     "a drawing too small to square": ({**FOUR, "joints": {k: (1e-200 * x, 1e-200 * y) for k, (x, y) in FOUR["joints"].items()}},
                                       "the drawing spans 5e-201 m; at least 1e-100 m"),
 }

@@ -312,6 +312,19 @@ def test_a_batch_of_mechanisms_is_checked_before_it_runs():
     ragged = eqx.tree_at(lambda m: m.links["rod"].mass, pair, jnp.ones(3))
     with pytest.raises(AssurjaxError, match="not a batch: every array needs the same leading batch axis"):
         assurjax.batch_simulate(scene, ragged, progress=False)
+    # another mechanism's batch reached the scene's outputs inside the trace: KeyError 'crank'
+    watt = assurjax.load_scene("watt_sixbar").mechanism
+    with pytest.raises(AssurjaxError, match="batch_simulate: the mechanisms are not of the scene's structure: "
+                                            "its groups are \\['crank2', 'dyad34', 'dyad56'\\], not \\['crank', 'rod_slider'\\]"):
+        assurjax.batch_simulate(scene, assurjax.stack_mechanisms([watt, watt]), t1=0.1, progress=False)
+    m = scene.mechanism
+    slider = m.groups[1]
+    behind = assurjax.groups.RRP(slider.name, slider.links, slider.joints, slider.guide_point, -slider.mode,
+                                 slider.direction, slider.offset)
+    flipped = assurjax.Mechanism(m.ground, m.links, [m.groups[0], behind], name=m.name)
+    with pytest.raises(AssurjaxError, match="item 1 has a different structure than item 0: group 'rod_slider' \\(RRP\\) "
+                                            "differs .*mode"):
+        assurjax.stack_mechanisms([m, flipped])
     # a NaN or negative mass set past the Mechanism's checks ran as a solver failure or to the step budget
     for bad, word in ((np.nan, "finite"), (-1.0, "non-negative")):
         member = eqx.tree_at(lambda m: m.links["rod"].mass, pair, jnp.asarray([1.0, bad]))

@@ -3,6 +3,7 @@ level, groups of one kind at one level in batches: :mod:`._batches`)."""
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
@@ -490,12 +491,27 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     check_values(AssurjaxError, "inverse_dynamics", t=t)
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
+        _check_motion_arguments(motion)
         q, omega, alpha = _derivatives(_as_float(motion), t)
     else:
         if not isinstance(motion, (tuple, list)) or len(motion) != 3:
             raise AssurjaxError("motion must be a function q(t) or samples (q, omega, domega) at the times t")
         q, omega, alpha = (jnp.asarray(v, dtype=float) for v in motion)
     return reactions(scene, (q, omega, alpha, t), joints=joints, method=method, check=check)
+
+
+def _check_motion_arguments(motion) -> None:
+    """Raise where ``motion`` cannot be called as q(t) (``lambda t, x: ...`` failed inside
+    JAX's trace with a bare TypeError), as the loads' functions are checked."""
+    try:
+        signature = inspect.signature(motion)
+    except (TypeError, ValueError):  # no signature to read (a builtin): its call shows
+        return
+    try:
+        signature.bind(0.0)
+    except TypeError:
+        raise AssurjaxError(f"inverse_dynamics: motion must be a function of the time alone, q(t); the one given "
+                            f"takes {signature}") from None
 
 
 def _as_float(motion):
@@ -563,7 +579,10 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     **Example** (the torque a motor needs to start a mechanism from rest, either way):
     >>> lower, upper = assurjax.breakaway_band(scene, jnp.linspace(0.0, 3.14, 50))
     """
-    model = as_model(scene)
+    if isinstance(scene, Mechanism):  # a bare mechanism's band was silently (-0, -0)
+        raise AssurjaxError("breakaway_band: takes a scene (a Scene or a Model), with its loads and gravity, whose "
+                            "friction makes the band; got a Mechanism")
+    model = as_model(scene, what="breakaway_band")
     if not frictions_of(model.loads):
         torque = static_torque(model, q, t=t, check=check)
         return torque, torque

@@ -15,6 +15,7 @@ from .._values import value_problem
 from ._load import Fields
 
 FORM_KEYS = {"polynomial", "x", "values", "variable", "period"}
+TABLE_KEYS = ("x", "values", "period")  # a polynomial has none of them
 
 
 def _value(f: Fields, key: str, default=...):
@@ -34,6 +35,10 @@ def _value(f: Fields, key: str, default=...):
     if not isinstance(variable, str) or variable not in _loads.VARIABLES:
         f.fail(key, f"variable must be one of {list(_loads.VARIABLES)}, got {variable!r}")
     if "polynomial" in v:
+        stray = [k for k in TABLE_KEYS if k in v]  # were dropped without a word
+        if stray:
+            f.fail(key, f"'polynomial' does not go with {stray}: a polynomial takes 'polynomial' and 'variable', "
+                        "a table 'x', 'values', 'variable' and 'period'")
         coefficients = v["polynomial"]
         if not _numbers(coefficients) or not coefficients:
             f.fail(key, f"polynomial must be a non-empty list of numbers (c0, c1, ...), got {coefficients!r}")

@@ -11,11 +11,11 @@ import numpy as np
 from .._errors import MechanismError
 from .._listing import did_you_mean, few
 from .._mechanism import check_point_names
-from .._values import check_value
+from .._values import MIN_LENGTH, check_value
 from ..groups import GROUND
 
 LINK_FIELDS = ("joints", "mass", "inertia", "com", "density")
-MIN_EXTENT = 1e-100  # m: below it the squares of the drawing's lengths underflow
+MIN_EXTENT = MIN_LENGTH  # m: below it the squares of the drawing's lengths underflow
 # A sketch's size: 12 times the 81 links of bench_decomposition.py's 40-group chain. At the
 # bound its decomposition takes ~20 ms (it grows about linearly) and its build ~1 s (the
 # mechanism's arrays and checks), and the traced programs grow with it.
@@ -25,7 +25,7 @@ MAX_JOINTS = 2 * MAX_LINKS  # a chain has about one joint a link; plates have mo
 
 class Slide(NamedTuple):
     """A prismatic pair: ``link`` slides on ``on`` (a link name or ``"ground"``) along the
-    drawn global ``direction`` (a 2-vector, any length, its sign fixes what "forward" means).
+    drawn global ``direction`` (a 2-vector of any length from 1e-100 up, its sign fixes what "forward" means).
     The guide line passes through the sliding joint as drawn."""
 
     link: str
@@ -198,8 +198,7 @@ def _slide(s) -> Slide:
     if s.direction is None:
         raise MechanismError(f"{where}: no direction (give the drawn direction of the guide, e.g. [1, 0])")
     u = _point(s.direction, f"{where}, direction")
-    if np.hypot(*u) == 0.0:
-        raise MechanismError(f"{where}: the direction must be a non-zero vector")
+    check_value(MechanismError, f"{where}: the direction", u, nonzero_vector=True)  # as a scene's guide directions
     return Slide(str(s.link), str(s.on), (float(u[0]), float(u[1])))
 
 
