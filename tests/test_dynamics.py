@@ -610,6 +610,12 @@ def test_unassemblable_start_raises_naming_the_group(write_scene):
     # with every step saved no row holds the start: the message named q0 = inf
     with pytest.raises(aj.AssemblyError, match=f"cannot assemble at the start q0 = {float(qs[bad[0]]):.6g}:"):
         aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05, save_steps=True)
+    # nor where a load is NaN from the start (no step accepted): it was a lock-up "at t = inf s"
+    nan_drive = aj.Drive(lambda q, w, t: jnp.nan * q, velocity_dependent=False)
+    for save_steps in (False, True):
+        stuck = aj.simulate(slider, loads=(nan_drive,), t1=0.05, stop=None, save_steps=save_steps)
+        assert stuck.event != LOCKUP and "a load or the joint friction" in stuck.status, stuck.status
+        assert stuck.t.tolist() == [0.0] and stuck.q.tolist() == [slider.state["q0"]]
 
 
 def test_point_and_link_rates_along_a_simulation(watt):

@@ -380,6 +380,8 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: Sta
     # diffrax writes the saved times reached (and, with save_steps, every accepted step's
     # end, in time order), then the final state (an event deletes the times past it), and
     # pads with inf.
+    if settings.save_steps:
+        sol = _start_if_nothing_saved(sol, y0)
     last = jnp.sum(jnp.isfinite(sol.ts)) - 1
     ys: State = sol.ys
     t_final, q_final, w_final = sol.ts[last], ys.q[last], ys.omega[last]
@@ -407,6 +409,16 @@ def _package(model: Model, sol, ts, args: FieldArgs, settings: Settings, y0: Sta
         result=result, num_steps=sol.stats["num_steps"],
     )
     return solution, near, checks
+
+
+def _start_if_nothing_saved(sol, y0: State):
+    """``sol`` with its start as its first saved state where diffrax saved nothing: with
+    ``save_steps`` a solve that accepts no step (its field NaN from the start: a load) saves
+    neither the save times it never passed nor its end, and that run was read as a lock-up at
+    t = inf."""
+    empty = ~jnp.isfinite(sol.ts[0])
+    first = lambda saved, start: saved.at[0].set(jnp.where(empty, start, saved[0]))  # noqa: E731
+    return eqx.tree_at(lambda s: (s.ts, s.ys), sol, (first(sol.ts, sol.t0), jax.tree.map(first, sol.ys, y0)))
 
 
 # simulate()'s two programs (see _Prepared.run), on the model split by split_arrays
