@@ -500,7 +500,7 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     if locked:
         lines.append(f"  the joint friction self-locks the mechanism at {locked} of {along.friction_ok.size} samples (no consistent "
                      "friction for a motion that way: no drive moves it so): the driving effort and friction values there "
-                     "are not friction limits (friction_ok in reactions.csv)")
+                     "are not friction limits (the CSV's friction_ok column)")
     return lines
 
 
@@ -592,6 +592,8 @@ def _solution_columns(scene, sol, forces, driving, along: _Along | None = None) 
         cols["driving"] = driving
     for name, u in (along.friction if along else {}).items():
         cols |= {f"friction_{name}": u, f"friction_power_{name}": along.friction_power[name]}
+    if along and along.friction:  # False where the friction self-locks (its values are then no limits)
+        cols["friction_ok"] = along.friction_ok
     return cols
 
 
@@ -1028,8 +1030,7 @@ def cmd_reactions(args) -> int:
     peaks = _peaks(scene, sol, samples, joints, along)
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
-                        | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))}
-                        | ({"friction_ok": along.friction_ok} if along.friction else {}))]
+                        | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))})]
     import matplotlib.pyplot as plt
 
     panels = 3 if along.friction else 2

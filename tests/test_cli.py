@@ -404,6 +404,7 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     moving = cols["omega"] != 0.0
     np.testing.assert_allclose(np.abs(cols["friction_O"][moving]), 0.3 * 0.04 * cols["F_O"][moving], rtol=1e-12)
     assert np.all(cols["friction_O"][moving] * cols["omega"][moving] < 0)
+    assert np.all(cols["friction_ok"] == 1)  # every sample's friction a consistent solution
     lost = -np.trapezoid(cols["friction_power_O"], cols["t"])
     assert lost == pytest.approx(-cols["W"][-1], rel=1e-4)
     printed = capsys.readouterr().out
@@ -502,7 +503,7 @@ def test_summary_names_samples_held_where_the_friction_self_locks():
     peaks = {"friction A": Peak("friction A", 1.0, 0.25)}
     lines = _friction_lines(scene, sol, along(np.array([True, False, False, True, True])), peaks)
     assert lines[0].startswith("  friction: 1 J lost over the motion")
-    assert "self-locks the mechanism at 2 of 5 samples" in lines[-1]
+    assert "self-locks the mechanism at 2 of 5 samples" in lines[-1] and "the CSV's friction_ok column" in lines[-1]
     assert not any("self-locks" in line for line in _friction_lines(scene, sol, along(np.ones(5, bool)), peaks))
 
 
@@ -727,12 +728,6 @@ def test_single_line_panels_carry_no_legend():
     assert q_axes.get_legend() is None and omega_axes.get_legend() is None
 
 
-def _bundled_text(name: str) -> str:
-    import importlib.resources
-
-    return (importlib.resources.files("assurjax") / "scenes" / f"{name}.toml").read_text()
-
-
 # [simulation] settings that `validate` passed and `run` then refused (or ended in an internal error)
 UNRUNNABLE = {
     "euler without a step": ("slider_crank", 'solver = "euler"', "solver 'euler' has no error estimate"),
@@ -745,7 +740,7 @@ UNRUNNABLE = {
 @pytest.mark.parametrize("case", UNRUNNABLE)
 def test_validate_refuses_what_run_would_refuse(case, write_scene, capsys):
     name, settings, reason = UNRUNNABLE[case]
-    path = write_scene(_bundled_text(name) + f"\n[simulation]\n{settings}\n")
+    path = write_scene(_bundled(name) + f"\n[simulation]\n{settings}\n")
     for command in ("validate", "run"):
         assert main([command, "--quiet", str(path)] if command == "run" else [command, str(path)]) == 2
         err = capsys.readouterr().err
@@ -759,7 +754,7 @@ def test_run_takes_the_scene_fixed_steps_as_its_step(write_scene, tmp_path, caps
     own steps=200 run ends (the same solver steps)."""
     import assurjax
 
-    path = write_scene(_bundled_text("slider_crank").replace("t1 = 2.0", "t1 = 0.4") + "\n[simulation]\nsteps = 200\n")
+    path = write_scene(_bundled("slider_crank").replace("t1 = 2.0", "t1 = 0.4") + "\n[simulation]\nsteps = 200\n")
     out = tmp_path / "out"
     assert main(["validate", str(path)]) == 0
     assert main(["run", str(path), "--out", str(out), "--no-animation", "--quiet", "--samples", "41"]) == 0

@@ -422,7 +422,10 @@ def reactions(scene, state, *, joints: Iterable[str] | str | None = None, method
     Loads: gravity and the scene's loads (:func:`assurjax.applied_wrenches`) plus
     the inertia force -m a_G and couple -J alpha of every link (d'Alembert), with
     accelerations from :func:`assurjax.kinematics`. The driving effort is what the
-    driver must supply; it is not taken from the scene's drive loads.
+    driver must supply for the motion, whatever the scene's drive loads give; held at rest
+    with joint friction (omega = dw/dt = 0), where statics leaves it open between the
+    break-away limits, it is the drive of those loads while the band holds it, else the
+    limit nearest it (docs/kinetostatics.md).
 
     **Example:**
     >>> scene = assurjax.load_scene("watt_sixbar")
