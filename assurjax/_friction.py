@@ -494,7 +494,7 @@ def _stacked_terms(mechanism: Mechanism, kin, frictions) -> tuple:
     return stacked(0, 0.0), stacked(1, 0.0), stacked(2, jnp.zeros(2)), stacked(3, 0.0), stacked(4, jnp.zeros(2))
 
 
-def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
+def coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
     """u -> the elements' Coulomb magnitudes (K,), from the reactions affine in u:
     ``reactions0`` (forces, couples) at u = 0 and their ``basis`` (K tangents), see
     :func:`linearize_reactions`.
@@ -524,7 +524,7 @@ def _coulomb_limits(mechanism: Mechanism, kin, frictions, reactions0, basis):
 
 def _affine(value, tangents, u):
     """value + sum_j u_j tangents[j]: for up to SUMMED_TERMS elements a chain of products
-    and sums (see :func:`_coulomb_limits`), past them one dot."""
+    and sums (see :func:`coulomb_limits`), past them one dot."""
     if u.shape[0] > SUMMED_TERMS:
         return value + jnp.tensordot(u, tangents, axes=1)
     return value + sum(u[j] * tangents[j] for j in range(u.shape[0]))
@@ -902,7 +902,7 @@ def friction_atol(u0, tolerance):
 
 def _law(mechanism: Mechanism, frictions, reactions, kin, rates, signs, omega):
     """The friction law u -> law(u) of :func:`solve_friction` (``scale``: of its Coulomb terms)."""
-    coulomb = _coulomb_limits(mechanism, kin, frictions, *reactions)
+    coulomb = coulomb_limits(mechanism, kin, frictions, *reactions)
     viscous = _viscous(frictions, rates, omega)
 
     def law(u, scale=1.0):
@@ -930,7 +930,7 @@ def _robust_newton(mechanism: Mechanism, frictions, reactions, kin, rates, signs
 
     def law_along(u, s, scale):  # the law at u with the reactions moved by s per unit dw/dt
         moved = jax.tree.map(lambda r, a: r + s * a, reactions[0], per_unit_acceleration(inertial[0]))
-        return -scale * _coulomb_limits(mechanism, kin, frictions, moved, reactions[1])(u) * signs
+        return -scale * coulomb_limits(mechanism, kin, frictions, moved, reactions[1])(u) * signs
 
     def newton(start, scale=1.0):
         def residual(u, _):

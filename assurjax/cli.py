@@ -396,12 +396,14 @@ def _check_runnable(scene, samples: int) -> None:
     named with the file: a setting of its [simulation] that does not go with the mechanism,
     its loads or the other settings (validate says it; run and reactions stop there)."""
     from ._errors import AssurjaxError
+    from ._model import check_has_inertia
     from .dynamics._solve import check_simulate
 
+    check_has_inertia(scene.mechanism)  # said as it is: no setting is at fault
     try:
         check_simulate(scene, **_run_keywords(scene, samples))
     except AssurjaxError as e:
-        raise UserError(f"{scene.source or scene.name}: its [simulation] settings cannot run: {e}") from None
+        raise UserError(f"{scene.source or scene.name}: {e}") from None
 
 
 def _with_solver_steps(scene) -> bool:

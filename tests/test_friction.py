@@ -126,6 +126,60 @@ def steep_closed_form(q, w, tau):
     return out
 
 
+def steep_rest_verdict(q, tau, push):
+    """The steep slider at rest at q (hand-solved, independent), driven by tau on its crank
+    and pushed by ``push`` (N) along its guide: "rest" where some slider force P within the
+    friction limit holds it (the crank at rest: tau = P ex dx/dq; the slider: |P ex + push| <=
+    mu |P ey|), else the directions in which a start has a consistent branch (positive
+    effective inertia, w and P of the branch's signs): "forward", "backward", or "jam"."""
+    x = lambda q: STEEP_R * jnp.cos(q) + jnp.sqrt(STEEP_L**2 - (STEEP_R * jnp.sin(q)) ** 2)  # noqa: E731
+    v = float(jax.grad(x)(q))
+    ex, ey = math.sqrt(STEEP_L**2 - (STEEP_R * math.sin(q)) ** 2) / STEEP_L, STEEP_R * math.sin(q) / STEEP_L
+    holding = tau / (ex * v)
+    if abs(holding * ex + push) <= STEEP_MU * abs(holding * ey):
+        return "rest"
+    starts = set()
+    for s in (1.0, -1.0):  # w's direction, and the sign of P
+        for sigma in (1.0, -1.0):
+            d = ex - math.copysign(1.0, v * s) * sigma * STEEP_MU * abs(ey)
+            inertia = STEEP_J + STEEP_M * ex * v * v / d
+            alpha = (tau + push * ex * v / d) / inertia
+            if inertia > 0 and alpha * s > 0 and (tau - STEEP_J * alpha) / (ex * v) * sigma > 0:
+                starts.add("forward" if s > 0 else "backward")
+    return starts.pop() if len(starts) == 1 else "jam" if not starts else "both"
+
+
+def test_a_rest_the_friction_neither_holds_nor_starts_is_a_jam():
+    """From rest, the steep slider pushed along its guide and driven on its crank: where no
+    friction within its limit holds it and no start has a consistent friction, the run is a
+    jam at rest (it was held silently: a slider pushed against a steeper rod needs more
+    friction to stay than the guide gives, and sliding away it would wedge); where a larger
+    drive makes the rod press harder, the friction holds it again (the drives that hold are
+    not one interval). Every case against the hand-solved slider, in one compiled program."""
+    scene = steep_slider_crank()
+    rough = aj.SlideFriction("slider/ground", STEEP_MU, 0.05)
+    found = {}
+    for q, push, tau in ((1.4, 1.0, -0.5), (1.4, 1.0, -0.2), (1.4, 1.0, 0.05), (1.4, 1.0, 0.2), (1.4, -1.0, 0.05),
+                         (1.4, -1.0, 0.5), (1.0, 1.0, 0.2), (1.0, -1.0, 0.5)):
+        want = steep_rest_verdict(q, tau, push)
+        sol = aj.simulate(scene, loads=(aj.Drive(tau), aj.PointForce("B", [push, 0.0], link="slider"), rough), q0=q,
+                          stop=None, t1=0.02, samples=5)
+        if want == "jam":
+            assert sol.jammed and not sol.successful and sol.status.startswith("the joint friction jams the mechanism "
+                                                                               "at rest at t = 0 s"), sol.status
+            assert sol.t.tolist() == [0.0] and sol.q.tolist() == [q]
+        else:
+            assert sol.successful and not sol.jammed, (q, push, tau, sol.status)
+            moved = float(sol.q[-1]) - q
+            assert {"rest": moved == 0.0, "forward": moved > 0.0, "backward": moved < 0.0}[want], (q, push, tau, want, moved)
+        found[want] = found.get(want, 0) + 1
+    assert found == {"rest": 4, "jam": 2, "backward": 1, "forward": 1}, found
+    # a batch of the same starts counts the jam apart
+    batch = aj.simulate(scene, loads=(aj.Drive(-0.2), aj.PointForce("B", [1.0, 0.0], link="slider"), rough),
+                        q0=np.array([1.4, 1.0]), stop=None, t1=0.02, samples=5)
+    assert batch.jammed.tolist() == [True, False] and "1 jammed" in batch.status and "1 reached t1" in batch.status
+
+
 # slow (~23 s): the default suite ran 9:47-10:58 in CI; the jam itself is checked there by
 # test_a_friction_jam_is_named and test_a_toggle_locks_where_the_effective_inertia_turns_negative
 @pytest.mark.slow

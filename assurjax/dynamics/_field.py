@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_signs, end_loads,
+from .._friction import (FIXED_POINT_TOLERANCE, SUMMED_TERMS, FixedPoint, coulomb_limits, coulomb_signs, end_loads,
                          finish_friction_implicit, friction_wrenches, frictions_of, has_static, iterate_friction,
                          linearize_reactions, rates_and_slopes, signs_ahead, smoothed_only, solve_friction, static_model,
                          with_block_signs)
@@ -510,6 +510,40 @@ def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     unset = jnp.zeros(len(frictions_of(model.loads)))
     f = frictional(model, t, y._replace(omega=jnp.zeros_like(y.omega)), 0.0, bridge, unset, coeffs=coeffs)
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
+
+
+def rest_jams(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
+    """Whether a mechanism at rest jams there, and whether the values read were finite (with
+    a NaN, a load's, no jam is claimed). It jams where the motion that alone can start
+    (:func:`rest_side`) has no consistent friction (:func:`rest_analysis` reads its dw/dt as
+    0, as if held) and no friction within its static limits holds it at rest either. (A
+    slider pushed from the wrong side against a rod steeper than its friction angle: holding
+    it needs more friction than the guide gives, and sliding away it would wedge.)
+
+    Decided for one friction element: at rest the element's value u* = -Q / (d phi/dq) is the
+    one that balances the generalized force Q, and it holds where |u*| is within the Coulomb
+    limit of the reactions u* itself gives (the statics of the friction's linearization, its
+    part through dw/dt taken out); a limit that grows with u, a self-locking pair, holds any
+    push past some size, so the drives that hold need not be one interval. Several elements
+    share a holding force in ways statics leaves open: no jam is claimed there (such a rest
+    stays held). ``coeffs``: the order-2 kinematic coefficients at y.q, where the caller has
+    them."""
+    frictions = frictions_of(model.loads)
+    if len(frictions) != 1:
+        return jnp.zeros(jnp.shape(y.q), dtype=bool), jnp.ones(jnp.shape(y.q), dtype=bool)
+    model = static_model(model)  # rest is held by the static limits
+    at_rest = y._replace(omega=jnp.zeros_like(y.omega))
+    coeffs = kinematic_coefficients(model, at_rest, bridge) if coeffs is None else coeffs
+    start = _start(model, jnp.asarray(t, dtype=float), at_rest, jnp.zeros(()), coeffs, jnp.zeros(1), False)
+    starts = start.solved[1]  # the start's friction by Newton's method, as the batched analyses decide a jam
+    (at_zero, _), (basis, _) = start.linear, start.inertial
+    alpha0 = _acceleration(start.red, start.rates, jnp.zeros(1), at_rest.omega)
+    statics = (jax.tree.map(lambda r, b: r - alpha0 * b[0], at_zero, basis), jax.tree.map(lambda b: b[1:], basis))
+    force, rate = start.red.force, start.rates[0]
+    balancing = -force / jnp.where(rate == 0, 1.0, rate)
+    limit = coulomb_limits(model.mechanism, start.kin, frictions, *statics)(balancing[None])[0]
+    held = jnp.where(rate == 0, force == 0, jnp.abs(balancing) <= limit)
+    return ~(starts | held), all_finite((force, limit))
 
 
 def rest_direction(alpha, side):

@@ -115,6 +115,12 @@ def jam_text(t_final: float, q_final: float, omega_final: float, limit: tuple[st
                 "passes within the pins' friction circles and the friction self-locks it (no friction values satisfy the "
                 "Coulomb law of this motion with a positive effective inertia); a real mechanism wedges there. Keep the "
                 "motion away from that limit position (the geometry or the drive), or lower the friction coefficients")
+    if omega_final == 0:
+        return (f"the joint friction jams the mechanism at rest at t = {t_final:.9g} s (q = {q_final:.6g}): holding it "
+                "there needs more friction than the joints' limits give, and the motion its loads start has no friction "
+                "values that satisfy the Coulomb law with a positive effective inertia (Painleve's paradox: a slider "
+                "pushed past its friction angle wedges), so it can neither stay nor move; a real mechanism wedges there. "
+                f"{JAM_REMEDY[0].upper() + JAM_REMEDY[1:]}")
     return (f"the joint friction jams the mechanism {where}: "
             "there no friction values satisfy the Coulomb law of this motion with a positive effective inertia "
             "(Painleve's paradox: the friction would drive the motion it opposes, or it self-locks: a slider driven past "

@@ -22,7 +22,7 @@ from .._model import Model
 from .._reduction import reduce_with_kinematics
 from ._field import State, acceleration_and_reduction
 from .._errors import AssemblyError
-from ._results import FINISHED, JAM_REMEDY, LOCKUP, MAX_STEPS, START_NOT_ASSEMBLED, START_SINGULAR, STANDSTILL, USER, result_code, result_text, status_text
+from ._results import DT_MIN, FINISHED, JAM_REMEDY, LOCKUP, MAX_STEPS, START_NOT_ASSEMBLED, START_SINGULAR, STANDSTILL, USER, result_code, result_text, status_text
 from ._settings import Settings
 
 
@@ -350,16 +350,20 @@ def batch_summary(sols: Solution, jammed: np.ndarray | None = None, groups: tupl
     unassembled = codes == START_NOT_ASSEMBLED  # its event says lock-up too: counted once, below
     singular = codes == START_SINGULAR
     unassembled = unassembled | singular  # counted apart, below
-    parts = [f"{np.sum((events == code) & ~unassembled)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
-             if np.any((events == code) & ~unassembled)]
+    jammed = np.zeros(codes.shape, dtype=bool) if jammed is None else jammed
+    # a member jammed at rest ended held there (at t1, or a start held with stop='standstill'): counted as jammed only
+    parts = [f"{np.sum((events == code) & ~unassembled & ~jammed)} {name}" for code, name in ((STANDSTILL, "standstill"), (LOCKUP, "lock-up"))
+             if np.any((events == code) & ~unassembled & ~jammed)]
     parts += [f"{np.sum(events >= USER)} user event"] if np.any(events >= USER) else []
-    parts += [f"{np.sum((events < 0) & (results == 0))} reached t1"] if np.any((events < 0) & (results == 0)) else []
+    reached = (events < 0) & (results == 0) & ~jammed
+    parts += [f"{np.sum(reached)} reached t1"] if np.any(reached) else []
     parts += [f"{np.sum(unassembled & ~singular)} cannot assemble at the start"] if np.any(unassembled & ~singular) else []
     parts += [f"{np.sum(singular)} start exactly at a singular configuration"] if np.any(singular) else []
-    jammed = np.zeros(codes.shape, dtype=bool) if jammed is None else jammed
     parts += [f"{np.sum(jammed)} jammed by the joint friction (Painleve's paradox: {JAM_REMEDY})"] if np.any(jammed) else []
     failures = (events < 0) & (results != 0) & ~unassembled & ~jammed
     parts += [f"{np.sum(failures & (codes == code))} solver failures ({result_text(int(code))})" for code in np.unique(codes[failures])]
     named = {} if groups is None else {"failed_group": tuple(groups[i] if i >= 0 else None
                                                             for i in np.ravel(sols.failed_group_index).tolist())}
+    if np.any(jammed & np.isin(codes, FINISHED)):  # jammed at rest, where the segments had held it: no run as asked
+        named["result"] = eqx.tree_at(lambda r: r._value, sols.result, np.where(jammed, DT_MIN, codes).astype(codes.dtype))
     return dataclasses.replace(sols, jammed=jammed, status=f"batch of {events.size}: " + ", ".join(parts), **named)

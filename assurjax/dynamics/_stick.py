@@ -64,11 +64,12 @@ from .._model import Model
 from .._values import all_finite
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
 from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
-                     rest_direction, start_kinematics)
+                     rest_direction, rest_jams, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
-from ._results import DT_MIN, END_SWITCH, KNOT, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text, result_code
+from ._results import (DT_MIN, END_SWITCH, FINISHED, KNOT, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text,
+                       result_code)
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
-from ._solution import Solution, limit_ahead, no_outputs, replaced
+from ._solution import Solution, limit_ahead, no_outputs, replaced, saved_rows
 
 MAX_SEGMENTS = 4096  # stick, slip and Coulomb-sign segments in one simulation
 # ... and where segments also end at the knots of the loads' tables: a measured table of 720
@@ -377,14 +378,30 @@ JAM_PROBES = (1.0, 10.0, 100.0, 1e3, 1e4)
 
 def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution:
     """A run with joint friction that stopped on NaN ahead (``dt_min_reached``, no lock-up)
-    where the friction of its motion has no consistent solution at or just past its end:
-    ``jammed`` True and a status naming the jam, and the limit position just ahead if there
-    is one (on the host, compiled only for such a run); else ``jammed`` False."""
+    where the friction of its motion has no consistent solution at or just past its end, or
+    that ended held at rest where the friction can neither hold it nor start it (see
+    :func:`jammed_members`): ``jammed`` True and a status naming the jam, and the limit
+    position just ahead if there is one (on the host, compiled only for such a run: a run
+    ending held at rest is tested there); else ``jammed`` False. A jam at rest ends the run
+    at its first sample of that rest, as a failure."""
     if not jammed_members(sol, model):
         return replaced(sol, jammed=False)
     q, omega = float(sol.q_final), float(sol.omega_final)
+    if omega == 0:
+        return _ended_at_rest_jam(sol)
     limit = limit_ahead(model.mechanism, q, omega, JAM_LIMIT_PROBES) if settings.branch == "fixed" else None
     return replaced(sol, jammed=True, status=jam_text(float(sol.t_final), q, omega, limit))
+
+
+def _ended_at_rest_jam(sol: Solution) -> Solution:
+    """``sol`` cut at its first sample of the rest it ended in (the run held it from about
+    there), as a run that stopped at a jam: no motion follows from there."""
+    t, q, omega = (np.asarray(v) for v in (sol.t, sol.q, sol.omega))
+    moving = np.flatnonzero((omega != 0) | (q != sol.q_final))
+    first = int(moving[-1]) + 1 if moving.size else 0
+    cut = saved_rows(sol, slice(0, first + 1))
+    return replaced(cut, jammed=True, t_final=t[first], result=RESULTS.dt_min_reached, event=np.asarray(NO_EVENT),
+                    t_stop=None, status=jam_text(float(t[first]), float(sol.q_final), 0.0))
 
 
 # a jam this near (x (1 + |q|)) before a limit position is that position's: a toggle self-locks
@@ -393,17 +410,28 @@ JAM_LIMIT_PROBES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 
 
 def jammed_members(sols: Solution, model: Model, *, models_batched: bool = False) -> np.ndarray:
-    """Which runs (host arrays: one run or a batch) stopped where the joint friction jams:
-    with friction, stopped on NaN ahead while moving, and the friction of that motion has no
-    consistent solution at the end or just past it (one program for all members,
-    compiled only where some member is such a run). ``models_batched``: ``model``'s arrays
-    carry the batch axis too (a batch of mechanisms, ``batch_simulate``)."""
-    candidates = (result_code(sols.result) == DT_MIN) & (np.asarray(sols.omega_final) != 0.0) & bool(frictions_of(model.loads))
-    if not np.any(candidates):
-        return candidates
-    ends = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (sols.t_final, sols.q_final, sols.omega_final))
-    jams = _jams_each(model, *ends) if models_batched else _jams(model, *ends)
-    return candidates & np.asarray(jams).reshape(candidates.shape)
+    """Which runs (host arrays: one run or a batch) the joint friction jams: with friction,
+    stopped on NaN ahead while moving where the friction of that motion has no consistent
+    solution at the end or just past it; or ended held at rest (at t1, or a start held with
+    ``stop='standstill'``) where the friction at its limits cannot hold it and the motion
+    its loads start has no consistent friction either
+    (:func:`~assurjax.dynamics._field.rest_jams`: the segments take such a rest as held).
+    One program for all members of each kind, compiled only where some member is such a
+    run. ``models_batched``: ``model``'s arrays carry the batch axis too (a batch of
+    mechanisms, ``batch_simulate``)."""
+    codes, omega = result_code(sols.result), np.asarray(sols.omega_final)
+    jams = np.zeros(codes.shape, dtype=bool)
+    if not frictions_of(model.loads):
+        return jams
+    moving = (codes == DT_MIN) & (omega != 0.0)
+    event, t_first = np.asarray(sols.event), np.asarray(sols.t)[..., 0] if np.size(sols.t) else np.asarray(sols.t_final)
+    held = np.isin(codes, FINISHED) & (omega == 0.0) & ((event == NO_EVENT) | ((event == STANDSTILL) & (sols.t_final == t_first)))
+    t, q, w = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (sols.t_final, sols.q_final, sols.omega_final))
+    if np.any(moving):
+        jams |= moving & np.asarray(_jams_each(model, t, q, w) if models_batched else _jams(model, t, q, w)).reshape(codes.shape)
+    if np.any(held):
+        jams |= held & np.asarray(_rest_jams_each(model, t, q) if models_batched else _rest_jams(model, t, q)).reshape(codes.shape)
+    return jams
 
 
 def _jams_at(model: Model, t, q, omega):
@@ -416,6 +444,22 @@ def _jams_at(model: Model, t, q, omega):
     ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
                                           iterate=False).consistent)(h)
     return ~(at_end.consistent & jnp.all(ahead))
+
+
+def _rest_jams_at(model: Model, t, q):
+    """:func:`~assurjax.dynamics._field.rest_jams` at (t, q), from finite values only."""
+    jams, finite = rest_jams(model, t, State(q, jnp.zeros_like(q)))
+    return jams & finite
+
+
+@jit
+def _rest_jams(model: Model, t, q):
+    return jax.vmap(lambda t, q: _rest_jams_at(model, t, q))(t, q)
+
+
+@jit
+def _rest_jams_each(models: Model, t, q):
+    return jax.vmap(_rest_jams_at)(models, t, q)
 
 
 @jit
