@@ -274,7 +274,6 @@ def settings_from(scene=None, **overrides) -> Settings:
         branch=sim.get("branch", "fixed"), reduction=sim.get("reduction", "auto"),
         table_nodes=sim.get("table_nodes", DEFAULT_TABLE_NODES), steps=sim.get("steps", None),
         save_steps=sim.get("save_steps", False), bridge=sim.get("bridge", 0.0), max_step=sim.get("max_step", None),
-        kink_events=sim.get("kink_events", True),
         fixed_step=sim.get("dt", None) is not None, standstill=stop == "standstill",
         points=tuple(outs.get("points", ())), angles=tuple(outs.get("angles", ())), energies=bool(outs.get("energies", False)),
         velocities=bool(outs.get("velocities", False)), accelerations=bool(outs.get("accelerations", False)),
