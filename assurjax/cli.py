@@ -200,9 +200,13 @@ def _sweep_range(scene, start, stop) -> tuple[float, float]:
         default = (q0 - reach, q0 + reach)
     else:
         default = (q0 - np.pi, q0 + np.pi)
+    from ._values import MAGNITUDE_LIMIT
+
     for option, value in (("--start", start), ("--stop", stop)):
         if value is not None and not np.isfinite(value):
             raise UserError(f"{option} must be a finite number, got {value}")
+        if value is not None and abs(value) > MAGNITUDE_LIMIT:  # said of the option, not of the q it makes
+            raise UserError(f"{option} must be at most {MAGNITUDE_LIMIT:g} in magnitude, got {value}")
     lo = default[0] if start is None else start
     hi = default[1] if stop is None else stop
     if not hi > lo:

@@ -266,6 +266,7 @@ def test_validate_sketch_scene_that_cannot_assemble_names_its_joints(write_scene
         (["run", "missing.toml"], "no such scene file"),
         (["kinematics", "roberts", "--samples", "1"], "--samples"),
         (["kinematics", "roberts", "--start", "2", "--stop", "1"], "--stop"),
+        (["kinematics", "roberts", "--start", "1e300", "--stop", "1e301"], "--start must be at most 1e+12 in magnitude"),
     ],
 )
 def test_user_errors_exit_2(argv, reason, capsys):

@@ -644,6 +644,7 @@ def test_options_that_a_path_cannot_honour_are_refused(watt):
                             (dict(steps=200, dt=1e-3), "steps= .* takes no dt"),
                             (dict(solver="seed_euler", events=[lambda t, q, w: q - 0.2]), "seed_euler.* takes no events"),
                             (dict(solver="seed_euler", saveat=[0.1, 0.2]), "seed_euler.* takes no saveat"),
+                            (dict(solver="seed_euler", rtol=1e-6), "seed_euler.* takes no rtol"),
                             (dict(bridge=5e-3), "'bridge' .* needs branch='tracked'"),
                             (dict(solver="euler"), "'euler' has no error estimate .* give a fixed step"),
                             (dict(events=[lambda t, q: q]), "events: each cond\\(t, q, omega\\) takes")):

@@ -652,6 +652,10 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
     step = fixed_step_from(scene_or_none, options["dt"])
     if settings.solver in BASELINES:
         _check_baseline_request(settings, model, q0, omega0, saveat)
+        given = [key for key in ("rtol", "atol", "max_step") if options[key] is not None or key in simulation_table(scene_or_none)]
+        if given:  # they were ignored without a word
+            raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q with a fixed travel dq, set by dt) has no "
+                                f"step-size control and takes no {given[0]}: use the default solver for tolerances")
         return Request(prepared, q0, omega0, t0, t1, saveat, step, None, None)
     if settings.steps is not None:
         check_steps_request(settings, model, saveat, step)
