@@ -374,22 +374,21 @@ def test_the_standstill_problem_made_again_reuses_the_compiled_loop(standstill_r
     notebook's cells run twice): the optimizer's loop is not traced again (it was, 11-18 s
     of compiling each time) and finds the same design; nor for another target."""
     scene, design, objective, build, result = standstill_run
+
+    def optimized_untraced(problem):
+        TRACES.counts, TRACES.active = {}, True
+        try:
+            found = syn.optimize(problem[0], problem[1], optax.adam(0.2), 120, has_aux=True, target=1e-8)
+        finally:
+            TRACES.active = False
+        assert "_run" not in TRACES.counts, TRACES.counts
+        return found
+
     again = syn.standstill_time_problem(assurjax.load_scene("watt_sixbar"), STANDSTILL_TARGET, **SIM3)
-    TRACES.counts, TRACES.active = {}, True
-    try:
-        rerun = syn.optimize(again[0], again[1], optax.adam(0.2), 120, has_aux=True, target=1e-8)
-    finally:
-        TRACES.active = False
-    assert "_run" not in TRACES.counts, TRACES.counts
+    rerun = optimized_untraced(again)
     np.testing.assert_array_equal(np.asarray(rerun.values), np.asarray(result.values))
     # another target: its horizon (1.5 x target, no t1 given) is traced too, and it is reached
-    other = syn.standstill_time_problem(scene, 1.55, **SIM3)
-    TRACES.counts, TRACES.active = {}, True
-    try:
-        moved = syn.optimize(other[0], other[1], optax.adam(0.2), 120, has_aux=True, target=1e-8)
-    finally:
-        TRACES.active = False
-    assert "_run" not in TRACES.counts, TRACES.counts
+    moved = optimized_untraced(syn.standstill_time_problem(scene, 1.55, **SIM3))
     assert moved.status == "target" and abs(float(moved.history.aux["standstill"][-1]) - 1.55) < 2e-4 * 1.55
     # its build is the objective's: the counterweight on the crank
     crank = scene.mechanism.driver.links[0]
