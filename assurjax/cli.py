@@ -194,14 +194,14 @@ def _assembly_text(mech, q) -> str:
 def _sweep_range(scene, start, stop) -> tuple[float, float]:
     import numpy as np
 
+    from ._values import MAGNITUDE_LIMIT
+
     q0 = scene.state["q0"]
     if _driver_kind(scene.mechanism) == "slider":
         reach = _size(scene.mechanism)  # the slider cannot go much further than the links reach
         default = (q0 - reach, q0 + reach)
     else:
         default = (q0 - np.pi, q0 + np.pi)
-    from ._values import MAGNITUDE_LIMIT
-
     for option, value in (("--start", start), ("--stop", stop)):
         if value is not None and not np.isfinite(value):
             raise UserError(f"{option} must be a finite number, got {value}")
