@@ -539,8 +539,8 @@ def simulate(
     scene's. ``throw`` (True or False): raise :class:`assurjax.AssurjaxError` with the
     status when the solver stops early (e.g. the step budget is used up) instead of
     returning a Solution that says so. ``kink_events`` (default False, or the scene's
-    ``[simulation] kink_events``): with joint friction, end the integration's segments
-    where a slider block's end load changes sign and at the knots of the loads' tables,
+    ``[simulation] kink_events``): end the integration's segments where a slider block's
+    end load changes sign (joint friction) and at the knots of the loads' tables,
     kinks of the right-hand side that the steps otherwise cross at a cost in accuracy: the
     press at rtol = 1e-8 is within 1.2e-9 rad of its converged motion with them, 6.5e-7
     without (1.5-2x the run time, fewer steps; below ~1e-7 rad the faster way there).
