@@ -647,7 +647,8 @@ def test_options_that_a_path_cannot_honour_are_refused(watt):
                             (dict(solver="seed_euler", rtol=1e-6), "seed_euler.* takes no rtol"),
                             (dict(bridge=5e-3), "'bridge' .* needs branch='tracked'"),
                             (dict(solver="euler"), "'euler' has no error estimate .* give a fixed step"),
-                            (dict(events=[lambda t, q: q]), "events: each cond\\(t, q, omega\\) takes")):
+                            (dict(events=[lambda t, q: q]), "events: each cond\\(t, q, omega\\) takes"),
+                            (dict(events=[lambda t, q, w: jnp.sqrt(q - 10.0)]), "event #1 is NaN at the start")):
         with pytest.raises(aj.AssurjaxError, match=message):
             aj.simulate(slider, t1=1.0, stop=None, **kwargs)
     blown = aj.simulate(slider, t1=1.0, steps=10, stop=None)  # 0.1 s steps: the slider-crank assembles at every q

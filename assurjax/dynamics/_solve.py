@@ -649,6 +649,7 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
                           for v, k, d in ((q0, "q0", 0.0), (omega0, "omega0", 0.0), (t0, "t0", 0.0), (t1, "t1", 1.0)))
     if (problem := state_problem(q0, omega0, t0, t1)) is not None:
         raise AssurjaxError(f"setting '{problem[0]}': {problem[1]}")
+    _check_events_at_start(settings, q0, omega0, t0)
     step = fixed_step_from(scene_or_none, options["dt"])
     if settings.solver in BASELINES:
         _check_baseline_request(settings, model, q0, omega0, saveat)
@@ -680,6 +681,18 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
                                 f"got {max_steps} (use samples or saveat for longer runs)")
     step = None if step is None else np.asarray(step, dtype=float)
     return Request(prepared, q0, omega0, t0, t1, saveat, step, batch, max_steps)
+
+
+def _check_events_at_start(settings: Settings, q0, omega0, t0) -> None:
+    """A user event that is NaN at the start can never change sign: it would never fire, and
+    nothing would say so."""
+    for i, cond in enumerate(settings.events):
+        with jax.ensure_compile_time_eval():
+            value = np.asarray(cond(t0, np.asarray(q0, dtype=float), np.asarray(omega0, dtype=float)), dtype=float)
+        if np.any(np.isnan(value)):
+            where = f"q0 = {float(q0):g}" if np.ndim(q0) == 0 else f"{np.count_nonzero(np.isnan(value))} of the starts"
+            raise AssurjaxError(f"events: event #{i + 1} is NaN at the start (t0 = {float(t0):g} s, {where}): a NaN never "
+                                "changes sign, so it would never fire; give a function defined along the motion")
 
 
 def _check_baseline_request(settings: Settings, model: Model, q0, omega0, saveat) -> None:
