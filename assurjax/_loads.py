@@ -311,18 +311,26 @@ def _as_value(v, where: str, shape: tuple[int, ...] = ()):
     return jnp.asarray(v, dtype=float)
 
 
-def _check_arguments(fn, where: str) -> None:
-    """Raise naming ``where`` when ``fn`` cannot be called as f(q, omega, t) (``lambda q: ...``
-    failed later, inside JAX's trace, with a bare TypeError naming no load)."""
+def unbindable(fn, arity: int) -> inspect.Signature | None:
+    """``fn``'s signature where it cannot be called with ``arity`` positional arguments (a
+    function of the wrong arguments fails later, inside JAX's trace, with a bare TypeError),
+    else None; None too where it has no signature to read (a builtin: its call shows)."""
     try:
         signature = inspect.signature(fn)
-    except (TypeError, ValueError):  # no signature to read (a builtin): its call is checked by check_loads
-        return
+    except (TypeError, ValueError):
+        return None
     try:
-        signature.bind(0.0, 0.0, 0.0)
+        signature.bind(*(0.0,) * arity)
     except TypeError:
+        return signature
+    return None
+
+
+def _check_arguments(fn, where: str) -> None:
+    """Raise naming ``where`` when ``fn`` cannot be called as f(q, omega, t)."""
+    if (signature := unbindable(fn, 3)) is not None:
         raise MechanismError(f"{where}: a function must take (q, omega, t), the driving coordinate, its velocity "
-                             f"and the time, as f(q, omega, t); the one given takes {signature}") from None
+                             f"and the time, as f(q, omega, t); the one given takes {signature}")
 
 
 # a function's output shape, traced once per function (tracing it costs ~1 ms, at every call

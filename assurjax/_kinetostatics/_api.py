@@ -3,7 +3,6 @@ level, groups of one kind at one level in batches: :mod:`._batches`)."""
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
@@ -20,7 +19,7 @@ from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
 from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
                          rates_and_slopes, signs_ahead, solve_friction, static_model, states_per_call)
-from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort
+from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort, unbindable
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
 from .._repr import value_pdoc
@@ -494,27 +493,15 @@ def inverse_dynamics(scene, motion, t, *, joints: Iterable[str] | str | None = N
     check_values(AssurjaxError, "inverse_dynamics", t=t)
     t = jnp.asarray(t, dtype=float)
     if callable(motion):
-        _check_motion_arguments(motion)
+        if (signature := unbindable(motion, 1)) is not None:  # as the loads' functions are checked
+            raise AssurjaxError(f"inverse_dynamics: motion must be a function of the time alone, q(t); the one given "
+                                f"takes {signature}")
         q, omega, alpha = _derivatives(_as_float(motion), t)
     else:
         if not isinstance(motion, (tuple, list)) or len(motion) != 3:
             raise AssurjaxError("motion must be a function q(t) or samples (q, omega, domega) at the times t")
         q, omega, alpha = (jnp.asarray(v, dtype=float) for v in motion)
     return reactions(scene, (q, omega, alpha, t), joints=joints, method=method, check=check)
-
-
-def _check_motion_arguments(motion) -> None:
-    """Raise where ``motion`` cannot be called as q(t) (``lambda t, x: ...`` failed inside
-    JAX's trace with a bare TypeError), as the loads' functions are checked."""
-    try:
-        signature = inspect.signature(motion)
-    except (TypeError, ValueError):  # no signature to read (a builtin): its call shows
-        return
-    try:
-        signature.bind(0.0)
-    except TypeError:
-        raise AssurjaxError(f"inverse_dynamics: motion must be a function of the time alone, q(t); the one given "
-                            f"takes {signature}") from None
 
 
 def _as_float(motion):

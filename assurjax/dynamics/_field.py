@@ -512,7 +512,7 @@ def rest_analysis(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     return jnp.where(f.consistent, f.alpha, 0.0), rest_side(f.red.force), f.rates, f.slopes
 
 
-def rest_jams(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
+def rest_jams(model: Model, t, y: State):
     """Whether a mechanism at rest jams there, and whether the values read were finite (with
     a NaN, a load's, no jam is claimed). It jams where the motion that alone can start
     (:func:`rest_side`) has no consistent friction (:func:`rest_analysis` reads its dw/dt as
@@ -525,15 +525,14 @@ def rest_jams(model: Model, t, y: State, bridge: float = 0.0, coeffs=None):
     limit of the reactions u* itself gives (the statics of the friction's linearization, its
     part through dw/dt taken out); a limit that grows with u, a self-locking pair, holds any
     push past some size, so the drives that hold need not be one interval. Several elements
-    share a holding force in ways statics leaves open: no jam is claimed there (such a rest
-    stays held). ``coeffs``: the order-2 kinematic coefficients at y.q, where the caller has
-    them."""
+    share a holding force in ways statics leaves open: the caller claims no jam there (such a
+    rest stays held)."""
     frictions = frictions_of(model.loads)
     if len(frictions) != 1:
-        return jnp.zeros(jnp.shape(y.q), dtype=bool), jnp.ones(jnp.shape(y.q), dtype=bool)
+        raise ValueError(f"rest_jams decides for one friction element, got {len(frictions)}")
     model = static_model(model)  # rest is held by the static limits
     at_rest = y._replace(omega=jnp.zeros_like(y.omega))
-    coeffs = kinematic_coefficients(model, at_rest, bridge) if coeffs is None else coeffs
+    coeffs = kinematic_coefficients(model, at_rest)
     start = _start(model, jnp.asarray(t, dtype=float), at_rest, jnp.zeros(()), coeffs, jnp.zeros(1), False)
     starts = start.solved[1]  # the start's friction by Newton's method, as the batched analyses decide a jam
     (at_zero, _), (basis, _) = start.linear, start.inertial

@@ -641,7 +641,7 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
         raise AssurjaxError(f"setting 'throw': expected True or False, got {throw!r}")
     prepared = _PREPARED.get(
         (scene, getattr(scene, "simulation", None), getattr(scene, "outputs", None), mechanism, gravity, loads, table,
-         *options.values()),
+         *(options[k] for k in sorted(options))),  # the same key for check_simulate, whose order differs
         lambda: _prepare(scene, mechanism, gravity, loads, table, options))
     model, scene_or_none, settings = prepared.model, prepared.scene, prepared.settings
     state = {} if scene_or_none is None else scene_or_none.state
@@ -652,11 +652,9 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
     _check_events_at_start(settings, q0, omega0, t0)
     step = fixed_step_from(scene_or_none, options["dt"])
     if settings.solver in BASELINES:
-        _check_baseline_request(settings, model, q0, omega0, saveat)
-        given = [key for key in ("rtol", "atol", "max_step") if options[key] is not None or key in simulation_table(scene_or_none)]
-        if given:  # they were ignored without a word
-            raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q with a fixed travel dq, set by dt) has no "
-                                f"step-size control and takes no {given[0]}: use the default solver for tolerances")
+        tolerances = [key for key in ("rtol", "atol", "max_step")
+                      if options[key] is not None or key in simulation_table(scene_or_none)]
+        _check_baseline_request(settings, model, q0, omega0, saveat, tolerances)
         return Request(prepared, q0, omega0, t0, t1, saveat, step, None, None)
     if settings.steps is not None:
         check_steps_request(settings, model, saveat, step)
@@ -687,15 +685,16 @@ def _check_events_at_start(settings: Settings, q0, omega0, t0) -> None:
     """A user event that is NaN at the start can never change sign: it would never fire, and
     nothing would say so."""
     for i, cond in enumerate(settings.events):
-        with jax.ensure_compile_time_eval():
-            value = np.asarray(cond(t0, np.asarray(q0, dtype=float), np.asarray(omega0, dtype=float)), dtype=float)
+        value = np.asarray(cond(t0, np.asarray(q0, dtype=float), np.asarray(omega0, dtype=float)), dtype=float)
         if np.any(np.isnan(value)):
             where = f"q0 = {float(q0):g}" if np.ndim(q0) == 0 else f"{np.count_nonzero(np.isnan(value))} of the starts"
             raise AssurjaxError(f"events: event #{i + 1} is NaN at the start (t0 = {float(t0):g} s, {where}): a NaN never "
                                 "changes sign, so it would never fire; give a function defined along the motion")
 
 
-def _check_baseline_request(settings: Settings, model: Model, q0, omega0, saveat) -> None:
+def _check_baseline_request(settings: Settings, model: Model, q0, omega0, saveat, tolerances: list) -> None:
+    """What the baseline (one start, no friction, events, save times or tolerances) refuses;
+    ``tolerances``: the step-control settings given (it ignored them without a word)."""
     if np.ndim(q0) or np.ndim(omega0):
         raise AssurjaxError(f"solver={settings.solver!r} (a baseline) simulates one starting state at a time")
     if frictions_of(model.loads):
@@ -705,6 +704,9 @@ def _check_baseline_request(settings: Settings, model: Model, q0, omega0, saveat
         if given:
             raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q, samples every dq of travel) "
                                 f"takes no {name}: use the default solver")
+    if tolerances:
+        raise AssurjaxError(f"solver={settings.solver!r} (a baseline: Euler in q with a fixed travel dq, set by dt) has no "
+                            f"step-size control and takes no {tolerances[0]}: use the default solver for tolerances")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -429,7 +429,7 @@ def jammed_members(sols: Solution, model: Model, *, models_batched: bool = False
     t, q, w = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (sols.t_final, sols.q_final, sols.omega_final))
     if np.any(moving):
         jams |= moving & np.asarray(_jams_each(model, t, q, w) if models_batched else _jams(model, t, q, w)).reshape(codes.shape)
-    if np.any(held) and len(frictions_of(model.loads)) == 1:  # rest_jams claims no jam of several elements
+    if np.any(held) and len(frictions_of(model.loads)) == 1:  # several elements: no jam claimed (see rest_jams)
         jams |= held & np.asarray(_rest_jams_each(model, t, q) if models_batched else _rest_jams(model, t, q)).reshape(codes.shape)
     return jams
 
