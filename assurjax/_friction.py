@@ -371,19 +371,31 @@ def has_static(loads) -> bool:
     return any(getattr(load, "static_coefficient", None) is not None for load in loads)
 
 
+def static_in_order(loads):
+    """Whether every static coefficient is at least its element's kinetic one (traced; the
+    constructor checks concrete values)."""
+    ordered = [jnp.all(f.static_coefficient >= f.coefficient) for f in frictions_of(loads)
+               if f.static_coefficient is not None]
+    return jnp.all(jnp.stack(ordered)) if ordered else jnp.asarray(True)
+
+
 def static_model(model, held=True):
     """The model (a :class:`assurjax.Model`) with the law of a mechanism at rest: each
     friction element's coefficient its static one (``static_coefficient``), where it has one.
     That law decides whether a mechanism sticks and when it breaks away. ``held``: a flag
     (traced or not) telling where the state is at rest: the static coefficients there, the
-    kinetic ones elsewhere. The same model where no element has a static coefficient."""
+    kinetic ones elsewhere. The same model where no element has a static coefficient. A
+    static coefficient below the kinetic one (traced: the constructor refuses a concrete one)
+    is NaN, as the analyses make of a NaN coefficient: a rest law weaker than the motion's made
+    a mechanism break away and stop again at once, so that it seemed held."""
     if not has_static(model.loads):
         return model
 
     def at_rest(load):
         if getattr(load, "static_coefficient", None) is None:
             return load
-        coefficient = load.static_coefficient if held is True else jnp.where(held, load.static_coefficient, load.coefficient)
+        static = jnp.where(load.static_coefficient >= load.coefficient, load.static_coefficient, jnp.nan)
+        coefficient = static if held is True else jnp.where(held, static, load.coefficient)
         return eqx.tree_at(lambda f: f.coefficient, load, coefficient)
 
     return eqx.tree_at(lambda m: m.loads, model, tuple(at_rest(load) for load in model.loads))

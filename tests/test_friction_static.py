@@ -145,6 +145,28 @@ def test_agrees_with_the_joint_based_reference(case):
     assert np.max(np.abs(sol.balance)) < 1e-7 * np.max(np.abs(sol.total))
 
 
+
+def test_a_traced_static_coefficient_below_the_kinetic_one_is_named_not_held():
+    """A static coefficient below mu that the constructor cannot check (traced under the
+    user's jit, an optimizer's step, put in by tree_at): the weaker rest law broke the
+    mechanism away and the kinetic law stopped it again at once, so it read as held at its
+    start (q(T) = q0, a plausible answer). The run's result names it; the band is NaN."""
+    import equinox as eqx
+
+    from test_friction import _reference_case
+
+    scene, q0, w0, _, t1, table, _ = _reference_case("slider_crank")
+    loads = tuple(scene.loads) + _package_static(scene.mechanism, _with_static(table))
+    rough = (aj.JointFriction, aj.SlideFriction)
+    weaker = eqx.tree_at(lambda ls: [f.static_coefficient for f in ls if isinstance(f, rough)], loads, replace_fn=lambda mu_s: 0.5 * mu_s / STATIC_RATIO)  # half of mu
+    sol = aj.simulate(scene, loads=weaker, q0=q0, omega0=w0, stop=None, t1=t1, saveat=np.linspace(0.0, t1, 41),
+                      energies=True, rtol=1e-10, atol=1e-10)
+    assert sol.result == aj.RESULTS.static_below_kinetic and not sol.successful
+    assert "static coefficient is below its kinetic coefficient" in sol.status, sol.status
+    lower, upper = aj.breakaway_band(scene.with_loads(weaker), q0)
+    assert np.isnan(lower) and np.isnan(upper)
+
+
 @pytest.mark.slow  # reverse and forward mode through stick segments and a batch: ~1.5 min of compiles
 def test_derivative_in_the_static_coefficient_and_a_batch(write_scene):
     """d q(0.9 s) / d mu_s of the hanging arm under k t (mu_s sets the located break-away,

@@ -620,8 +620,9 @@ def _band(model: Model, q, t):
             f = frictional(driven, t, State(q, at_rest), way, iterate=iterate, coeffs=coeffs)
             return f.consistent & (way * f.alpha > 0)
 
-        return (jnp.where(starts(driving[1], -1.0), driving[1], -jnp.inf),
-                jnp.where(starts(driving[0], 1.0), driving[0], jnp.inf), ok[0])
+        # an edge NaN (a NaN coefficient, traced) stays NaN, not an infinite edge
+        return (jnp.where(starts(driving[1], -1.0) | jnp.isnan(driving[1]), driving[1], -jnp.inf),
+                jnp.where(starts(driving[0], 1.0) | jnp.isnan(driving[0]), driving[0], jnp.inf), ok[0])
 
     flat = jax.vmap(one)(q.reshape(-1), t.reshape(-1))
     return jax.tree.map(lambda x: x.reshape(q.shape + x.shape[1:]), flat)

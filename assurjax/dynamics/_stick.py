@@ -57,7 +57,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, with_block_signs
+from .._friction import (frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, static_in_order,
+                         with_block_signs)
 from .._jit import any_mapped, jit
 from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
@@ -307,6 +308,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     values = eqx.filter(frictions_of(model.loads), eqx.is_inexact_array)
     if jax.tree.leaves(values):
         result = RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)
+        result = RESULTS.where(static_in_order(model.loads), result, RESULTS.static_below_kinetic)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = held & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
