@@ -1114,6 +1114,31 @@ def test_a_friction_jam_is_named(slider):
             _strong_reference(20.0, steps).forward(0.5, 20.0)
 
 
+def test_a_load_that_is_nan_is_no_friction_jam(slider):
+    """The jam status reads the friction where a run stopped on NaN: with a load NaN there (a
+    user's function), it is no jam (it was called one, with the remedy to lower the
+    friction); the strong friction at 20 rad/s is one, with finite loads (control)."""
+    from assurjax.dynamics._stick import _jams
+
+    nan_drive = aj.Drive(lambda q, w, t: jnp.where(t > 0.05, jnp.nan, 2.0), velocity_dependent=False)
+    at = tuple(np.array([v]) for v in (0.1, 0.5, 20.0))
+    assert not bool(_jams(aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism) + (nan_drive,)), *at)[0])
+    assert bool(_jams(aj.Model(slider.mechanism, slider.gravity, STRONG), *at)[0])
+
+
+@pytest.mark.slow  # ~20 s (a program for its Python drive); test_a_load_that_is_nan_is_no_friction_jam stays
+def test_a_load_that_turns_nan_is_no_friction_jam(slider):
+    """A user's drive that turns NaN (t > 0.05 s) stops a run with friction as it stops one
+    without: the solver's failure naming a load, not a jam of the joint friction (it was
+    called one, with the remedy to lower the friction); the friction is finite up to there."""
+    drive = aj.Drive(lambda q, w, t: jnp.where(t > 0.05, jnp.nan, 2.0), velocity_dependent=False)
+    sol = aj.simulate(slider, loads=frictions(slider.mechanism) + (drive,), q0=0.5, stop=None, t1=0.2, samples=5,
+                      energies=False)
+    assert not sol.successful and not sol.jammed, sol.status
+    assert sol.status.startswith("solver stopped at t = ") and "the right-hand side turned NaN ahead" in sol.status
+    assert abs(float(sol.t_final) - 0.05) < 1e-6, sol.status
+
+
 @pytest.mark.slow  # ~8 s: the differentiable program; the default suite keeps to 10 min
 def test_a_friction_jam_is_named_by_the_final_state(slider):
     """The differentiable final state of that jam has no q(T) to give: it says why (it returned

@@ -438,14 +438,26 @@ def jammed_members(sols: Solution, model: Model, *, models_batched: bool = False
 
 def _jams_at(model: Model, t, q, omega):
     """Whether the friction of the motion in sign(omega) has no consistent solution at
-    (t, q, omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt there)."""
+    (t, q, omega) or a little way along it (the JAM_PROBES, extrapolated with dw/dt there),
+    where the loads are finite at all of them: a load that turns NaN (a user's function)
+    stops the run too, and is no jam."""
     direction = jnp.sign(omega)
     at_end = frictional(model, t, State(q, omega), direction, iterate=False)
     h = jnp.asarray(JAM_PROBES) * LOCKUP_RESOLUTION * (1.0 + jnp.abs(q)) / jnp.abs(omega)
     alpha = jnp.where(jnp.isfinite(at_end.alpha), at_end.alpha, 0.0)
-    ahead = jax.vmap(lambda h: frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction,
-                                          iterate=False).consistent)(h)
-    return ~(at_end.consistent & jnp.all(ahead))
+
+    def probe(h):
+        f = frictional(model, t + h, State(q + omega * h, omega + alpha * h), direction, iterate=False)
+        return f.consistent, _loads_finite(f)
+
+    ahead, finite = jax.vmap(probe)(h)
+    return ~(at_end.consistent & jnp.all(ahead)) & _loads_finite(at_end) & jnp.all(finite)
+
+
+def _loads_finite(f) -> jax.Array:
+    """Whether the reduction a friction analysis stands on (the loads' generalized force, the
+    reduced inertia) is finite."""
+    return all_finite((f.red.force, f.red.inertia))
 
 
 def _rest_jams_at(model: Model, t, q):
