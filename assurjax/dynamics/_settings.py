@@ -188,7 +188,9 @@ def setting_problem(key: str, value, schema: Mapping = SIMULATION_KEYS) -> str |
     problem = f"expected {what}, got {value!r}"
     if key in WORK_LIMITS and _positive_int(value) and value > WORK_LIMITS[key][0]:
         limit, unit = WORK_LIMITS[key]
-        problem += f" (it would need at least {_size(value * unit)} for the saved values alone; the limit needs {_size(limit * unit)})"
+        row = {"table_nodes": "node", "samples": "sample"}.get(key, "step")
+        problem += (f" (at {unit} bytes a {row} it would need at least {_size(value * unit)}, where the limit needs "
+                    f"{_size(limit * unit)})")
     return problem
 
 

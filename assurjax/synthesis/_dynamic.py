@@ -59,7 +59,8 @@ from .._model import check_has_inertia
 from .._positions import assembled
 from ..dynamics._field import arrival_acceleration
 from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
-from ..dynamics._settings import ADJOINTS, check_single_start, check_step_within_span, fixed_step_from, settings_from
+from ..dynamics._settings import (ADJOINTS, check_single_start, check_span_covered, check_step_within_span, fixed_step_from,
+                                  settings_from)
 from ..dynamics._stick import jammed_members
 from ..dynamics._table import build_table
 from ..dynamics._solve import simulate_core
@@ -171,6 +172,8 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
         return _route_as_asked("final_state", result, (q, w), pose=(scene.mechanism, q))
     opts = _settings(scene, {"check_assembly": False, **settings}, standstill=False, adjoint=adjoint)
     state = scene.state
+    if "max_steps" not in settings and "max_steps" not in scene.simulation and not _traced(t1):
+        check_span_covered(state.get("t0", 0.0), t1, opts)  # as simulate (t1 = 1e9 ran ~2000 s first)
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0
     # past a lock-up the motion means nothing: whether the final pose assembles, in the run's program
