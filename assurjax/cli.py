@@ -878,25 +878,21 @@ def _smoothed_pairs(scene) -> list[str]:
 
 
 def _rest_line(scene, sol) -> str | None:
-    """Where a run that reached t1 ends at rest: since when (between two samples), held by
-    the joint friction (w exactly 0 from its last stick on), or, without friction, at rest
-    throughout (nothing moves it from its start). None where it moves at its end, or where
-    the standstill line reports the stop."""
+    """Where a run that reached t1 without joint friction's exact law is at rest throughout
+    (nothing moves it from its start). None where it moves (a frictionless w passes through
+    0 at a sample), where the standstill line reports the stop, or where the friction holds
+    it (the run's status says since when)."""
     import numpy as np
 
     from ._friction import frictions_of, smoothed_only
 
-    omega, t = np.asarray(sol.omega), np.asarray(sol.t)
+    omega = np.asarray(sol.omega)
     if scene.simulation.get("stop") == "standstill" or not sol.successful or int(sol.event) >= 0 or omega[-1] != 0.0:
         return None
     frictions = frictions_of(scene.loads)
-    moving, held = np.flatnonzero(omega != 0.0), bool(frictions) and not smoothed_only(frictions)  # a smooth law holds nothing
-    if not moving.size:
-        return "  at rest throughout" + (", held by the joint friction" if held else ": nothing moves it from its start")
-    if not held:
-        return None  # w passes through 0 at the last sample
-    return (f"  comes to rest between the samples at t = {_seconds(t[moving[-1]])} and {_seconds(t[moving[-1] + 1])} s and stays "
-            "there, held by the joint friction")
+    if (frictions and not smoothed_only(frictions)) or np.any(omega != 0.0):  # a smooth law holds nothing
+        return None
+    return "  at rest throughout: nothing moves it from its start"
 
 
 def cmd_run(args) -> int:

@@ -138,6 +138,10 @@ def test_agrees_with_the_joint_based_reference(case):
     sol = aj.simulate(scene, loads=loads, q0=q0, omega0=w0, stop=None, t1=t1, saveat=times, energies=True, rtol=1e-10,
                       atol=1e-10)
     assert sol.status.startswith("reached t1"), sol.status
+    if expected.stuck[-1]:  # held to t1 (the reference's rests): the status says since when
+        last = np.flatnonzero(~expected.stuck)[-1]
+        assert sol.status.endswith(f", held at rest by the joint friction since between the samples at t = "
+                                   f"{times[last]:.6g} and {times[last + 1]:.6g} s"), sol.status
     np.testing.assert_allclose(sol.q, expected.q, rtol=0, atol=1e-8)
     np.testing.assert_allclose(sol.omega, expected.w, rtol=0, atol=1e-7)
     np.testing.assert_array_equal(sol.omega[1:] == 0.0, expected.stuck[1:])

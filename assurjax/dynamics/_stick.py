@@ -57,8 +57,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import (frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, static_in_order,
-                         with_block_signs)
+from .._friction import (frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, smoothed_only,
+                         static_in_order, with_block_signs)
 from .._jit import any_mapped, jit
 from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
@@ -387,12 +387,30 @@ def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution
     ending held at rest is tested there); else ``jammed`` False. A jam at rest ends the run
     at its first sample of that rest, as a failure."""
     if not jammed_members(sol, model):
-        return replaced(sol, jammed=False)
+        return replaced(sol, jammed=False, status=sol.status + _held_words(sol, model))
     q, omega = float(sol.q_final), float(sol.omega_final)
     if omega == 0:
         return _ended_at_rest_jam(sol)
     limit = limit_ahead(model.mechanism, q, omega, JAM_LIMIT_PROBES) if settings.branch == "fixed" else None
     return replaced(sol, jammed=True, status=jam_text(float(sol.t_final), q, omega, limit))
+
+
+def _held_words(sol: Solution, model: Model) -> str:
+    """What a run that reached t1 at rest adds to its status where the joint friction holds
+    it there (its exact law): held throughout, or since its last motion (between two
+    samples: the rest's own time is not kept); '' otherwise."""
+    frictions = frictions_of(model.loads)
+    if (not frictions or smoothed_only(frictions) or float(sol.omega_final) != 0.0 or int(sol.event) != NO_EVENT
+            or int(result_code(sol.result)) not in FINISHED):
+        return ""
+    t, omega = np.asarray(sol.t), np.asarray(sol.omega)
+    moving = np.flatnonzero(omega != 0.0)
+    if not moving.size:
+        return ", held at rest by the joint friction throughout"
+    last = int(moving[-1])
+    if last + 1 >= t.size:
+        return ""
+    return f", held at rest by the joint friction since between the samples at t = {t[last]:.6g} and {t[last + 1]:.6g} s"
 
 
 def _ended_at_rest_jam(sol: Solution) -> Solution:
