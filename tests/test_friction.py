@@ -439,7 +439,7 @@ def test_a_heavier_mechanism_moves_the_same(slider):
                         [1e5 * slider.mechanism.links[n].mass for n in names] + [1e5 * slider.mechanism.links[n].inertia for n in names])
     loads = tuple(aj.JointFriction(j, 0.6, 0.05) for j in ("O", "A", "B"))
     light, heavy = (aj.simulate(slider, mechanism=m, loads=loads, stop=None, t1=1.0, samples=51) for m in (slider.mechanism, heavy))
-    assert light.status == heavy.status == "reached t1 = 1 s", heavy.status
+    assert light.status == heavy.status and heavy.status.startswith("reached t1 = 1 s"), heavy.status
     np.testing.assert_allclose(heavy.q, light.q, rtol=0, atol=1e-7)
 
 
