@@ -1012,8 +1012,11 @@ def cmd_reactions(args) -> int:
         without = " (reactions and drive without its joint friction)" if rough else ""
         print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}{without}")
         _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
+        band = tuple(float(edge) for edge in assurjax.breakaway_band(scene, q0)) if rough else (float(r.driving),) * 2
         if rough:
-            print(_band_line(*(float(edge) for edge in assurjax.breakaway_band(scene, q0)), units))
+            print(_band_line(*band, units))
+        if (line := _own_drive_line(scene, q0, *band, units)) is not None:
+            print(line)
         return 0
     scene = _as_run(scene)
     samples = _samples(args, scene)
@@ -1058,6 +1061,25 @@ def cmd_reactions(args) -> int:
         print(line)
     _print_files(files)
     return _say_failed(scene, sol) if failed else 0
+
+
+def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -> str | None:
+    """Whether the scene's own drive (its loads on the driver, at q0, w = 0 and t0) holds the
+    mechanism there: the held drive and the band above stand for a drive in its place. None
+    without a driving load."""
+    from ._loads import AbstractLoad, driver_effort
+
+    driving = [load for load in scene.loads if type(load).effort is not AbstractLoad.effort]
+    if not driving:
+        return None
+    effort = float(driver_effort(scene.mechanism, driving, q0, 0.0, scene.state.get("t0", 0.0)))
+    unit = units["driving"]
+    if lower <= effort <= upper:
+        verdict = "within the band: it stays at rest" if lower < upper else "the drive that holds it: it stays at rest"
+    else:
+        verdict = f"{'above' if effort > upper else 'below'} {'the band' if lower < upper else 'it'}: it starts " \
+                  f"{'forward' if effort > upper else 'backward'}"
+    return f"  its own drive at q0 (w = 0, t = t0) is {effort:+.6g} {unit}, {verdict}"
 
 
 def _band_line(lower: float, upper: float, units: dict) -> str:

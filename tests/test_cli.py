@@ -336,6 +336,13 @@ def test_reactions_static_with_joint_friction_gives_the_breakaway_band(write_sce
     upper, lower = (float(v) for v in re.search(r"starts forward above ([-+0-9.e]+) N m and backward below ([-+0-9.e]+) N m",
                                                   text).groups())
     assert upper == pytest.approx(holding + limit, rel=1e-6) and lower == pytest.approx(holding - limit, rel=1e-6)
+    assert "its own drive" not in text  # it has none
+    # its own drive against the band (they stand for a drive in its place): within it holds, past it starts
+    for torque, verdict in ((holding, "within the band: it stays at rest"), (holding + 1.2 * limit, "above the band: it "
+                                                                                                   "starts forward")):
+        drive = f'[[loads]]\ntype = "drive"\nvalue = {torque!r}\n'
+        assert main(["reactions", str(write_scene(ROUGH_ARM_RUN + drive, "driven.toml")), "--static"]) == 0
+        assert f"its own drive at q0 (w = 0, t = t0) is {torque:+.6g} N m, {verdict}" in capsys.readouterr().out
     units = dict(driving="N m")
     assert _band_line(-math.inf, 1.5, units) == ("  with its joint friction it starts forward above +1.5 N m; any drive between "
                                                  "holds it (the break-away band); no drive starts it backward: the friction "
