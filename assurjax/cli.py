@@ -500,7 +500,7 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     else:
         lines = [f"  friction: {total:.5g} J lost over the motion" + (f" ({shares})" if shares else "")]
     located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {_seconds(peaks[FRICTION + k].t)} s"
-                        for k in along.friction)
+                        for k in _in_scene_order(scene.outputs["reactions"], along.friction))
     lines.append(f"  peak |friction| (located on the dense output): {located}")
     locked = int(np.count_nonzero(~along.friction_ok))
     if locked:
@@ -536,9 +536,11 @@ def _force_peaks(peaks: dict) -> list:
     return [p for name, p in peaks.items() if name != "driving" and not name.startswith(FRICTION)]
 
 
-def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True):
+def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True, driving=None):
     """The peaks' lines; ``sol``: the run they were found on (a lock-up's says where they were
-    searched); ``moves``: whether the mechanism moves at all (else it is held at rest)."""
+    searched); ``moves``: whether the mechanism moves at all (else it is held at rest);
+    ``driving``: the driving effort at the samples (a constant one is said to be, without
+    the time of its peak, which is where round-off put it)."""
     forces = _force_peaks(peaks)
     where = "located on the dense output"
     if sol is not None and _ended_at_lockup(sol):
@@ -549,8 +551,21 @@ def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True):
         why = "the loads alone drive this motion" if moves else "it stays at rest"
         size = "exactly 0" if drive.value == 0 else f"largest value {drive.value:.1e} {units['driving']} is round-off"
         print(f"  driving effort: none needed ({why}; {size})")
+    elif driving is not None and (value := _constant_driving(driving)) is not None:
+        print(f"  driving effort: constant, {value:+.5g} {units['driving']}")
     else:
         print(f"  peak |driving effort|: {drive.value:.5g} {units['driving']} at t = {_seconds(drive.t)} s")
+
+
+def _constant_driving(driving) -> float | None:
+    """The driving effort's value where the samples hold one value to round-off (1e-9 of it),
+    else None."""
+    import numpy as np
+
+    values = np.asarray(driving, dtype=float)
+    if not values.size or not np.all(np.isfinite(values)) or np.ptp(values) > 1e-9 * np.max(np.abs(values)):
+        return None
+    return float(np.median(values))
 
 
 def _driving_is_round_off(peaks: dict, scene, units: dict) -> bool:
@@ -973,7 +988,7 @@ def cmd_run(args) -> int:
         print(f"  fixed steps: [simulation] steps = {loaded.simulation['steps']} run as equal steps of dt = "
               f"{scene.simulation['dt']:.6g} s (the command saves on its own grid)")
     if peaks:
-        _print_peaks(peaks, units, scene, sol, moves=_moves(sol))
+        _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=along.driving if along else None)
     for line in _friction_lines(scene, sol, along, peaks) if along else _friction_total_line(scene, sol):
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
@@ -1046,9 +1061,13 @@ def cmd_reactions(args) -> int:
     if _driving_is_round_off(peaks, scene, units):  # as the summary says: not magnified into a curve of noise
         axes[1].set_ylim(-1.0, 1.0)
         axes[1].set_title("driving effort needed: none (round-off)")
+    elif (value := _constant_driving(driving)) is not None:  # nor a constant's round-off (ticks of 1e-13 about 1.5)
+        axes[1].set_ylim(value - 0.5 * abs(value), value + 0.5 * abs(value))
+        axes[1].set_title(f"driving effort needed: constant {value:+.5g} {units['driving']}")
     if along.friction:
-        viz.plot_time_histories(sol.t, {f"at {k}": -p for k, p in along.friction_power.items()}, ylabel="power lost (W)",
-                                ax=axes[2], title="power lost to friction")
+        power = along.friction_power
+        viz.plot_time_histories(sol.t, {f"at {k}": -power[k] for k in _in_scene_order(scene.outputs["reactions"], power)},
+                                ylabel="power lost (W)", ax=axes[2], title="power lost to friction")
     files.append(_savefig(fig, out / "reactions.png"))
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
     for line in _failure_lines(scene, sol, units) if failed else ():
@@ -1056,7 +1075,7 @@ def cmd_reactions(args) -> int:
     print(f"  at t = {float(sol.t[0]):.4g} s:")
     _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
                           {k: float(v[0]) for k, v in along.friction.items()})
-    _print_peaks(peaks, units, scene, sol, moves=_moves(sol))
+    _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=driving)
     for line in _friction_lines(scene, sol, along, peaks):
         print(line)
     _print_files(files)

@@ -462,6 +462,12 @@ def test_summary_says_where_a_run_ends_held_at_rest(write_scene, capsys):
     printed = capsys.readouterr().out
     assert "driving effort: none needed (it stays at rest; largest value 1.0e-15 N m is round-off)" in printed
     assert "driving effort: none needed (the loads alone drive this motion; largest value" in printed
+    # a constant drive's effort is said to be constant (its peak's time was where round-off put it)
+    peaks["driving"] = Peak("driving", 1.5 + 4e-16, 2.96)
+    _print_peaks(peaks, dict(driving="N m"), rough, driving=1.5 + np.array([0.0, 4e-16, -2e-16]))
+    _print_peaks(peaks, dict(driving="N m"), rough, driving=np.array([1.5, 1.4, 1.0]))
+    printed = capsys.readouterr().out
+    assert "driving effort: constant, +1.5 N m" in printed and "peak |driving effort|: 1.5 N m at t = 2.96 s" in printed
 
 
 @pytest.mark.slow  # ~9 s; the default suite keeps to 10 min
@@ -504,7 +510,7 @@ def test_summary_names_samples_held_where_the_friction_self_locks():
 
     from types import SimpleNamespace
 
-    scene, sol = SimpleNamespace(loads=()), SimpleNamespace(t=np.linspace(0.0, 1.0, 5), dissipated=None)
+    scene, sol = SimpleNamespace(loads=(), outputs={"reactions": ()}), SimpleNamespace(t=np.linspace(0.0, 1.0, 5), dissipated=None)
     along = lambda ok: _Along({}, np.zeros(5), np.ones(5, bool), {"A": np.ones(5)}, {"A": -np.ones(5)}, 0.0, ok)  # noqa: E731
     peaks = {"friction A": Peak("friction A", 1.0, 0.25)}
     lines = _friction_lines(scene, sol, along(np.array([True, False, False, True, True])), peaks)
