@@ -417,6 +417,11 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert lost == pytest.approx(-cols["W"][-1], rel=1e-4)
     printed = capsys.readouterr().out
     assert f"friction: {lost:.5g} J lost over the motion (O 100 %)" in printed
+    # held at q* only where gravity's torque -m g l_G cos q* is within the static limit mu r m g
+    # (closed form): not so past the bottom, where it pulls the arm back up (+q)
+    torque, limit = -2.0 * 9.81 * 0.15 * math.cos(cols["q"][-1]), 0.3 * 0.04 * 2.0 * 9.81
+    assert torque > limit and ("a turning point: the joint friction does not hold it there, and the motion goes on "
+                               "forward") in printed
     # its peak, located on the dense output as the reaction's is: mu r times that peak, at its time
     friction, force = summary["peaks"]["friction O"], summary["peaks"]["O"]
     assert friction["t"] == force["t"] and friction["value"] == pytest.approx(0.3 * 0.04 * force["value"], rel=1e-12)

@@ -387,7 +387,7 @@ def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution
     ending held at rest is tested there); else ``jammed`` False. A jam at rest ends the run
     at its first sample of that rest, as a failure."""
     if not jammed_members(sol, model):
-        return replaced(sol, jammed=False, status=sol.status + _held_words(sol, model))
+        return replaced(sol, jammed=False, status=sol.status + _held_words(sol, model) + _standstill_words(sol, model))
     q, omega = float(sol.q_final), float(sol.omega_final)
     if omega == 0:
         return _ended_at_rest_jam(sol)
@@ -411,6 +411,23 @@ def _held_words(sol: Solution, model: Model) -> str:
     if last + 1 >= t.size:
         return ""
     return f", held at rest by the joint friction since between the samples at t = {t[last]:.6g} and {t[last + 1]:.6g} s"
+
+
+def _standstill_words(sol: Solution, model: Model) -> str:
+    """What a run stopped at its first standstill (``stop='standstill'``) adds to its status
+    with the joint friction's exact law: whether the friction holds the mechanism there, or
+    it is a turning point the motion goes on from (as a run without the stop would), read
+    from its last sample's dw/dt (0 where held, else the break-away's: the outputs' own
+    analysis at rest); '' otherwise, or without dw/dt among the outputs."""
+    frictions = frictions_of(model.loads)
+    if (not frictions or smoothed_only(frictions) or int(sol.event) != STANDSTILL or float(sol.omega_final) != 0.0
+            or sol.domega is None or not np.size(sol.t) or float(np.asarray(sol.t)[-1]) != float(sol.t_final)):
+        return ""
+    alpha = float(np.asarray(sol.domega)[-1])
+    if alpha == 0.0:
+        return ", held there by the joint friction"
+    way = "forward" if alpha > 0 else "backward"
+    return f", a turning point: the joint friction does not hold it there, and the motion goes on {way} (stop=None runs on)"
 
 
 def _ended_at_rest_jam(sol: Solution) -> Solution:
