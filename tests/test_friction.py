@@ -1108,7 +1108,7 @@ def test_a_friction_jam_is_named(slider):
     sol = aj.simulate(slider, loads=STRONG, q0=0.5, omega0=20.0, stop=None, t1=T1, saveat=TIMES, energies=True,
                       rtol=1e-10, atol=1e-10)  # run()'s program
     assert not sol.successful
-    assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20)"), sol.status
+    assert sol.status.startswith("the joint friction jams the mechanism at t = 0 s (q = 0.5, w = 20):"), sol.status
     for steps in (1, 4, 16):
         with pytest.raises(RuntimeError, match="did not converge"):
             _strong_reference(20.0, steps).forward(0.5, 20.0)
@@ -1124,6 +1124,24 @@ def test_a_load_that_is_nan_is_no_friction_jam(slider):
     at = tuple(np.array([v]) for v in (0.1, 0.5, 20.0))
     assert not bool(_jams(aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism) + (nan_drive,)), *at)[0])
     assert bool(_jams(aj.Model(slider.mechanism, slider.gravity, STRONG), *at)[0])
+
+
+def test_a_jam_names_the_pairs_whose_motion_turns_round(slider):
+    """A jam just after a Coulomb switch names the pairs whose relative motion turned round
+    there: on the slider-crank the slide at its dead centres (the slider's velocity r sin q
+    (1 + ...) is 0 at q = 0 and pi), the rod's pin B where the rod's angular velocity is 0
+    (q = pi/2, closed form), none elsewhere; the jam of the strong friction at 20 rad/s (no
+    switch) names none."""
+    from assurjax.dynamics._stick import reversing_pairs
+
+    model = aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism))
+    assert reversing_pairs(model, 0.0) == reversing_pairs(model, math.pi) == ["slider/ground"]
+    assert reversing_pairs(model, math.pi / 2) == ["B"]
+    assert reversing_pairs(model, 0.7) == [] and reversing_pairs(model, 1e-6) == []
+    from assurjax.dynamics._results import jam_text
+
+    assert "where the relative motion in 'B' turns round" in jam_text(1.0, 1.5, 2.0, reversing=["B"])
+    assert "turns round" not in jam_text(1.0, 1.5, 2.0, reversing=[])
 
 
 @pytest.mark.slow  # ~20 s (a program for its Python drive); test_a_load_that_is_nan_is_no_friction_jam stays

@@ -106,10 +106,16 @@ def status_text(code: int, event: int, group: str | None, t_final: float, *, max
 JAM_REMEDY = "lower the friction coefficients, lengthen the slider blocks or change the geometry"
 
 
-def jam_text(t_final: float, q_final: float, omega_final: float, limit: tuple[str, float] | None = None) -> str:
+def jam_text(t_final: float, q_final: float, omega_final: float, limit: tuple[str, float] | None = None,
+             reversing: list[str] | None = None) -> str:
     """The status of a run stopped where the joint friction jams the mechanism; ``limit``:
-    (the group, the distance) of a limit position just ahead, if there is one."""
+    (the group, the distance) of a limit position just ahead, if there is one; ``reversing``:
+    the friction elements whose relative motion turns round there, if any."""
     where = f"at t = {t_final:.9g} s (q = {q_final:.6g}, w = {omega_final:.6g})"
+    if reversing:
+        pairs = ", ".join(f"'{p}'" for p in reversing)
+        where += (f", where the relative motion in {pairs} turns round (its friction turns with it, and with the "
+                  "turned friction the motion has no consistent solution)")
     if limit is not None:
         group, distance = limit
         return (f"the joint friction jams the mechanism {where}, {distance:.1g} short of a limit position ({group} cannot "

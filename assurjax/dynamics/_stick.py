@@ -57,15 +57,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import (frictions_of, has_blocks, has_static, iteration_tolerance, signs_ahead, smoothed_only,
-                         static_in_order, with_block_signs)
+from .._friction import (LOOKAHEAD, frictions_of, has_blocks, has_static, iteration_tolerance, rates_and_slopes,
+                         signs_ahead, smoothed_only, static_in_order, with_block_signs)
 from .._jit import any_mapped, jit
 from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
 from .._values import all_finite
 from ._events import assembles, located_event, lockup_found, stop_event, user_margins, which_event
-from ._field import (FieldArgs, State, block_loads, constant, frictional, near, packed_vector_field, rest_analysis,
-                     rest_direction, rest_jams, start_kinematics)
+from ._field import (FieldArgs, State, block_loads, constant, frictional, kinematic_coefficients, near,
+                     packed_vector_field, rest_analysis, rest_direction, rest_jams, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
 from ._results import (DT_MIN, END_SWITCH, FINISHED, KNOT, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text,
                        result_code)
@@ -392,7 +392,24 @@ def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution
     if omega == 0:
         return _ended_at_rest_jam(sol)
     limit = limit_ahead(model.mechanism, q, omega, JAM_LIMIT_PROBES) if settings.branch == "fixed" else None
-    return replaced(sol, jammed=True, status=jam_text(float(sol.t_final), q, omega, limit))
+    return replaced(sol, jammed=True, status=jam_text(float(sol.t_final), q, omega, limit,
+                                                      reversing=None if limit else reversing_pairs(model, q)))
+
+
+def reversing_pairs(model: Model, q: float) -> list[str]:
+    """The friction elements whose relative motion changes direction at q (their d phi/dq 0
+    within LOOKAHEAD of q, a Coulomb switch just located): where a jam follows such a switch,
+    the pairs whose friction turned round."""
+    rates, slopes = (np.asarray(v) for v in _rates_at(model, jnp.asarray(q, dtype=float)))
+    turns = (slopes != 0) & (np.abs(rates) <= np.abs(slopes) * LOOKAHEAD * (1.0 + abs(q)))  # not a pair that never slips
+    return [f.pair for f, reverses in zip(frictions_of(model.loads), turns) if reverses]
+
+
+@jit
+def _rates_at(model: Model, q):
+    """The friction elements' d phi_k/dq and d2 phi_k/dq2 at q."""
+    coeffs = kinematic_coefficients(model, State(q, jnp.zeros_like(q)))
+    return rates_and_slopes(model.mechanism, frictions_of(model.loads), coeffs)[:2]
 
 
 def _held_words(sol: Solution, model: Model) -> str:
