@@ -36,10 +36,11 @@ def refused(call, error, *fragments) -> str:
 
 
 def refused_fast(call, error, *fragments) -> str:
-    """:func:`refused`, within a second (~0.01 s here; the requests refused ran for minutes)."""
+    """:func:`refused`, within 10 s: the requests refused ran for minutes, the refusals take
+    0.01-0.3 s here (a bound of 1 s failed once on a machine loaded with other work: 1.27 s)."""
     start = time.perf_counter()
     message = refused(call, error, *fragments)
-    assert time.perf_counter() - start < 1.0
+    assert time.perf_counter() - start < 10.0
     return message
 
 

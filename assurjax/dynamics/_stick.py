@@ -307,8 +307,8 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     # mechanism held at rest, or a jam: say what it is instead
     values = eqx.filter(frictions_of(model.loads), eqx.is_inexact_array)
     if jax.tree.leaves(values):
-        result = RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)
         result = RESULTS.where(static_in_order(model.loads), result, RESULTS.static_below_kinetic)
+        result = RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)  # a NaN compares as out of order
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = held & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
