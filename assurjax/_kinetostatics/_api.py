@@ -553,14 +553,18 @@ def static_torque(scene, q, *, t=0.0, check: bool = True) -> Array:
 def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array]:
     """The break-away band of the mechanism held at rest at ``q``: (lower, upper), the
     driving torques (N m; N for a slider) at which a motion from rest starts backward
-    (-q) and forward (+q) against gravity, the scene's loads and the joint friction
-    (its Coulomb signs those of each start, its coefficients the static ones where elements
-    have them). Any drive within the band holds the
+    (-q) and forward (+q) against gravity, the scene's loads other than its drives (a
+    ``Drive``, a ``MotorLine``: the band's drive stands in their place) and the joint
+    friction (its Coulomb signs those of each start, its coefficients the static ones where
+    elements have them). Any drive within the band holds the
     mechanism (stiction); ``simulate`` sticks and breaks away by the same limits. Without
     friction both are :func:`static_torque`. Where no drive starts the mechanism one way
     (the friction self-locks that start: driven just past the edge, the forward dynamics
     has no consistent friction, or does not move that way), that edge is infinite:
-    ``upper`` +inf, ``lower`` -inf.
+    ``upper`` +inf, ``lower`` -inf. Just past an edge the mechanism starts; where a pair
+    self-locks harder the harder it is pushed, a much larger drive can hold it again (the
+    drives that hold need not be one interval: the band is the one about the frictionless
+    holding drive).
     Any shape of ``q`` (and ``t``, broadcast with it); ``check``: as in :func:`reactions`.
     Differentiable (``jax.grad``, ``jax.jacfwd``); where an element's ``static_coefficient``
     equals its ``coefficient`` the band depends on the static one alone, so the derivative
