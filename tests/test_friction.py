@@ -927,6 +927,28 @@ def test_iteration_stops_within_its_tolerance(slider):
     assert any(stopped_sooner)  # the looser tolerance is the one applied
 
 
+def test_a_motor_stalling_at_the_band_edge_keeps_its_direction():
+    """The press with mu = 1 (pins of 1 um, a 10 mm block) creeps to where its motor's stall
+    torque is the band's upper edge: w dies away (1e-8 rad/s by 1.3 s) and the solution's
+    error took it past 0 between step ends, where the outputs read the backward friction
+    (dw/dt +940 rad/s^2, the ram's friction +81 N beside -108.5 N). Against the integrated
+    motion's own finite differences: w never below 0, dw/dt there ~0, and the ram's friction
+    one sign throughout the creep."""
+    press = aj.load_scene("press_with_friction")
+    others = tuple(load for load in press.loads if not isinstance(load, (aj.JointFriction, aj.SlideFriction)))
+    rough = press.with_loads(others + tuple(aj.JointFriction(j, 1.0, radius=1e-6) for j in ("O", "A", "B"))
+                             + (aj.SlideFriction("ram/ground", 1.0, length=0.01),))
+    ts = np.linspace(0.0, 2.0, 401)
+    sol = aj.simulate(rough, t1=2.0, saveat=ts)
+    w, dw = np.asarray(sol.omega), np.asarray(sol.domega)
+    creep = ts > 1.3
+    assert np.all(w >= 0.0) and np.max(w[creep]) < 1e-6, sol.status
+    fd = np.gradient(w, ts)
+    np.testing.assert_allclose(dw[creep], fd[creep], rtol=0, atol=1e-4)
+    ram = np.asarray(aj.reactions(rough, sol, joints=["ram/ground"]).friction["ram/ground"])[creep]
+    assert np.all(ram < 0.0) and np.ptp(ram) < 1e-6 * np.max(np.abs(ram))
+
+
 @pytest.mark.slow  # 15-22 s of compiles; the default suite ran 9:41-11:05 in CI runs on a shared machine
 def test_batch_of_starts_equals_single_runs():
     """A batch of simulations with friction (the driven press from rest: break-away, Coulomb
