@@ -1150,18 +1150,18 @@ def test_a_load_that_is_nan_is_no_friction_jam(slider):
 
 def test_a_jam_names_the_pairs_whose_motion_turns_round(slider):
     """A jam just after a Coulomb switch names the pairs whose relative motion turned round
-    there: on the slider-crank the slide at its dead centres (the slider's velocity r sin q
-    (1 + ...) is 0 at q = 0 and pi), the rod's pin B where the rod's angular velocity is 0
-    (q = pi/2, closed form), none elsewhere; the jam of the strong friction at 20 rad/s (no
-    switch) names none."""
+    there. On the slider-crank (closed form): the slide at its dead centres, where the
+    slider's velocity -r sin q (1 + r cos q / sqrt(l^2 - r^2 sin^2 q)) is 0 (q = 0, pi); the
+    rod's pin B where the rod's angular velocity, r cos q / sqrt(l^2 - r^2 sin^2 q) times
+    that of the crank, is 0 (q = pi/2); none elsewhere. (The strong friction's jam at 20 rad/s,
+    at no switch, names none: test_a_friction_jam_is_named reads its whole opening.)"""
+    from assurjax.dynamics._results import jam_text
     from assurjax.dynamics._stick import reversing_pairs
 
     model = aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism))
     assert reversing_pairs(model, 0.0) == reversing_pairs(model, math.pi) == ["slider/ground"]
     assert reversing_pairs(model, math.pi / 2) == ["B"]
     assert reversing_pairs(model, 0.7) == [] and reversing_pairs(model, 1e-6) == []
-    from assurjax.dynamics._results import jam_text
-
     assert "where the relative motion in 'B' turns round" in jam_text(1.0, 1.5, 2.0, reversing=["B"])
     assert "turns round" not in jam_text(1.0, 1.5, 2.0, reversing=[])
 

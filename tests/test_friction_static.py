@@ -149,7 +149,6 @@ def test_agrees_with_the_joint_based_reference(case):
     assert np.max(np.abs(sol.balance)) < 1e-7 * np.max(np.abs(sol.total))
 
 
-
 def test_a_traced_static_coefficient_below_the_kinetic_one_is_named_not_held():
     """A static coefficient below mu that the constructor cannot check (traced under the
     user's jit, an optimizer's step, put in by tree_at): the weaker rest law broke the
@@ -162,7 +161,8 @@ def test_a_traced_static_coefficient_below_the_kinetic_one_is_named_not_held():
     scene, q0, w0, _, t1, table, _ = _reference_case("slider_crank")
     loads = tuple(scene.loads) + _package_static(scene.mechanism, _with_static(table))
     rough = (aj.JointFriction, aj.SlideFriction)
-    weaker = eqx.tree_at(lambda ls: [f.static_coefficient for f in ls if isinstance(f, rough)], loads, replace_fn=lambda mu_s: 0.5 * mu_s / STATIC_RATIO)  # half of mu
+    weaker = eqx.tree_at(lambda ls: [f.static_coefficient for f in ls if isinstance(f, rough)], loads,
+                         replace_fn=lambda mu_s: 0.5 * mu_s / STATIC_RATIO)  # half of mu
     sol = aj.simulate(scene, loads=weaker, q0=q0, omega0=w0, stop=None, t1=t1, saveat=np.linspace(0.0, t1, 41),
                       energies=True, rtol=1e-10, atol=1e-10)
     assert sol.result == aj.RESULTS.static_below_kinetic and not sol.successful
