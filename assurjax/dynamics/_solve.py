@@ -665,6 +665,9 @@ def checked_request(scene, options: dict, *, q0=None, omega0=None, t0=None, t1=N
     # Arrays, not Python floats: filter_jit would treat floats as static and recompile per value.
     # NumPy scalars: jit takes them without the cost of creating device arrays one by one.
     q0, omega0, t0, t1 = (np.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
+    # a subnormal speed is 0 here as in the compiled program, which flushes it (5e-324 ran as a
+    # rest there and read as a motion on the host: a held start's status lacked its rest)
+    omega0 = np.where(np.abs(omega0) < np.finfo(float).tiny, 0.0, omega0)
     saveat = None if saveat is None else checked_saveat(saveat, t0, t1)
     batch = _batch_shape(q0, omega0)
     _check_save_steps(settings, model, batch)
