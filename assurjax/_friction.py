@@ -366,6 +366,13 @@ def smoothed_only(frictions) -> bool:
     return bool(frictions) and all(f.smoothing is not None for f in frictions)
 
 
+def has_exact_law(loads) -> bool:
+    """Whether some friction element has the exact Coulomb law (with stiction: a run of such a
+    model goes in segments of stick and slip, and can be held at rest)."""
+    frictions = frictions_of(loads)
+    return bool(frictions) and not smoothed_only(frictions)
+
+
 def has_static(loads) -> bool:
     """Whether some friction element has a static coefficient of its own."""
     return any(getattr(load, "static_coefficient", None) is not None for load in loads)

@@ -865,6 +865,11 @@ def applied_wrenches(mechanism: Mechanism, gravity, loads, kin, t=0.0, *, check:
     return {name: (f, m) for name, (f, m) in out.items()}
 
 
+def drives(load) -> bool:
+    """Whether a load acts on the driver (a ``Drive``, a ``MotorLine``: it has an effort of its own)."""
+    return type(load).effort is not AbstractLoad.effort
+
+
 def driver_effort(mechanism: Mechanism, loads, q, omega, t=0.0, *, check: bool = True) -> Array:
     """Torque (N m, crank) or force (N, slider) that the driving loads put on the driver; 0 if
     none. ``check``: the loads checked first, as in :func:`applied_wrenches`."""

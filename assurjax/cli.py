@@ -899,13 +899,12 @@ def _rest_line(scene, sol) -> str | None:
     it (the run's status says since when)."""
     import numpy as np
 
-    from ._friction import frictions_of, smoothed_only
+    from ._friction import has_exact_law
 
     omega = np.asarray(sol.omega)
     if scene.simulation.get("stop") == "standstill" or not sol.successful or int(sol.event) >= 0 or omega[-1] != 0.0:
         return None
-    frictions = frictions_of(scene.loads)
-    if (frictions and not smoothed_only(frictions)) or np.any(omega != 0.0):  # a smooth law holds nothing
+    if has_exact_law(scene.loads) or np.any(omega != 0.0):  # a smooth law holds nothing
         return None
     return "  at rest throughout: nothing moves it from its start"
 
@@ -1086,12 +1085,11 @@ def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -
     """Whether the scene's own drive (its loads on the driver, at q0, w = 0 and t0) holds the
     mechanism there: the held drive and the band above stand for a drive in its place. None
     without a driving load."""
-    from ._loads import AbstractLoad, driver_effort
+    from ._loads import driver_effort, drives
 
-    driving = [load for load in scene.loads if type(load).effort is not AbstractLoad.effort]
-    if not driving:
+    if not any(drives(load) for load in scene.loads):
         return None
-    effort = float(driver_effort(scene.mechanism, driving, q0, 0.0, scene.state.get("t0", 0.0)))
+    effort = float(driver_effort(scene.mechanism, scene.loads, q0, 0.0, scene.state.get("t0", 0.0)))
     unit = units["driving"]
     if lower <= effort <= upper:
         verdict = "within the band: it stays at rest" if lower < upper else "the drive that holds it: it stays at rest"

@@ -19,7 +19,7 @@ from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
 from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
                          rates_and_slopes, signs_ahead, solve_friction, static_model, states_per_call)
-from .._loads import AbstractLoad, Drive, applied_wrenches, driver_effort, unbindable
+from .._loads import Drive, applied_wrenches, driver_effort, drives, unbindable
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
 from .._repr import value_pdoc
@@ -602,7 +602,7 @@ def _band(model: Model, q, t):
     angle: zero force, zero friction, while any push wedges it)."""
     from ..dynamics._field import State, frictional  # the dynamics build on the kinetostatics
 
-    undriven = tuple(load for load in model.loads if type(load).effort is AbstractLoad.effort)
+    undriven = tuple(load for load in model.loads if not drives(load))
     # as the other analyses of many states: Newton's method alone up to SUMMED_TERMS elements
     # (both of the solve's loops in one batched program stalled XLA's CPU runtime, see solve_friction)
     iterate = len(frictions_of(model.loads)) > SUMMED_TERMS

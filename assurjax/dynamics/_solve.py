@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssemblyError, AssurjaxError
-from .._friction import frictions_of, smoothed_only, states_per_call
+from .._friction import frictions_of, has_exact_law, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
 from .._loads import VARIABLES, tables_in
@@ -913,8 +913,7 @@ def saves_solver_steps(loads) -> bool:
     """Whether a single run with these loads can save the solver's own steps (``save_steps``):
     not with joint friction of the exact law, whose motion is integrated in segments (a
     smoothed law alone is one solve)."""
-    frictions = frictions_of(loads)
-    return not frictions or smoothed_only(frictions)
+    return not has_exact_law(loads)
 
 
 def _check_save_steps(settings: Settings, model: Model, batch) -> None:

@@ -57,8 +57,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._friction import (LOOKAHEAD, frictions_of, has_blocks, has_static, iteration_tolerance, rates_and_slopes,
-                         signs_ahead, smoothed_only, static_in_order, with_block_signs)
+from .._friction import (LOOKAHEAD, frictions_of, has_blocks, has_exact_law, has_static, iteration_tolerance,
+                         rates_and_slopes, signs_ahead, static_in_order, with_block_signs)
 from .._jit import any_mapped, jit
 from .._loads import next_knot, piece_around, pieces_at, tables_in
 from .._model import Model
@@ -421,8 +421,7 @@ def _held_words(sol: Solution, model: Model) -> str:
     """What a run that reached t1 at rest adds to its status where the joint friction holds
     it there (its exact law): held throughout, or since its last motion (between two
     samples: the rest's own time is not kept); '' otherwise."""
-    frictions = frictions_of(model.loads)
-    if (not frictions or smoothed_only(frictions) or float(sol.omega_final) != 0.0 or int(sol.event) != NO_EVENT
+    if (not has_exact_law(model.loads) or float(sol.omega_final) != 0.0 or int(sol.event) != NO_EVENT
             or int(result_code(sol.result)) not in FINISHED):
         return ""
     t, omega = np.asarray(sol.t), np.asarray(sol.omega)
@@ -441,8 +440,7 @@ def _standstill_words(sol: Solution, model: Model) -> str:
     it is a turning point the motion goes on from (as a run without the stop would), read
     from its last sample's dw/dt (0 where held, else the break-away's: the outputs' own
     analysis at rest); '' otherwise, or without dw/dt among the outputs."""
-    frictions = frictions_of(model.loads)
-    if (not frictions or smoothed_only(frictions) or int(sol.event) != STANDSTILL or float(sol.omega_final) != 0.0
+    if (not has_exact_law(model.loads) or int(sol.event) != STANDSTILL or float(sol.omega_final) != 0.0
             or sol.domega is None or not np.size(sol.t) or float(np.asarray(sol.t)[-1]) != float(sol.t_final)):
         return ""
     alpha = float(np.asarray(sol.domega)[-1])
