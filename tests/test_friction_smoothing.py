@@ -261,3 +261,23 @@ def test_mixed_laws_keep_the_exact_elements_stiction(case):
     assert held.size > 5 and held[-1] == sol.t.size - 1 and np.all(np.diff(held[held > 0]) == 1)
     assert np.all(sol.q[held[1:]] == sol.q[-1])
     assert np.max(np.abs(sol.balance)) < 1e-8 * np.max(np.abs(sol.total))
+
+
+@pytest.mark.slow  # one more program (~8 s)
+def test_a_stiff_smoothed_law_is_named_where_the_steps_run_out(case):
+    """Every pair rough enough to hold the slider-crank at q = 0.5 (mu = 0.8): with the
+    regularized law it creeps at a rate of order v_s, where the law's friction turns over
+    ~v_s and the field is stiff as 1 / v_s. At v_s = 1e-3 the explicit steps still reach t1;
+    at 1e-4 they use up the budget, and the status says why, naming each element."""
+    scene = case[0]
+
+    def rough(speed):
+        return tuple(aj.SlideFriction(n, 0.8, 0.05, smoothing=speed) if "/" in n else
+                     aj.JointFriction(n, 0.8, 0.05, smoothing=speed) for n in aj.joint_names(scene.mechanism))
+
+    loose = aj.simulate(scene, loads=tuple(scene.loads) + rough(1e-3), q0=0.5, stop=None, t1=1.0)
+    assert loose.status == "reached t1 = 1 s" and abs(loose.q[-1] - 0.5) < 1e-2, loose.status
+    stiff = aj.simulate(scene, loads=tuple(scene.loads) + rough(1e-4), q0=0.5, stop=None, t1=1.0)
+    assert "step budget" in stiff.status and "within 10 smoothing speeds of rest in 'O' (v_s = 0.0001)" in stiff.status
+    assert all(f"'{n}' (v_s = 0.0001)" in stiff.status for n in aj.joint_names(scene.mechanism))
+    assert "give those elements the exact law" in stiff.status and abs(stiff.q[-1] - 0.5) < 1e-3

@@ -67,8 +67,8 @@ from ._events import assembles, located_event, lockup_found, stop_event, user_ma
 from ._field import (FieldArgs, State, block_loads, constant, frictional, kinematic_coefficients, near,
                      packed_vector_field, rest_analysis, rest_direction, rest_jams, start_kinematics)
 from ._packed import packed_event, packed_term, packing_of, unpacked
-from ._results import (DT_MIN, END_SWITCH, FINISHED, KNOT, LOCKUP, NO_EVENT, RESULTS, STANDSTILL, USER, finished, jam_text,
-                       result_code)
+from ._results import (DT_MIN, END_SWITCH, FINISHED, KNOT, LOCKUP, MAX_STEPS, NO_EVENT, RESULTS, STANDSTILL, USER,
+                       finished, jam_text, result_code)
 from ._settings import LOCKUP_RESOLUTION, Settings, adjoint_for, controller_for, lockup_controller, solver_for
 from ._solution import Solution, limit_ahead, no_outputs, replaced, saved_rows
 
@@ -392,7 +392,8 @@ def with_jam_status(sol: Solution, model: Model, settings: Settings) -> Solution
     ending held at rest is tested there); else ``jammed`` False. A jam at rest ends the run
     at its first sample of that rest, as a failure."""
     if not jammed_members(sol, model):
-        return replaced(sol, jammed=False, status=sol.status + _held_words(sol, model) + _standstill_words(sol, model))
+        return replaced(sol, jammed=False, status=sol.status + _held_words(sol, model) + _standstill_words(sol, model)
+                        + _stiff_smoothing_words(sol, model))
     q, omega = float(sol.q_final), float(sol.omega_final)
     if omega == 0:
         return _ended_at_rest_jam(sol)
@@ -448,6 +449,33 @@ def _standstill_words(sol: Solution, model: Model) -> str:
         return ", held there by the joint friction"
     way = "forward" if alpha > 0 else "backward"
     return f", a turning point: the joint friction does not hold it there, and the motion goes on {way} (stop=None runs on)"
+
+
+# a smoothed element whose relative rate is within this many smoothing speeds of 0 is in its stiff band
+STIFF_BAND = 10.0
+
+
+def _stiff_smoothing_words(sol: Solution, model: Model) -> str:
+    """What a run that used up its step budget adds to its status where it ended within a few
+    smoothing speeds of rest in some smoothed element: there the regularized law's friction
+    turns from -F to F over a relative rate of ~v_s, a field as stiff as F / (J_red v_s), which
+    an explicit solver crosses in steps of that scale (the slider-crank held by mu = 0.8:
+    v_s = 1e-3 ran to t1 in ~700 steps, 1e-4 used up 4096 by t = 0.11 s); '' otherwise."""
+    if int(result_code(sol.result)) != MAX_STEPS:
+        return ""
+    frictions = frictions_of(model.loads)
+    if not any(f.smoothing is not None for f in frictions):
+        return ""
+    rates = np.asarray(_rates_at(model, jnp.asarray(float(sol.q_final)))[0]) * float(sol.omega_final)
+    stiff = [f for f, rate in zip(frictions, rates)
+             if f.smoothing is not None and abs(rate) <= STIFF_BAND * float(f.smoothing)]
+    if not stiff:
+        return ""
+    named = ", ".join(f"'{f.pair}' (v_s = {float(f.smoothing):.3g})" for f in stiff)
+    return (f"; it ended creeping within {STIFF_BAND:g} smoothing speeds of rest in {named}, where the regularized "
+            "friction turns over a relative rate of ~v_s and the motion is stiff in proportion to 1 / v_s: raise the "
+            "smoothing speed, or give those elements the exact law (no smoothing), whose stiction holds a mechanism "
+            "at rest without steps")
 
 
 def _ended_at_rest_jam(sol: Solution) -> Solution:
