@@ -563,10 +563,17 @@ def test_seed_euler_baseline_checks_its_inputs(watt):
 
 
 def test_user_event_stops_where_its_condition_changes_sign(watt):
+    """The first event fires at q = -1 (the reference is there at that time too); the second,
+    NaN past t = 0.05 s, never could, and the status says so from the first saved state past
+    that time (a run with it alone would say only 'reached t1')."""
     lean = dict(energies=False, points=(), angles=(), check_assembly=False, rtol=1e-12, atol=1e-12)
-    sol = aj.simulate(watt, q0=0.0, stop=None, t1=2.0, events=[lambda t, q, w: q + 1.0], **lean)
+    events = [lambda t, q, w: q + 1.0, lambda t, q, w: jnp.sqrt(0.05 - t)]
+    sol = aj.simulate(watt, q0=0.0, stop=None, t1=2.0, events=events, **lean)
     assert sol.event == aj.dynamics._results.USER and sol.t_stop is not None
     assert abs(sol.q[-1] + 1.0) < 1e-9
+    first_nan = sol.t[np.argmax(sol.t > 0.05)]
+    assert sol.status.startswith(f"user event #1 at t = {sol.t_stop:.9g} s; event #2 was NaN at "), sol.status
+    assert f"the first at t = {first_nan:.6g} s" in sol.status and "could not fire there" in sol.status
     r = ref.watt_sixbar(0.0).simulate(2.0, t_eval=[sol.t_stop])
     assert abs(r.q[-1] + 1.0) < 1e-8  # the reference is at q = -1 at that time too
 

@@ -64,8 +64,10 @@ def knot_margin(t, y: State, args: FieldArgs):
 
 
 def user_margins(settings: Settings, t, y: State, args: FieldArgs) -> list:
-    """Per user event: cond(t, q, w) times its sign at t0."""
-    return [args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float) for k, cond in enumerate(settings.events)]
+    """Per user event: cond(t, q, w) times its sign at t0; +inf where NaN (it cannot fire
+    there, and in the smallest margin a NaN kept every other event from firing)."""
+    found = [args.user_signs[k] * jnp.asarray(cond(t, y.q, y.omega), dtype=float) for k, cond in enumerate(settings.events)]
+    return [jnp.where(jnp.isnan(m), jnp.inf, m) for m in found]
 
 
 def rate_margins(args: FieldArgs, friction_rates):

@@ -97,7 +97,7 @@ def status_text(code: int, event: int, group: str | None, t_final: float, *, max
     if event == LOCKUP:
         return f"group '{group}' can no longer assemble at t = {t_final:.9g} s (lock-up / limit position)"
     if event >= USER:
-        return f"user event #{event - USER} at t = {t_final:.9g} s"
+        return f"user event #{event - USER + 1} at t = {t_final:.9g} s"  # counted from 1, as the checks name them
     if code in (_SUCCESS, _EVENT):
         return f"reached t1 = {t_final:.9g} s"
     return f"solver stopped at t = {t_final:.9g} s: {result_text(code, max_steps=max_steps)}"

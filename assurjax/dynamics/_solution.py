@@ -45,7 +45,8 @@ class Solution(eqx.Module):
     ``t_stop``: time (s) at which a stop event fired (None when none did; under
     jit/vmap an array, +inf when none did). ``event``: -1 none, 0 standstill, 1 a group
     can no longer assemble (``failed_group`` names it; for a batch of mechanisms one name or
-    None per member), 2 + k the k-th user event.
+    None per member), 2 + k the user event ``events[k]`` (which ``status`` counts from 1: 'user
+    event #1').
     ``valid``: the saved times reached, then the final state (at ``t_final``); the
     entries after it repeat the final state (under jit/vmap only; :func:`simulate`
     trims them). ``result``: an :class:`assurjax.RESULTS` item
@@ -251,7 +252,7 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings, q0) -> Solutio
                             "motion: give a q0 inside the driver's range (a drawing made there gives this q0)", group=group)
     t_final = float(sol.t_final)
     t_stop = t_final if event >= 0 else None
-    status = status_text(code, event, group, t_final, max_steps=settings.max_steps)
+    status = status_text(code, event, group, t_final, max_steps=settings.max_steps) + _nan_event_words(sol, settings)
     if code == MAX_STEPS and settings.branch == "fixed":
         status += _limit_ahead(mechanism, float(sol.q_final), float(sol.omega_final))
     n = int(np.count_nonzero(sol.valid))
@@ -261,6 +262,24 @@ def trim(sol: Solution, mechanism: Mechanism, settings: Settings, q0) -> Solutio
         rows = rows if fresh.all() else np.flatnonzero(fresh)
     reached = saved_rows(sol, rows)
     return replaced(reached, t_stop=t_stop, failed_group=group, status=status, mechanism_points=mechanism.point_names)
+
+
+def _nan_event_words(sol: Solution, settings: Settings) -> str:
+    """What a run adds to its status where a user event turned NaN at some saved state: a
+    NaN never changes sign, so the event could not fire from there on (one finite at the
+    start is all the request checks); '' otherwise."""
+    n = int(np.count_nonzero(sol.valid))
+    if not settings.events or not n:
+        return ""
+    t, q, omega = (np.asarray(v)[:n] for v in (sol.t, sol.q, sol.omega))
+    words = ""
+    for k, cond in enumerate(settings.events):
+        value = np.asarray(jax.vmap(lambda t, q, w: jnp.asarray(cond(t, q, w), dtype=float))(t, q, omega))
+        nan = np.flatnonzero(np.isnan(value))
+        if nan.size:
+            words += (f"; event #{k + 1} was NaN at {nan.size} of the {n} saved states, the first at t = {t[nan[0]]:.6g} s "
+                      f"(q = {q[nan[0]]:.6g}): a NaN never changes sign, so it could not fire there")
+    return words
 
 
 LIMIT_AHEAD = 1e-6  # (1 + |q|): a limit position this near past where a run ran out of steps is the one it closed in on
