@@ -1265,6 +1265,32 @@ def test_steps_across_the_slides_kinks_lose_accuracy():
     assert _kinked_run_error(False) > 5 * _kinked_run_error(True)
 
 
+@pytest.mark.slow  # ~40 s: the differentiable program and the reference's 0.5 s
+def test_the_differentiable_run_keeps_every_cut_after_a_flipped_block_end(monkeypatch):
+    """A slider-crank with a 0.12 m rod, 3 N m on the crank and mu = 0.19 in every pair: the
+    slide's two block ends change sign ~1.2 ms apart each turn. Where an event on the first is
+    located just before its root, the next segment flips that end's sign, and the frozen law
+    moved its load past the margin's floor: the margin started below 0 and hid every later
+    cut, and final_state (its default settings) gave q(0.5 s) = 14.609 rad, w = 51.4 rad/s.
+    Against the joint-based reference with that rod: within 1e-6 rad and 1e-5 rad/s."""
+    import joint_reference as jr
+    import joint_reference_friction as jrf
+
+    rod, mu = 0.12, 0.19
+    monkeypatch.setitem(jr.SLIDER_CRANK, "l", rod)
+    table = dict(O=jrf.Friction(mu=mu, radius=0.01), A=jrf.Friction(mu=mu, radius=0.01), B=jrf.Friction(mu=mu, radius=0.01),
+                 P=jrf.Friction(mu=mu, length=0.05))
+    expected = jrf.slider_crank(0.5, 0.0, tau=lambda t, q, w: 3.0, friction=table).simulate(0.5, t_eval=[0.5])
+    scene = aj.load_scene("slider_crank")
+    mechanism = eqx.tree_at(lambda m: (m.links["rod"].points["B"], m.links["rod"].com), scene.mechanism,
+                            (jnp.array([rod, 0.0]), jnp.array([rod / 2, 0.0])))
+    loads = (aj.JointFriction("O", mu, 0.01), aj.JointFriction("A", mu, 0.01), aj.JointFriction("B", mu, 0.01),
+             aj.SlideFriction("slider/ground", mu, 0.05), aj.Drive(3.0))
+    q, w = aj.synthesis.final_state(eqx.tree_at(lambda s: s.mechanism, scene.with_loads(loads), mechanism), 0.5, q0=0.5,
+                                   omega0=0.0)
+    assert abs(float(q) - expected.q[-1]) < 1e-6 and abs(float(w) - expected.w[-1]) < 1e-5, (q, w, expected.q[-1])
+
+
 # slow (~14 s): the same path runs in the slow test_agrees_with_the_joint_based_reference[watt_sixbar]
 @pytest.mark.slow
 def test_pairs_read_one_by_one_give_the_reference_acceleration():

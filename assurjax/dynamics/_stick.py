@@ -342,6 +342,12 @@ END_ROUNDOFF = 1e-8
 # as that, since a segment runs on its frozen branch this far past the kink (with 1e-8 the
 # press's d q(0.45 s)/d mu was 3.4e-6 off at rtol 1e-12, with 1e-13 1.6e-6)
 END_CUSHION = 1e-11
+# a flipped end (its load x0 on its old side, s x0 < 0) has the frozen law differ from the law
+# as read by 2 |x0| in that pair's normal load, which moves every end's load by that times the
+# friction's gain (the slider-crank's: 0.05): the floors give way by this many times the
+# flipped loads (without it a margin started at -2.6e-11 and hid every later crossing: the run
+# went on with stale signs, q(0.5 s) 1.2 rad off)
+FLIP_ALLOWANCE = 4.0
 
 
 def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last, switched):
@@ -350,9 +356,10 @@ def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last,
     to round-off takes the sign it goes on with: just after its own switch (``switched``, the last
     segment ended on one) the last segment's flipped, else +1 (a wrong guess ends the segment at
     its first step, and the next one flips it). Floors: min(s x0, 0) less END_CUSHION of the
-    largest load, so that each margin s x - floor starts > 0 (the event recomputes x0 with the
-    signs frozen, which moves it by the solve's tolerance; a margin at or below 0 at the start
-    would hide every crossing)."""
+    largest load and FLIP_ALLOWANCE times the flipped ends' loads, so that each margin
+    s x - floor starts > 0 (the event recomputes x0 with the signs frozen, which moves it by
+    the solve's tolerance, and where an end is flipped by the law's change; a margin at or
+    below 0 at the start would hide every crossing)."""
     # the signs are discrete, and the floors the margins' fixed offsets: no derivatives
     loads = block_loads(*constant((with_block_signs(model, jnp.zeros_like(last)), t, y, direction)), bridge,
                         constant(rate_signs))
@@ -360,7 +367,8 @@ def _block_signs(model: Model, t, y: State, direction, bridge, rate_signs, last,
     read, largest = jnp.where(loads >= 0, 1.0, -1.0), jnp.max(jnp.abs(loads))
     signs = jnp.where((jnp.abs(loads) <= END_ROUNDOFF * largest) & switched & (last != 0), -last, read)
     signs = jnp.where(np.array([f.kind == "P" for f in frictions_of(model.loads)])[:, None], signs, 0.0)
-    return signs, jnp.minimum(signs * loads, 0.0) - END_CUSHION * largest - 1e-200
+    behind = jnp.minimum(signs * loads, 0.0)  # < 0 at the flipped ends only
+    return signs, behind - END_CUSHION * largest + FLIP_ALLOWANCE * jnp.sum(behind) - 1e-200
 
 
 class _Saved(NamedTuple):
