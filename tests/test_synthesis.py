@@ -298,6 +298,56 @@ def test_counterweight_lowers_peak_driving_torque():
     assert after < 0.6 * before, (before, after)
 
 
+def _slider_crank_frictions(mechanism, mu_a=None):
+    """The joint-based reference's friction table (tests/joint_reference_friction.py) as
+    package loads; ``mu_a``: the rod pin A's coefficient in its place."""
+    import joint_reference_friction as jrf
+
+    out = []
+    for name in assurjax.joint_names(mechanism):
+        ref = jrf.SLIDER_CRANK_FRICTION["P" if "/" in name else name]
+        if "/" in name:
+            out.append(assurjax.SlideFriction(name, ref.mu, ref.length, viscous=ref.damping))
+        else:
+            mu = mu_a if name == "A" and mu_a is not None else ref.mu
+            out.append(assurjax.JointFriction(name, mu, ref.radius, viscous=ref.damping))
+    return tuple(out)
+
+
+def test_driving_torque_includes_joint_friction():
+    """The slider-crank with friction in every pair (pins and slide, Coulomb and viscous) at a
+    constant +-4 rad/s: driving_torque against the joint-based reference's inverse dynamics at
+    dw/dt = 0 (it ignored the friction: the press's peak 29.707 N m where inverse_dynamics gave
+    32.009)."""
+    import joint_reference_friction as jrf
+
+    scene = assurjax.load_scene("slider_crank")
+    qs = np.array([0.4, 1.9, 3.5, 5.2])
+    ref, ref_frictionless = jrf.slider_crank(0.0, 0.0), jrf.slider_crank(0.0, 0.0, friction={})
+    for w in (4.0, -4.0):
+        tau, ok = syn.driving_torque(scene.mechanism, qs, w, gravity=scene.gravity,
+                                     loads=_slider_crank_frictions(scene.mechanism))
+        assert np.all(ok)
+        expected = np.array([ref.inverse(q, w, 0.0)["tau"] for q in qs])
+        np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+        frictionless = np.array([ref_frictionless.inverse(q, w, 0.0)["tau"] for q in qs])
+        assert np.min(np.abs(tau - frictionless)) > 0.05  # the friction is there to see
+
+
+@pytest.mark.slow
+def test_driving_torque_with_friction_jits_and_differentiates():
+    """driving_torque of the slider-crank with friction in every pair, in jax.jit: its
+    derivative in the rod pin's coefficient (jax.grad) against central differences."""
+    scene = assurjax.load_scene("slider_crank")
+    qs = np.array([0.4, 1.9, 3.5, 5.2])
+    total = jax.jit(lambda mu: jnp.sum(syn.driving_torque(scene.mechanism, qs, 4.0, gravity=scene.gravity,
+                                                          loads=_slider_crank_frictions(scene.mechanism, mu))[0]))
+    mu, h = 0.2, 1e-6
+    central = (float(total(mu + h)) - float(total(mu - h))) / (2 * h)
+    assert abs(central) > 1e-2  # the pin's friction moves the torque
+    assert abs(float(jax.grad(total)(mu)) - central) < 1e-6 * (1 + abs(central))
+
+
 # ----------------------------------------------------------------------------- problem 3: a target standstill time
 
 STANDSTILL_TARGET = 1.6  # s; the Watt six-bar alone stops at ~1.385 s

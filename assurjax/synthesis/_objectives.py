@@ -20,7 +20,9 @@ from jaxtyping import Array
 from .._errors import AssurjaxError
 from .._values import check_value
 from .._geometry import cross, dot
+from .._friction import frictions_of
 from .._mechanism import Mechanism, positions
+from .._model import Model
 from ..groups import RRR
 
 
@@ -329,22 +331,41 @@ def precision_point_error(mechanism: Mechanism, point: str, q, targets, *, betwe
 
 def driving_torque(mechanism: Mechanism, q, omega, *, gravity=(0.0, 0.0), loads: Sequence = ()) -> tuple[Array, Array]:
     """Driving torque (N m; N for a slider) holding the crank at constant speed ``omega``
-    (rad/s) at each ``q``: inverse dynamics via the reduction (Durango et al. 2014 eq. 1 with
-    dw/dt = 0), tau = 0.5 dJ_red/dq omega^2 - tau_red(q, omega). Returns (tau, ok)
-    with one ok flag per q."""
+    (rad/s) at each ``q``: inverse dynamics at dw/dt = 0. Returns (tau, ok) with one ok flag
+    per q (False: some group cannot assemble or is singular; with joint friction also where
+    the friction self-locks the mechanism against that motion, see :class:`assurjax.Reactions`).
+
+    Without joint friction, via the reduction (Durango et al. 2014 eq. 1 with dw/dt = 0),
+    tau = 0.5 dJ_red/dq omega^2 - tau_red(q, omega). With joint friction in ``loads``
+    (:class:`assurjax.JointFriction`, :class:`assurjax.SlideFriction`), the kinetostatics
+    of :func:`assurjax.inverse_dynamics` (its Coulomb signs those of the motion; at
+    ``omega = 0`` the mechanism is held, as there). Jittable and differentiable either way."""
+    q = jnp.asarray(q, dtype=float)
+    loads = tuple(loads)
+    if frictions_of(loads):
+        return _frictional_torque(Model(mechanism, gravity, loads), q, omega)
     from .._reduction import reduce_single
 
-    q = jnp.asarray(q, dtype=float)
     gravity = jnp.asarray(gravity, dtype=float)
 
     def one(qi):
-        red = reduce_single(mechanism, gravity, tuple(loads), qi, jnp.asarray(omega, dtype=float), 0.0)
+        red = reduce_single(mechanism, gravity, loads, qi, jnp.asarray(omega, dtype=float), 0.0)
         return 0.5 * red.dinertia * omega**2 - red.torque, jnp.all(red.ok)
 
     tau, ok = jax.vmap(one)(q.reshape(-1))
     return tau.reshape(q.shape), ok.reshape(q.shape)
 
 
+def _frictional_torque(model: Model, q, omega) -> tuple[Array, Array]:
+    """(driving effort, ok) at dw/dt = 0 with joint friction: the friction law needs the
+    joint reactions, which the reduction does not give, so the kinetostatics' own batch
+    (that of :func:`assurjax.reactions`, chunked as there) solves it."""
+    from .._kinetostatics._api import _batched
+
+    omega = jnp.broadcast_to(jnp.asarray(omega, dtype=float), q.shape)
+    zeros = jnp.zeros(q.shape)
+    _, _, tau, ok, _, _, consistent = _batched(model, (q, omega, zeros, zeros), "modular", None, False)
+    return tau, jnp.all(ok, axis=-1) & consistent
 def smooth_max(x, sharpness: float) -> Array:
     """A smooth upper bound of max(x): logsumexp(sharpness x) / sharpness (same units as x)."""
     return jax.scipy.special.logsumexp(sharpness * jnp.asarray(x)) / sharpness
