@@ -344,10 +344,12 @@ def test_reactions_static_with_joint_friction_gives_the_breakaway_band(write_sce
         assert main(["reactions", str(write_scene(ROUGH_ARM_RUN + drive, "driven.toml")), "--static"]) == 0
         assert f"its own drive at q0 (w = 0, t = t0) is {torque:+.6g} N m, {verdict}" in capsys.readouterr().out
     units = dict(driving="N m")
-    assert _band_line(-math.inf, 1.5, units) == ("  with its joint friction it starts forward above +1.5 N m; any drive between "
-                                                 "holds it (the break-away band); no drive starts it backward: the friction "
-                                                 "self-locks it")
-    assert "starts neither way" in _band_line(-math.inf, math.inf, units)
+    assert _band_line(-math.inf, 1.5, units) == ("  with its joint friction it starts forward above +1.5 N m; any drive below "
+                                                 "that holds it (the break-away band); no drive starts it backward: the "
+                                                 "friction self-locks it")
+    assert "any drive above that holds it" in _band_line(-1.5, math.inf, units)
+    both = _band_line(-math.inf, math.inf, units)  # no bounds: no "between"
+    assert "no drive starts it either way" in both and "between" not in both
     assert _band_line(0.5, 0.5, units) == ("  with its joint friction only +0.5 N m holds it (the friction holds nothing "
                                            "at rest): any other drive starts it, forward above, backward below")
 
@@ -783,3 +785,11 @@ def test_run_takes_the_scene_fixed_steps_as_its_step(write_scene, tmp_path, caps
     middle = np.flatnonzero(np.abs(cols["t"] - 0.2) < 1e-13)[0]
     for row, step in ((middle, 100), (-1, 200)):
         assert abs(cols["q"][row] - scan.q[step]) < 1e-12, (row, cols["q"][row], scan.q[step])
+
+
+def test_python_dash_m_runs_the_command():
+    """``python -m assurjax --help`` runs the console script's entry point (it failed with
+    "No module named assurjax.__main__"): its usage names the command's subcommands."""
+    done = subprocess.run([sys.executable, "-m", "assurjax", "--help"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: assurjax ") and "run" in done.stdout and "validate" in done.stdout
