@@ -1218,6 +1218,30 @@ def test_a_jammed_member_of_a_batch_keeps_its_last_state(slider):
     assert np.isnan(q) and np.isnan(w)
 
 
+@pytest.mark.slow  # ~25 s: a vmapped program and a single run's
+def test_a_jammed_member_of_a_vmapped_core_run_is_its_single_run(slider):
+    """simulate_core under the caller's vmap (the route of assurjax.sweep): a member that the
+    friction jams beside one that runs on to t1 ends as it does alone (a jam at t = 0.35 s;
+    in the batch it was a lock-up with q NaN, its last saved row NaN: the dense output of its
+    NaN attempt, read where the other member ran on)."""
+    short = eqx.tree_at(lambda s: (s.mechanism.links["rod"].points["B"], s.mechanism.links["rod"].com), slider,
+                        (jnp.array([0.12, 0.0]), jnp.array([0.06, 0.0])))  # a 0.12 m rod: mu = 0.6 jams it
+    settings = aj.settings_from(short, stop=None, samples=11, energies=False, points=(), angles=(), kink_events=False,
+                                reduction="exact")
+    loads = lambda mu, tau: frictions(short.mechanism, mu) + (aj.Drive(tau),)  # noqa: E731
+    core = aj.jit(eqx.filter_vmap(lambda mu, tau: aj.simulate_core(short.mechanism, short.gravity, loads(mu, tau), 0.5,
+                                                                   0.0, 0.0, 1.0, settings=settings)))
+    both = core(jnp.array([0.6, 0.1]), jnp.array([3.0, 1.0]))
+    alone = aj.simulate(short, loads=loads(0.6, 3.0), q0=0.5, stop=None, t1=1.0, samples=11, kink_events=False)
+    assert alone.jammed and both.event.tolist() == [-1, -1], alone.status
+    from assurjax.dynamics._results import result_code
+
+    assert result_code(both.result).tolist() == [result_code(aj.RESULTS.dt_min_reached), result_code(aj.RESULTS.successful)]
+    # to the tolerance: chunks of steps (a batch's) and whole segments step apart
+    assert abs(float(both.t_final[0]) - alone.t_final) < 1e-6 and abs(float(both.q_final[0]) - alone.q_final) < 1e-6
+    assert np.all(np.isfinite(np.asarray(both.q[0])[np.asarray(both.valid[0])]))
+
+
 # ---------------------------------------------------------------------------- against the joint-based reference
 
 

@@ -32,7 +32,7 @@ rest stays held: the stick segment, whose field and event each solve the frictio
 left out, and the rest is filled to t1. A
 user event ends the run in a slip or a stick segment; with ``stop='standstill'`` the loop
 ends at the first rest. Each segment saves the requested times that fall inside it. A
-batch (``simulate`` with an array of starts, ``batch_simulate``) steps its members
+batch (``simulate`` with an array of starts, ``batch_simulate``, a caller's vmap) steps its members
 together, each diffrax call until its slowest member's segment ends: there a segment is
 integrated in chunks of ``Settings.segment_steps`` steps, so that a member whose segment
 ended waits at most one chunk for the next (the press, 16 starts: 15.6 -> 9.4 us per
@@ -127,7 +127,11 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     solver, n, k_elements = solver_for(settings), ts.shape[0], len(frictions_of(model.loads))
     # a batch of runs steps together: diffrax's loop runs until its slowest member ends its segment; in chunks
     # of segment_steps steps a member whose segment has ended waits at most that many to start its next one
+    # (a run the caller vmaps is such a batch too: whole segments there left a jammed member beside
+    # one that ran on with the dense output of its NaN attempt, read as a lock-up)
     chunk = settings.segment_steps
+    if chunk is None and any_mapped((model, q0, omega0, t0, t1, ts, dt, y0)):
+        chunk = BATCH_SEGMENT_STEPS
     slip_settings = settings._replace(standstill=True)
     # prismatic pairs: each slip segment freezes their block ends' signs, and ends where a load changes sign
     blocks = settings.kink_events and has_blocks(frictions_of(model.loads))
