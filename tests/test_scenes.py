@@ -196,6 +196,24 @@ def test_integer_modes_and_misspelt_required_fields():
         assurjax.scene_from_dict(raw)
 
 
+@pytest.mark.parametrize("kind, fields, missing, named", [
+    ("slide_friction", {"joint": "slider/ground", "radius": 0.02}, "pair", "'joint' and 'radius', a joint_friction's"),
+    ("slide_friction", {"pair": "slider/ground", "radius": 0.02}, "length", "'radius', a joint_friction's"),
+    ("joint_friction", {"pair": "A", "length": 0.04}, "joint", "'pair' and 'length', a slide_friction's"),
+])
+def test_a_friction_entry_with_the_other_kinds_fields_says_so(kind, fields, missing, named):
+    """A slide_friction written with a joint_friction's 'joint'/'radius' (or the converse) was
+    reported only missing 'pair' / 'length', where a misspelt key gets a hint."""
+    raw = tomllib.loads((resources.files("assurjax.scenes") / "slider_crank.toml").read_text())
+    raw["loads"] = [{"type": kind, "coefficient": 0.1, **fields}]
+    own = "'pair' and 'length'" if kind == "slide_friction" else "'joint' and 'radius'"
+    with pytest.raises(assurjax.SceneError) as e:
+        assurjax.scene_from_dict(raw)
+    message = str(e.value)
+    assert f"missing field '{missing}': a {kind} takes {own}" in message, message
+    assert f"given {named}" in message, message
+
+
 def test_a_scene_built_in_python_takes_numpy_numbers_tuples_and_arrays():
     # the Watt six-bar's tables with its numbers as NumPy scalars and its lists as tuples
     # and arrays give the scene its TOML file gives (they were refused: "expected a number,

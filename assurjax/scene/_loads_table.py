@@ -157,13 +157,33 @@ def _motor(f, mechanism):
     return _loads.MotorLine(f.number("stall"), f.number("no_load_speed", positive=True))  # a negative stall torque drives backwards
 
 
+# each friction entry's own required fields: one kind's given to the other was reported only missing
+FRICTION_FIELDS = {"joint_friction": ("joint", "radius"), "slide_friction": ("pair", "length")}
+FRICTION_OF = {"joint_friction": "a revolute joint", "slide_friction": "a prismatic pair"}
+
+
+def _check_friction_fields(f: Fields, kind: str) -> None:
+    """Raise where the entry lacks a field of its kind and gives the other kind's instead."""
+    other = next(k for k in FRICTION_FIELDS if k != kind)
+    given = [k for k in FRICTION_FIELDS[other] if k in f.table]
+    missing = [k for k in FRICTION_FIELDS[kind] if k not in f.table]
+    if given and missing:
+        own = " and ".join(f"'{k}'" for k in FRICTION_FIELDS[kind])
+        theirs = " and ".join(f"'{k}'" for k in given)
+        raise SceneError(f"{f.source}: {f.where}: missing field '{missing[0]}': a {kind} takes {own}, the friction "
+                         f"of {FRICTION_OF[kind]}; given {theirs}, a {other}'s (type = \"{other}\", the friction of "
+                         f"{FRICTION_OF[other]})")
+
+
 def _joint_friction(f, mechanism):
+    _check_friction_fields(f, "joint_friction")
     return _friction.JointFriction(f.string("joint"), f.number("coefficient", nonnegative=True),
                                    f.number("radius", nonnegative=True), viscous=f.number("viscous", 0.0, nonnegative=True),
                                    smoothing=_smoothing(f), static_coefficient=_static(f))
 
 
 def _slide_friction(f, mechanism):
+    _check_friction_fields(f, "slide_friction")
     return _friction.SlideFriction(f.string("pair"), f.number("coefficient", nonnegative=True),
                                    f.number("length", positive=True), viscous=f.number("viscous", 0.0, nonnegative=True),
                                    smoothing=_smoothing(f), static_coefficient=_static(f))
