@@ -79,12 +79,13 @@ class AbstractFriction(AbstractLoad):
             raise MechanismError(f"{name}: the pair must be named by a string (a joint's or a prismatic pair's name), "
                                  f"got {pair!r}")
         for key, value in (("coefficient", coefficient), ("viscous", viscous)):
-            check_value(MechanismError, f"{name}: {key}", value, shape=(), nonnegative=True)
+            check_value(MechanismError, f"{name} '{pair}': {key}", value, shape=(), nonnegative=True)
         if smoothing is not None:
-            check_value(MechanismError, f"{name}: smoothing", smoothing, shape=(), positive=True)
+            check_value(MechanismError, f"{name} '{pair}': smoothing", smoothing, shape=(), positive=True)
             smoothing = jnp.asarray(smoothing, dtype=float)
         if static_coefficient is not None:
-            check_value(MechanismError, f"{name}: static_coefficient", static_coefficient, shape=(), nonnegative=True)
+            check_value(MechanismError, f"{name} '{pair}': static_coefficient", static_coefficient, shape=(),
+                        nonnegative=True)
             if smoothing is not None:
                 raise MechanismError(f"{name} '{pair}': static_coefficient needs the exact law (a smoothed element "
                                      "carries no friction at rest, so nothing for a static coefficient to hold)")
@@ -158,7 +159,7 @@ class JointFriction(AbstractFriction):
 
     def __init__(self, joint: str, coefficient, radius, *, viscous=0.0, smoothing=None, static_coefficient=None):
         self._set_law(joint, coefficient, viscous, smoothing, static_coefficient)
-        check_value(MechanismError, "JointFriction: radius", radius, shape=(), nonnegative=True)
+        check_value(MechanismError, f"JointFriction '{joint}': radius", radius, shape=(), nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
     def rate_terms(self, mechanism, x, dx):
@@ -201,7 +202,7 @@ class SlideFriction(AbstractFriction):
 
     def __init__(self, pair: str, coefficient, length, *, viscous=0.0, smoothing=None, static_coefficient=None):
         self._set_law(pair, coefficient, viscous, smoothing, static_coefficient)
-        check_value(MechanismError, "SlideFriction: length", length, shape=(), positive=True)
+        check_value(MechanismError, f"SlideFriction '{pair}': length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
 
     def _direction(self, kin, p):  # the slider's x axis lies along the guide

@@ -836,7 +836,7 @@ def test_with_loads_checks_the_loads(slider):
     assert rough.state == slider.state and rough.name == slider.name
     with pytest.raises(aj.MechanismError, match="'Z' is not a revolute joint"):
         slider.with_loads((aj.JointFriction("Z", 0.1, radius=0.01),))
-    with pytest.raises(aj.MechanismError, match="JointFriction: coefficient must be a number or an array of numbers, got 'high'"):
+    with pytest.raises(aj.MechanismError, match="JointFriction 'A': coefficient must be a number or an array of numbers, got 'high'"):
         aj.JointFriction("A", "high", radius=0.01)
 
 

@@ -215,9 +215,9 @@ def test_smoothing_speed_is_checked(case):
     scene, table, _ = case
     with pytest.raises(aj.AssurjaxError, match="not available with joint friction, even smoothed"):
         aj.simulate(scene, loads=_frictions(scene.mechanism, table, SPEEDS), steps=100, stop=None, t1=0.1)
-    with pytest.raises(aj.MechanismError, match="JointFriction: smoothing must be positive, got 0"):
+    with pytest.raises(aj.MechanismError, match="JointFriction 'A': smoothing must be positive, got 0"):
         aj.JointFriction("A", 0.2, 0.01, smoothing=0.0)
-    with pytest.raises(aj.MechanismError, match="SlideFriction: smoothing must be finite"):
+    with pytest.raises(aj.MechanismError, match="SlideFriction 'slider/ground': smoothing must be finite"):
         aj.SlideFriction("slider/ground", 0.2, 0.04, smoothing=float("nan"))
 
 

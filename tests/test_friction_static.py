@@ -80,7 +80,7 @@ def test_static_coefficient_is_checked(write_scene):
         aj.JointFriction("A", 0.2, 0.01, static_coefficient=0.1)
     with pytest.raises(aj.MechanismError, match="SlideFriction 'block/ground': static_coefficient needs the exact law"):
         aj.SlideFriction("block/ground", 0.2, 0.04, smoothing=0.01, static_coefficient=0.3)
-    with pytest.raises(aj.MechanismError, match="JointFriction: static_coefficient must be finite"):
+    with pytest.raises(aj.MechanismError, match="JointFriction 'A': static_coefficient must be finite"):
         aj.JointFriction("A", 0.2, 0.01, static_coefficient=float("inf"))
     from assurjax.cli import _static_pairs
 

@@ -637,9 +637,9 @@ def test_traced_values_are_not_checked_so_jit_and_grad_work():
 
 @pytest.mark.parametrize("make, message", [
     (lambda: assurjax.JointFriction(["A"], 0.1, 0.01), "JointFriction: the pair must be named by a string"),
-    (lambda: assurjax.JointFriction("A", "0.1", 0.01), "JointFriction: coefficient must be a number or an array of numbers, got '0.1'"),
-    (lambda: assurjax.JointFriction("A", True, 0.01), "JointFriction: coefficient must be a number or an array of numbers, got True"),
-    (lambda: assurjax.SlideFriction("slider/ground", 0.1, "0.05"), "SlideFriction: length must be a number"),
+    (lambda: assurjax.JointFriction("A", "0.1", 0.01), "JointFriction 'A': coefficient must be a number or an array of numbers, got '0.1'"),
+    (lambda: assurjax.JointFriction("A", True, 0.01), "JointFriction 'A': coefficient must be a number or an array of numbers, got True"),
+    (lambda: assurjax.SlideFriction("slider/ground", 0.1, "0.05"), "SlideFriction 'slider/ground': length must be a number"),
 ])
 def test_friction_numbers_are_numbers(make, message):
     # NumPy reads "0.1" as 0.1 and True as 1.0: the scene loader refused them, the API took them
