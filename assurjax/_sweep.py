@@ -474,13 +474,16 @@ def batch_simulate(
     ``reduction`` 'table' or 'auto' too; the keyword ``reduction='table'`` is refused): one
     table per mechanism would not pay off, and each would need its own checks.
     As :func:`assurjax.simulate`'s batches: at most 100 million saved states (mechanisms x
-    samples) a call, and a fixed step ``dt`` no longer than the span.
+    samples) a call, a fixed step ``dt`` no longer than the span, and a span no default step
+    budget covers refused unless something can end it (a standstill stop, events) or
+    ``max_steps`` is given.
     Returns an untrimmed Solution of numpy arrays with the batch axis in front:
     read ``valid``, ``event``, ``t_stop``, ``result`` and ``failed_group`` (a tuple: the
     group each member could not assemble, or None) per mechanism (a batch member that
     locks up or fails does not stop the others).
     """
-    from .dynamics._settings import check_single_start, check_step_within_span, fixed_step_from, settings_from
+    from .dynamics._settings import (check_single_start, check_span_covered, check_step_within_span, fixed_step_from,
+                                     settings_from)
     from .dynamics._solve import check_saved_total, check_steps_request, checked_saveat, refuse_traced, simulate_core
     from .dynamics._solution import batch_summary
     from .dynamics._stick import batch_settings, jammed_members
@@ -518,6 +521,8 @@ def batch_simulate(
         saveat = checked_saveat(saveat, t0, t1)
     if step is not None:  # as simulate's: a step longer than the span would be clipped to one step of it
         check_step_within_span(step, t0, t1)
+    if options.steps is None and settings.get("max_steps") is None and "max_steps" not in scene.simulation:
+        check_span_covered(t0, t1, options)  # as simulate's and final_state's (t1 = 1e9 was run)
     check_saved_total(batch_size(mechanisms), "mechanisms", saveat, options)  # as simulate's batches of starts
     ts = None if saveat is None else jnp.asarray(saveat, dtype=float)
     key = (options, None if ts is None else tuple(np.asarray(ts).tolist()), float(q0), float(omega0), float(t0), float(t1),

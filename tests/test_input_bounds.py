@@ -68,6 +68,8 @@ def test_a_span_no_default_budget_covers_is_refused_unless_something_can_end_it(
         assurjax.simulate(SCENE, q0=np.zeros(3), t1=1e12, stop=None)
     with raises("setting 't1'", "max_steps"):  # final_state ran the press with friction to 2051 s, then refused it
         assurjax.synthesis.final_state(SCENE, 1e9)
+    with raises("setting 't1'", "max_steps"):  # ran it, where simulate and final_state refuse it
+        assurjax.batch_simulate(SCENE, PAIR, t1=1e9, stop=None)
     check_span_covered(0.0, 1e12, assurjax.settings_from(SCENE, stop="standstill"))  # a standstill may end it
     check_span_covered(0.0, 1e12, assurjax.settings_from(SCENE, events=(lambda t, q, w: q,)))
     budget = assurjax.simulate(SCENE, **{**LEAN, "t1": 1e12}, stop=None, max_steps=64)  # asked for: runs, quickly
