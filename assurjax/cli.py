@@ -505,18 +505,32 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     locked = int(np.count_nonzero(~along.friction_ok))
     if locked:
         lines.append(f"  the joint friction self-locks the mechanism at {locked} of {along.friction_ok.size} samples (no consistent "
-                     "friction for a motion that way: no drive moves it so): the driving effort and friction values there "
-                     "are not friction limits (the CSV's friction_ok column)")
+                     "friction for a motion that way, nor, held at rest, a friction within its static limits that carries "
+                     "the drive): the reactions, driving effort and friction values there are no statics, left out of the "
+                     "peaks (the CSV's friction_ok column)")
     return lines
+
+
+def _consistent(along: _Along):
+    """Samples whose friction has a consistent solution (all of them without friction)."""
+    import numpy as np
+
+    return np.broadcast_to(np.asarray(along.friction_ok, dtype=bool), np.shape(along.driving))
 
 
 def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     """Peak |F| per joint, peak |driving effort| and peak |friction| per element, located on
     the dense output around the largest of the values ``along`` the samples of ``sol``
     (simulated by :func:`_simulate` with ``samples``: the search reruns its programs)."""
+    import numpy as np
+
     from ._peaks import magnitudes_of, peak_reactions
 
-    grid = magnitudes_of(along.forces, along.driving, along.friction)
+    # a sample with no consistent friction (a jam's end) has no statics: its values do not count
+    keep = _consistent(along)
+    masked = lambda d: {k: np.where(keep.reshape(keep.shape + (1,) * (np.ndim(v) - keep.ndim)), v, 0.0)  # noqa: E731
+                               for k, v in d.items()}
+    grid = magnitudes_of(masked(along.forces), np.where(keep, along.driving, 0.0), masked(along.friction))
     # a jam's final state has no dw/dt of the motion: its reactions do not count; nor do those of
     # a lock-up's approach, which the steps do not resolve (1e-7 s before a slider's lock-up T was
     # 1e-3 of its value, and the peak |F| found there 569 N where the motion's tends to 307 N)
@@ -932,7 +946,7 @@ def cmd_run(args) -> int:
         if joints:
             along = _reactions_along(scene, sol, joints)
             forces, driving, rx_time = along.forces, along.driving, along.seconds
-            peaks = _peaks(scene, sol, samples, joints, along)
+            peaks = _peaks(scene, sol, samples, joints, along) if _consistent(along).any() else None
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
         files.append(_savefig(_history_figure(scene, sol, forces, units, failed), out / "histories.png"))
@@ -982,13 +996,22 @@ def cmd_run(args) -> int:
         print("  energy balance: not checked (energies not requested)")
     spacing = (float(scene.state.get("t1", 1.0)) - float(scene.state.get("t0", 0.0))) / (samples - 1)
     grid = f"every {spacing:.3g} s" + (" and at the solver's steps" if _with_solver_steps(scene) else "")
-    print(f"  {len(sol.t)} output samples ({grid}), {summary['steps']} solver steps tried (rejected ones included)")
+    if len(sol.t) == 1:  # a grid spacing would describe samples that are not there
+        grid = f"at t = {_seconds(float(sol.t[0]))} s: the run stopped there"
+    print(f"  {len(sol.t)} output sample{'s' * (len(sol.t) != 1)} ({grid}), {summary['steps']} solver steps tried "
+          "(rejected ones included)")
     if scene is not loaded:
         print(f"  fixed steps: [simulation] steps = {loaded.simulation['steps']} run as equal steps of dt = "
               f"{scene.simulation['dt']:.6g} s (the command saves on its own grid)")
     if peaks:
-        _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=along.driving if along else None)
-    for line in _friction_lines(scene, sol, along, peaks) if along else _friction_total_line(scene, sol):
+        _print_peaks(peaks, units, scene, sol, moves=_moves(sol),
+                     driving=along.driving[_consistent(along)] if along else None)
+    elif along is not None:
+        print(f"  reactions, driving effort and friction: none reported: the joint friction has no consistent solution "
+              + (f"at any of the {len(sol.t)} samples" if len(sol.t) > 1 else "at its only sample")
+              + (" (the jam's state)" if getattr(sol, "jammed", False) else "")
+              + "; the CSV has their values, marked by its friction_ok column, as no statics")
+    for line in (_friction_lines(scene, sol, along, peaks) if peaks else []) if along else _friction_total_line(scene, sol):
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
         print(f"  friction law: regularized as asked in {', '.join(smooth)} (sign(rate) -> tanh(rate / v_s), v_s each "
@@ -1106,12 +1129,16 @@ def _band_line(lower: float, upper: float, units: dict) -> str:
     if lower == upper:  # no friction at rest (a regularized law, or no Coulomb coefficient)
         return (f"  with its joint friction only {upper:+.6g} {unit} holds it (the friction holds nothing at rest): any "
                 "other drive starts it, forward above, backward below")
-    ways = [f"forward above {upper:+.6g} {unit}" if math.isfinite(upper) else None,
-            f"backward below {lower:+.6g} {unit}" if math.isfinite(lower) else None]
-    starts = " and ".join(way for way in ways if way) or "neither way"
-    locked = [way for way, edge in (("forward", upper), ("backward", lower)) if not math.isfinite(edge)]
-    return (f"  with its joint friction it starts {starts}; any drive between holds it (the break-away band)"
-            + (f"; no drive starts it {' or '.join(locked)}: the friction self-locks it" if locked else ""))
+    if not (math.isfinite(lower) or math.isfinite(upper)):  # "between" would have no bounds
+        return ("  with its joint friction no drive starts it either way: the friction self-locks it, any drive holds "
+                "it (the break-away band is unbounded both ways)")
+    if math.isfinite(lower) and math.isfinite(upper):
+        return (f"  with its joint friction it starts forward above {upper:+.6g} {unit} and backward below "
+                f"{lower:+.6g} {unit}; any drive between holds it (the break-away band)")
+    way, edge, side, locked = (("forward above", upper, "below", "backward") if math.isfinite(upper)
+                               else ("backward below", lower, "above", "forward"))
+    return (f"  with its joint friction it starts {way} {edge:+.6g} {unit}; any drive {side} that holds it (the "
+            f"break-away band); no drive starts it {locked}: the friction self-locks it")
 
 
 def _print_reaction_table(forces: dict, driving: float, units: dict, friction: dict | None = None):

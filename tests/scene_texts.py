@@ -155,3 +155,31 @@ joint = "O"
 coefficient = 0.3
 radius = 0.04
 """
+
+# a vertical press drawn 3 deg past top dead centre, driven by its 20 kg ram: every pin
+# (r = 0.02 m) and the guide rough, mu 0.2, mu_s 0.3; the toggle self-locks both ways
+SELF_LOCKED_PRESS = """
+[scene]
+name = "self_locked_press"
+gravity = [0.0, -9.81]
+[sketch]
+driver = "ram"
+ground = ["O"]
+joints = { O = [0.0, 0.0], A = [-0.005233595624294384, 0.09986295347545739], B = [0.0, 0.39981729912966085] }
+[sketch.links]
+crank = { joints = ["O", "A"], mass = 0.2, inertia = 0.0002 }
+rod = { joints = ["A", "B"], mass = 0.5, inertia = 0.004 }
+ram = { joints = ["B"], mass = 20.0, inertia = 0.0 }
+[[sketch.slides]]
+link = "ram"
+on = "ground"
+direction = [0.0, 1.0]
+""" + "".join(f'[[loads]]\ntype = "joint_friction"\njoint = "{j}"\ncoefficient = 0.2\nstatic_coefficient = 0.3\n'
+              f'radius = 0.02\n' for j in "OAB") + """
+[[loads]]
+type = "slide_friction"
+pair = "ram/ground"
+coefficient = 0.2
+static_coefficient = 0.3
+length = 0.06
+"""

@@ -241,3 +241,35 @@ def test_the_documented_band_of_the_press_at_its_dead_point():
     pins = tuple(l for l in press.loads if not isinstance(l, aj.SlideFriction))
     band = np.round(np.asarray(aj.breakaway_band(press.with_loads(pins), 0.0)), 5)
     np.testing.assert_array_equal(band, [0.70892, 0.76287])
+
+
+@pytest.mark.slow  # its own reactions program (~12 s)
+def test_a_self_locked_press_held_at_rest_carries_its_drive(write_scene):
+    """Held at rest and self-locked both ways (band (-inf, inf)), the press carries its drive:
+    ``driving`` is the drive, and the ram's own balance (gravity, the drive, the rod at B and
+    the guide's friction within mu_s |N|) bounds |R_B| below; every pin's couple within mu_s r |F|.
+    The drive once entered nowhere: 204.69 N and |R_B| 9 N for any drive."""
+    from scene_texts import SELF_LOCKED_PRESS
+
+    scene = aj.load_scene(write_scene(SELF_LOCKED_PRESS))
+    assert aj.breakaway_band(scene, 0.0) == (-np.inf, np.inf)
+    weight, mu_s, radius, length = 20.0 * 9.81, 0.3, 0.02, 0.06
+    for drive in (-2000.0, -200.0, 500.0):
+        r = aj.reactions(scene.with_loads(scene.loads + (aj.Drive(drive),)), (0.0, 0.0, 0.0))
+        assert bool(r.friction_ok) and float(r.driving) == pytest.approx(drive, rel=1e-9)
+        # the ram (its force along y): drive - weight + friction + (force on it by the rod)_y = 0;
+        # its moments: the guide's couple C balances pin B's friction couple (all else acts at B);
+        # the guide's friction at most mu_s (|N/2 - C/L| + |N/2 + C/L|) <= mu_s (|N| + 2 |C| / L)
+        on_ram = {p.name: p.on == "ram" for p in r.pairs}["B"]
+        rod_on_ram = np.asarray(r["B"]) if on_ram else -np.asarray(r["B"])
+        ram_friction, normal = float(r.friction["ram/ground"]), float(r["ram/ground"][0])
+        couple = float(r.couples["ram/ground"])
+        assert drive - weight + ram_friction + rod_on_ram[1] == pytest.approx(0.0, abs=1e-6 * abs(drive))
+        assert abs(couple) == pytest.approx(abs(float(r.friction["B"])), rel=1e-9)
+        ends = abs(normal / 2 - couple / length) + abs(normal / 2 + couple / length)
+        assert abs(ram_friction) <= mu_s * ends * (1 + 1e-9)
+        # so |R_B| >= |drive - W| - mu_s |R_Bx| - 2 mu_s |C| / L, with |C| <= mu_s r |R_B|
+        least = abs(drive - weight) / (1.0 + mu_s + 2 * mu_s**2 * radius / length)
+        assert np.linalg.norm(rod_on_ram) >= least
+        for joint in "OAB":
+            assert abs(float(r.friction[joint])) <= mu_s * radius * np.linalg.norm(r[joint]) * (1 + 1e-9)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,8 +18,9 @@ from .._values import check_state_count, check_values, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
-from .._friction import (SUMMED_TERMS, coulomb_signs, friction_wrenches, frictions_of, linearize_reactions,
-                         rates_and_slopes, signs_ahead, solve_friction, static_model, states_per_call)
+from .._friction import (SUMMED_TERMS, coulomb_limits, coulomb_signs, friction_wrenches, frictions_of,
+                         linearize_reactions, rates_and_slopes, signs_ahead, solve_friction, static_model,
+                         states_per_call)
 from .._loads import Drive, applied_wrenches, driver_effort, drives, unbindable
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
@@ -206,8 +208,9 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
     (their Coulomb signs those of the elements' relative rates just ahead each way times +1
     and -1, :func:`assurjax._friction.signs_ahead`; ``coeffs``: of order 2), stacked
     in that order: (friction values u (2, K), the rates per unit driving velocity (K,),
-    whether each has a consistent solution (2,), and the reactions each gives: forces,
-    couples, driving effort and ok, each with 2 in front)."""
+    whether each has a consistent solution (2,), the reactions each gives: forces,
+    couples, driving effort and ok, each with 2 in front, and the friction pairs' reactions
+    linearized in u, of :func:`linearize_reactions`)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
     rates, slopes, _ = rates_and_slopes(mechanism, frictions, coeffs)
 
@@ -223,7 +226,7 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
                                               extra=friction_wrenches(mechanism, kin, frictions, u))
 
     us, consistent, found = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
-    return us, rates, consistent, found
+    return us, rates, consistent, found, linear
 
 
 def _static_kinematics(mechanism, q):
@@ -276,8 +279,9 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         return from_kinematics(model, kin, t, method=method, groups=groups)
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
     # held at rest (direction 0): the limits of the static coefficients, where elements have them
-    us, rates, consistent, (forces, couples, driving, ok) = _both_ways(static_model(model, direction == 0), coeffs, kin,
-                                                                       omega, t, method, groups)
+    held_model = static_model(model, direction == 0)
+    us, rates, consistent, (forces, couples, driving, ok), linear = _both_ways(held_model, coeffs, kin, omega, t,
+                                                                               method, groups)
     # held: the drive the loads put on the driver (a Drive, a MotorLine at rest), or where it is
     # outside the band [tau_minus, tau_plus] (a held sample of a run needs none) its nearest edge
     drive = driver_effort(model.mechanism, model.loads, coeffs.q, omega, t, check=False)
@@ -293,7 +297,62 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
 
     u = pick(us)
     found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving), pick_flag(ok))
-    return found + (u, rates, pick_flag(consistent)) if friction else found
+    # held where a limit has no consistent friction (self-locked that way): the interpolation
+    # above reads a limit that is none; there the friction carries the drive (_held_locked)
+    locked = (direction == 0) & ~(consistent[0] & consistent[1])
+    args = (held_model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear)
+    u, found, fits = _where_locked(locked, (u, found, pick_flag(consistent)), args)
+    return found + (u, rates, fits) if friction else found
+
+
+def _where_locked(locked, default, args):
+    """``default`` (u, reactions, friction ok), or :func:`_held_locked`'s where ``locked``;
+    computed only where some member of a batch is (a cond on the batch, as finish_friction's)."""
+    def both():
+        return jax.tree.map(lambda a, b: jnp.where(locked, a, b), _held_locked(*args), default)
+
+    return jax.lax.cond(eqxi.unvmap_any(locked), both, lambda: default)
+
+
+SELF_LOCK_STEPS = 60  # power iterations for the friction pattern a self-locked mechanism holds a push with
+
+
+def _held_locked(model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear):
+    """(u, reactions, friction ok) held at rest under ``drive`` where a break-away limit has no
+    consistent friction. On the drive's side (of the frictionless holding drive): where that
+    limit is consistent, its friction scaled to the drive (the limit itself beyond it: the
+    band's edge); where it is not (the friction alone holds any push that way), the friction's
+    self-locking pattern v (v ~ law(v) with the reactions the friction itself makes; gravity
+    and the loads left out) scaled to balance the drive. So ``driving`` is the drive and the
+    pairs carry its load. Statics leaves the shares open: this is one set; friction ok says
+    whether it lies within every element's static limit."""
+    mechanism, frictions = model.mechanism, frictions_of(model.loads)
+    rates, slopes, _ = rates_and_slopes(mechanism, frictions, coeffs)
+
+    def solve(u):
+        return from_kinematics(model, kin, t, method=method, groups=groups,
+                               extra=friction_wrenches(mechanism, kin, frictions, u))
+
+    free = solve(jnp.zeros(len(frictions)))[2]
+    push = drive - free
+    way = jnp.where(push >= 0, 1.0, -1.0)
+    signs = coulomb_signs(frictions, rates, jnp.zeros(()), signs_ahead(rates, slopes, way, coeffs.q) * way)
+    reactions0, basis = linear
+    own = coulomb_limits(mechanism, kin, frictions, jax.tree.map(jnp.zeros_like, reactions0), basis)
+
+    def step(_, v):  # v <- law(v) of the friction's own reactions: the pattern self-locking grows
+        w = signs * own(v)
+        return w / jnp.maximum(jnp.max(jnp.abs(w)), 1e-300)
+
+    pattern = jax.lax.fori_loop(0, SELF_LOCK_STEPS, step, signs.astype(free.dtype))
+    limit_ok = jnp.where(push >= 0, consistent[0], consistent[1])
+    v = jnp.where(limit_ok, jnp.where(push >= 0, us[0], us[1]), pattern)
+    per_unit = solve(v)[2] - free  # the driving effort is affine in u
+    scale = push / jnp.where(per_unit != 0, per_unit, 1.0)
+    u = jnp.where(limit_ok, jnp.clip(scale, 0.0, 1.0), scale) * v
+    bound = coulomb_limits(mechanism, kin, frictions, reactions0, basis)(u)
+    within = jnp.all(jnp.abs(u) <= bound * (1.0 + 1e-6) + 1e-12 * jnp.max(bound)) & (per_unit != 0)
+    return u, solve(u), within
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,
@@ -610,7 +669,7 @@ def _band(model: Model, q, t):
     def one(q, t):
         coeffs = coefficients(model.mechanism, q, order=2)  # the forward dynamics read its d2x too
         kin, at_rest = coeffs.kinematics(jnp.zeros(()), jnp.zeros(())), jnp.zeros(())
-        _, _, _, (_, _, driving, ok) = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
+        _, _, _, (_, _, driving, ok), _ = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
         # in float32 1e-9 is below the float spacing: the test ran at the edge, where the sign of
         # dw/dt is rounding (10 of 13 edges of the slider-crank's band came out infinite)
         beyond = max(BEYOND_EDGE, EDGE_SPACINGS * float(jnp.finfo(driving.dtype).eps))
