@@ -366,6 +366,8 @@ def _frictional_torque(model: Model, q, omega) -> tuple[Array, Array]:
     zeros = jnp.zeros(q.shape)
     _, _, tau, ok, _, _, consistent = _batched(model, (q, omega, zeros, zeros), "modular", None, False)
     return tau, jnp.all(ok, axis=-1) & consistent
+
+
 def smooth_max(x, sharpness: float) -> Array:
     """A smooth upper bound of max(x): logsumexp(sharpness x) / sharpness (same units as x)."""
     return jax.scipy.special.logsumexp(sharpness * jnp.asarray(x)) / sharpness
