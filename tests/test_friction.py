@@ -324,8 +324,8 @@ def test_a_toggle_locks_where_the_effective_inertia_turns_negative():
     q_jam, w_jam = float(sol.q_final), float(sol.omega_final)
     assert 1e-5 < q_jam + test_dynamics.LIMIT < 1e-4 and w_jam < 0.0
     # the status names the limit just ahead (the stretched dyad, closed form) and a bound of its distance
-    assert sol.jammed and "short of a limit position (group 'dyad' (RRR)" in sol.status, sol.status
-    stated = float(sol.status.split("), ")[1].split(" short of")[0])
+    assert sol.jammed and "of a limit position (group 'dyad' (RRR)" in sol.status, sol.status
+    stated = float(sol.status.split(", within ")[1].split(" of a limit")[0])
     assert q_jam + test_dynamics.LIMIT <= stated < 10 * (q_jam + test_dynamics.LIMIT) * (1 + abs(q_jam))
     reference = jrf.with_friction(jr.four_bar_motor(0.9, -6.0, L2=0.3, L3=0.3, L4=0.3, O4=(0.5, 0.0), T_stall=0.0,
                                                     damper_c=0.0), {j: jrf.Friction(mu=0.1, radius=0.01) for j in ("O2", "A", "B", "O4")})

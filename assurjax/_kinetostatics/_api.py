@@ -14,7 +14,7 @@ from jaxtyping import Array
 
 from .._errors import AssurjaxError
 from .._listing import few
-from .._values import check_state_count, check_values, found_words
+from .._values import check_state_count, check_values, concrete, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
@@ -241,15 +241,17 @@ def _static_kinematics(mechanism, q):
     )
 
 
-def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool):
-    """(forces, couples, driving, ok, friction, friction power, friction ok) at one state."""
+def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool, rests: bool = True):
+    """(forces, couples, driving, ok, friction, friction power, friction ok) at one state;
+    ``rests``: whether some state of the batch may be held at rest (see :func:`reactions_at`)."""
     if static:
         statics = from_kinematics(model, _static_kinematics(model.mechanism, q), t, method=method, groups=groups)
         return statics + ({}, {}, jnp.array(True))
     coeffs = coefficients(model.mechanism, q, order=2)
     if not frictions_of(model.loads):
         return reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups) + ({}, {}, jnp.array(True))
-    *reaction, u, rates, consistent = reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups, friction=True)
+    *reaction, u, rates, consistent = reactions_at(model, coeffs, omega, alpha, t, method=method, groups=groups, friction=True,
+                                                   rests=rests)
     friction, power = {}, {}
     for k, element in enumerate(frictions_of(model.loads)):  # two elements on one pair add up
         friction[element.pair] = friction.get(element.pair, 0.0) + u[k]
@@ -258,7 +260,7 @@ def _single(model: Model, q, omega, alpha, t, method: str, groups, static: bool)
 
 
 def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method: str = "modular", groups=None,
-                 friction: bool = False):
+                 friction: bool = False, rests: bool = True):
     """Reactions at one state from the kinematic coefficients (order 2) the dynamics
     already computed: (forces, couples, driving effort, ok per group). Affine in the
     driving acceleration ``alpha`` (d'Alembert forces are linear in it) and in the
@@ -273,7 +275,9 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     limits of the static coefficients, where elements have them.
     ``friction=True`` (a model with friction): also the friction values u, the
     elements' relative rates per unit driving velocity (K,) and whether the friction has a
-    consistent solution (held: both limits)."""
+    consistent solution (held: both limits). ``rests`` False: no state is held at rest, and
+    the program leaves out the analysis of a held self-locked mechanism (1.6 s of the press's
+    first call)."""
     kin = coeffs.kinematics(omega, alpha)
     if not frictions_of(model.loads):
         return from_kinematics(model, kin, t, method=method, groups=groups)
@@ -299,9 +303,11 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     found = (jax.tree.map(pick, forces), jax.tree.map(pick, couples), pick(driving), pick_flag(ok))
     # held where a limit has no consistent friction (self-locked that way): the interpolation
     # above reads a limit that is none; there the friction carries the drive (_held_locked)
-    locked = (direction == 0) & ~(consistent[0] & consistent[1])
-    args = (held_model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear)
-    u, found, fits = _where_locked(locked, (u, found, pick_flag(consistent)), args)
+    fits = pick_flag(consistent)
+    if rests:
+        locked = (direction == 0) & ~(consistent[0] & consistent[1])
+        args = (held_model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear)
+        u, found, fits = _where_locked(locked, (u, found, fits), args)
     return found + (u, rates, fits) if friction else found
 
 
@@ -387,9 +393,9 @@ def _prismatic_names(mechanism):
 
 
 @jit
-def _batch(model, q, omega, alpha, t, method, groups, static):
+def _batch(model, q, omega, alpha, t, method, groups, static, rests=True):
     shape = q.shape
-    single = lambda q, w, a, t: _single(model, q, w, a, t, method, groups, static)  # noqa: E731
+    single = lambda q, w, a, t: _single(model, q, w, a, t, method, groups, static, rests)  # noqa: E731
     flat = jax.vmap(single)(*(v.reshape(-1) for v in (q, omega, alpha, t)))
     return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
 
@@ -406,6 +412,12 @@ def _batched(model, state: tuple, *options, program=None):
     flat = [v.reshape(-1) for v in state]
     pieces = [program(model, *(v[rows] for v in flat), *options) for rows in chunk_rows(n, chunk)]
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n].reshape(state[0].shape + xs[0].shape[1:]), *pieces)
+
+
+def may_rest(omega, alpha) -> bool:
+    """Whether some state may be held at rest (omega = dw/dt = 0): True where they are traced."""
+    omega, alpha = concrete(omega), concrete(alpha)
+    return omega is None or alpha is None or bool(np.any((omega == 0) & (alpha == 0)))
 
 
 def _state(state):
@@ -709,7 +721,7 @@ def _run(scene, state, joints, method, check, *, static, source=None):
     q = jnp.asarray(state[0], dtype=float)
     q, omega, alpha, t = (jnp.broadcast_to(jnp.asarray(v, dtype=float), shape) for v in (q,) + tuple(state[1:]))
     forces, couples, driving, ok, friction, friction_power, friction_ok = _batched(model, (q, omega, alpha, t), method, groups,
-                                                                                  static)
+                                                                                  static, may_rest(omega, alpha))
     if joints is not None:
         names = (joints,) if isinstance(joints, str) else tuple(joints)
         forces = {k: forces[k] for k in names}
@@ -722,7 +734,7 @@ def _run(scene, state, joints, method, check, *, static, source=None):
             # one system for all: its flag says the mechanism is singular, not where. The system is
             # block-triangular in the formation sequence, singular where some group's block is:
             # the group-by-group solve's flags name that group
-            ok = _batched(model, (q, omega, alpha, t), "modular", groups, static)[3]
+            ok = _batched(model, (q, omega, alpha, t), "modular", groups, static, may_rest(omega, alpha))[3]
         raise_if_singular(mechanism, ok, q)
     return result
 

@@ -118,7 +118,7 @@ def jam_text(t_final: float, q_final: float, omega_final: float, limit: tuple[st
                   "turned friction the motion has no consistent solution)")
     if limit is not None:
         group, distance = limit
-        return (f"the joint friction jams the mechanism {where}, {distance:.1g} short of a limit position ({group} cannot "
+        return (f"the joint friction jams the mechanism {where}, within {distance:.1g} of a limit position ({group} cannot "
                 "assemble that much further on): near it the driver's motion barely moves the group, its force line "
                 "passes within the pins' friction circles and the friction self-locks it (no friction values satisfy the "
                 "Coulomb law of this motion with a positive effective inertia); a real mechanism wedges there. Keep the "

@@ -360,11 +360,12 @@ def _frictional_torque(model: Model, q, omega) -> tuple[Array, Array]:
     """(driving effort, ok) at dw/dt = 0 with joint friction: the friction law needs the
     joint reactions, which the reduction does not give, so the kinetostatics' own batch
     (that of :func:`assurjax.reactions`, chunked as there) solves it."""
-    from .._kinetostatics._api import _batched
+    from .._kinetostatics._api import _batched, may_rest
 
     omega = jnp.broadcast_to(jnp.asarray(omega, dtype=float), q.shape)
     zeros = jnp.zeros(q.shape)
-    _, _, tau, ok, _, _, consistent = _batched(model, (q, omega, zeros, zeros), "modular", None, False)
+    _, _, tau, ok, _, _, consistent = _batched(model, (q, omega, zeros, zeros), "modular", None, False,
+                                               may_rest(omega, zeros))
     return tau, jnp.all(ok, axis=-1) & consistent
 
 
