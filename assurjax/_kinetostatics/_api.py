@@ -207,8 +207,9 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
     """The joint friction of a motion forward and of one backward at the kinematics ``kin``
     (their Coulomb signs those of the elements' relative rates just ahead each way times +1
     and -1, :func:`assurjax._friction.signs_ahead`; ``coeffs``: of order 2), stacked
-    in that order: (friction values u (2, K), the rates per unit driving velocity (K,),
-    whether each has a consistent solution (2,), the reactions each gives: forces,
+    in that order: (friction values u (2, K), the rates per unit driving velocity (K,), the
+    Coulomb signs each way (2, K), whether each has a consistent solution (2,), the
+    reactions each gives: forces,
     couples, driving effort and ok, each with 2 in front, and the friction pairs' reactions
     linearized in u, of :func:`linearize_reactions`)."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
@@ -222,11 +223,11 @@ def _both_ways(model: Model, coeffs: Coefficients, kin: Kinematics, omega, t, me
     def each_way(d):  # the friction of a motion in direction d, and the reactions it gives
         signs = coulomb_signs(frictions, rates, omega, signs_ahead(rates, slopes, d, coeffs.q) * d)
         u, consistent = solve_friction(mechanism, frictions, linear, kin, rates, signs, omega, iterate=False)
-        return u, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
-                                              extra=friction_wrenches(mechanism, kin, frictions, u))
+        return u, signs, consistent, from_kinematics(model, kin, t, method=method, groups=groups,
+                                                     extra=friction_wrenches(mechanism, kin, frictions, u))
 
-    us, consistent, found = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
-    return us, rates, consistent, found, linear
+    us, signs, consistent, found = jax.vmap(each_way)(jnp.array([1.0, -1.0]))
+    return us, rates, signs, consistent, found, linear
 
 
 def _static_kinematics(mechanism, q):
@@ -284,8 +285,8 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     direction = jnp.where(omega != 0, jnp.sign(omega), jnp.sign(alpha))
     # held at rest (direction 0): the limits of the static coefficients, where elements have them
     held_model = static_model(model, direction == 0)
-    us, rates, consistent, (forces, couples, driving, ok), linear = _both_ways(held_model, coeffs, kin, omega, t,
-                                                                               method, groups)
+    us, rates, signs, consistent, (forces, couples, driving, ok), linear = _both_ways(held_model, coeffs, kin, omega, t,
+                                                                                      method, groups)
     # held: the drive the loads put on the driver (a Drive, a MotorLine at rest), or where it is
     # outside the band [tau_minus, tau_plus] (a held sample of a run needs none) its nearest edge
     drive = driver_effort(model.mechanism, model.loads, coeffs.q, omega, t, check=False)
@@ -306,7 +307,7 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     fits = pick_flag(consistent)
     if rests:
         locked = (direction == 0) & ~(consistent[0] & consistent[1])
-        args = (held_model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear)
+        args = (held_model, kin, t, method, groups, drive, us, signs, consistent, linear)
         u, found, fits = _where_locked(locked, (u, found, fits), args)
     return found + (u, rates, fits) if friction else found
 
@@ -323,7 +324,7 @@ def _where_locked(locked, default, args):
 SELF_LOCK_STEPS = 60  # power iterations for the friction pattern a self-locked mechanism holds a push with
 
 
-def _held_locked(model, coeffs, kin, t, method, groups, drive, us, consistent, driving, linear):
+def _held_locked(model, kin, t, method, groups, drive, us, both_signs, consistent, linear):
     """(u, reactions, friction ok) held at rest under ``drive`` where a break-away limit has no
     consistent friction. On the drive's side (of the frictionless holding drive): where that
     limit is consistent, its friction scaled to the drive (the limit itself beyond it: the
@@ -331,9 +332,9 @@ def _held_locked(model, coeffs, kin, t, method, groups, drive, us, consistent, d
     self-locking pattern v (v ~ law(v) with the reactions the friction itself makes; gravity
     and the loads left out) scaled to balance the drive. So ``driving`` is the drive and the
     pairs carry its load. Statics leaves the shares open: this is one set; friction ok says
-    whether it lies within every element's static limit."""
+    whether it lies within every element's static limit. ``us``, ``both_signs``, ``consistent``:
+    :func:`_both_ways`'s, forward then backward."""
     mechanism, frictions = model.mechanism, frictions_of(model.loads)
-    rates, slopes, _ = rates_and_slopes(mechanism, frictions, coeffs)
 
     def solve(u):
         return from_kinematics(model, kin, t, method=method, groups=groups,
@@ -341,8 +342,7 @@ def _held_locked(model, coeffs, kin, t, method, groups, drive, us, consistent, d
 
     free = solve(jnp.zeros(len(frictions)))[2]
     push = drive - free
-    way = jnp.where(push >= 0, 1.0, -1.0)
-    signs = coulomb_signs(frictions, rates, jnp.zeros(()), signs_ahead(rates, slopes, way, coeffs.q) * way)
+    signs = jnp.where(push >= 0, both_signs[0], both_signs[1])  # those of a motion the way the drive pushes
     reactions0, basis = linear
     own = coulomb_limits(mechanism, kin, frictions, jax.tree.map(jnp.zeros_like, reactions0), basis)
 
@@ -681,7 +681,7 @@ def _band(model: Model, q, t):
     def one(q, t):
         coeffs = coefficients(model.mechanism, q, order=2)  # the forward dynamics read its d2x too
         kin, at_rest = coeffs.kinematics(jnp.zeros(()), jnp.zeros(())), jnp.zeros(())
-        _, _, _, (_, _, driving, ok), _ = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
+        _, _, _, _, (_, _, driving, ok), _ = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
         # in float32 1e-9 is below the float spacing: the test ran at the edge, where the sign of
         # dw/dt is rounding (10 of 13 edges of the slider-crank's band came out infinite)
         beyond = max(BEYOND_EDGE, EDGE_SPACINGS * float(jnp.finfo(driving.dtype).eps))
