@@ -13,6 +13,7 @@ without the cuts, the steps crossed the kinks and the derivative erred by ~sqrt(
 relative at T = 0.1 s with rtol = atol = 1e-10.
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -103,6 +104,34 @@ def test_reverse_mode_past_the_block_end_kinks():
     slope = float(jax.jit(jax.grad(q_at))(jnp.asarray(MU)))
     h = 1e-3
     np.testing.assert_allclose(slope, (float(q_at(MU + h)) - float(q_at(MU - h))) / (2 * h), rtol=2e-6)
+
+
+@pytest.mark.slow  # ~4 min: a reverse-mode and a forward-mode program
+def test_reverse_mode_through_a_run_the_friction_jams_after_it_moved():
+    """The slider-crank with a 0.12 m rod, driven by 3 N m from rest at q = 0.5 with mu in
+    every pair: at mu = 0.6 it moves, then the friction jams it before T = 0.5 s. Its
+    final_state has no q(T) (NaN under a transformation) and derivative 0: jax.grad gives 0
+    as forward mode does (it raised from lineax: the jam segment's pullback, whose rejected
+    steps hold NaN partials, sent 0 x NaN into the earlier segments' event root finds); at
+    mu = 0.3 (no jam) the two modes give the same derivative."""
+    base = aj.load_scene("slider_crank")
+    rod = eqx.tree_at(lambda m: (m.links["rod"].points["B"], m.links["rod"].com), base.mechanism,
+                      (jnp.array([0.12, 0.0]), jnp.array([0.06, 0.0])))
+    base = eqx.tree_at(lambda s: s.mechanism, base, rod)
+
+    def scene(mu):
+        return base.with_loads(tuple(aj.JointFriction(j, mu, 0.01) for j in ("O", "A", "B"))
+                               + (aj.SlideFriction("slider/ground", mu, 0.05), aj.Drive(3.0)))
+
+    def q_at(mu, adjoint):
+        return aj.synthesis.final_state(scene(mu), 0.5, q0=0.5, omega0=0.0, rtol=1e-9, atol=1e-9, adjoint=adjoint)[0]
+
+    jammed = aj.simulate(scene(0.6), q0=0.5, omega0=0.0, stop=None, t1=0.5, samples=5, energies=False)
+    assert jammed.jammed and 0.0 < float(jammed.t_final) < 0.5 and float(jammed.q_final) > 0.6, jammed.status
+    reverse = jax.jit(jax.grad(lambda mu: q_at(mu, "recursive")))
+    forward = jax.jit(jax.jacfwd(lambda mu: q_at(mu, "forward")))
+    assert float(reverse(0.6)) == 0.0 and float(forward(0.6)) == 0.0
+    np.testing.assert_allclose(float(reverse(0.3)), float(forward(0.3)), rtol=1e-9)
 
 
 # ------------------------------------------------------------ the frozen law, by itself

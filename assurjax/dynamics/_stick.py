@@ -160,12 +160,19 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     breakaway = located_event(lambda t, held, args: jnp.min(jnp.stack(stuck_margins(t, held[0], args))), settings)
     hold_codes = jnp.asarray([NO_EVENT] + [USER + k for k in range(len(settings.events))])
 
-    def segment(start, y, direction, signs, stuck, step, coeffs, ends, knots, pieces):
-        args = FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
+    kind = "lax" if settings.adjoint == "forward" else "checkpointed"
+
+    def segment_args(y, direction, signs, ends, knots, pieces) -> FieldArgs:
+        return FieldArgs(model=model, table=None, direction=direction, q0=y.q, user_signs=user_signs, rate_signs=signs,
                          bridge=settings.bridge, nan_unassembled=settings.check_assembly,
                          friction_tolerance=iteration_tolerance(settings.rtol, settings.atol), flat_model=flat_model,
                          end_signs=None if ends is None else ends[0], end_floor=None if ends is None else ends[1],
                          knots=knots, pieces=pieces)
+
+    def segment(inputs, stuck):
+        """The segment's diffeqsolve; ``inputs``: every value it reads that may carry a
+        derivative (see :func:`_pullback_where_used`)."""
+        args, start, y, step, coeffs, ts, t1, dt = inputs
         outputs = diffrax.SubSaveAt(ts=jnp.clip(ts, start, t1), t1=True)
         # a chunk also saves its steps: where it ends on its step count, its state is its last accepted
         # step (diffrax's final state of a batch member whose loop ended while another member's event
@@ -184,7 +191,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             diffrax.ODETerm(_stuck_field), solver, stepsize_controller=controller_for(settings), event=breakaway,
             y0=(y, jnp.zeros(())), dt0=FIRST_STEP * (t1 - start) if dt0 is None else dt0,
             **(kwargs | dict(args=_held(args, coeffs)))))
-        return (jax.lax.cond(stuck, hold, slip) if holds else slip()), args
+        return jax.lax.cond(stuck, hold, slip) if holds else slip()
 
     def body(carry):
         start, y, previous, held, broke, saved, filled, steps, result, event, failed, step, last_ends, switched, reached, _ = carry
@@ -225,7 +232,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
             knots = jnp.concatenate([jnp.stack([next_knot(tables[0], y.q, direction) if tables[0] else jnp.inf,
                                                 next_knot(tables[1], start, 1.0) if tables[1] else jnp.inf]), bounds])
             pieces = jnp.concatenate([pieces_at(tables[0], y.q, direction), pieces_at(tables[1], start, 1.0), in_omega])
-        run, args = segment(start, y_start, direction, signs, stuck, step, coeffs, block_ends, knots, pieces)
+        args = segment_args(y_start, direction, signs, block_ends, knots, pieces)
+        inputs = (args, start, y_start, step, coeffs, ts, t1, dt)
+        run = segment(inputs, stuck) if kind == "lax" else _pullback_where_used(inputs, segment, stuck)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -306,7 +315,6 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
              RESULTS.successful, jnp.asarray(NO_EVENT), jnp.asarray(-1), jnp.asarray(FIRST_STEP * (t1 - t0) if dt is None else dt,
                                                                                   dtype=float), jnp.zeros((k_elements, 2)),
              jnp.asarray(False), jnp.asarray(0.0), jnp.asarray(False))
-    kind = "lax" if settings.adjoint == "forward" else "checkpointed"
     segments = MAX_KNOTTED_SEGMENTS if knotted else MAX_SEGMENTS
     calls = segments if chunk is None else segments + -(-settings.max_steps // chunk)
     end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, _, done = eqxi.while_loop(
@@ -581,3 +589,35 @@ def _jams(model: Model, t, q, omega):
 def _jams_each(models: Model, t, q, omega):
     """:func:`_jams_at` per run (arrays), each with its model (batched arrays)."""
     return jax.vmap(_jams_at)(models, t, q, omega)
+
+
+@eqx.filter_custom_vjp
+def _pullback_where_used(inputs, f, *rest):
+    """``f(inputs, *rest)``, whose pullback runs only where some cotangent of its outputs is
+    not 0. A segment that ended in a jam has outputs nothing reads (the run's value there is
+    NaN, its derivative 0), and NaN partials at its rejected steps: its pullback sent 0 x NaN
+    on to the earlier segments (lineax raised inside their event root finds). Exact: a zero
+    cotangent pulls back to zero."""
+    return f(inputs, *rest)
+
+
+@_pullback_where_used.def_fwd
+def _pullback_where_used_fwd(perturbed, inputs, f, *rest):
+    out, pullback = eqx.filter_vjp(lambda x: f(x, *rest), inputs)
+    return out, (pullback, _zeros_like_inexact(out))
+
+
+@_pullback_where_used.def_bwd
+def _pullback_where_used_bwd(residuals, cotangents, perturbed, inputs, f, *rest):
+    pullback, zeros = residuals
+    cotangents = jax.tree.map(lambda z, c: None if z is None else z if c is None else c, zeros, cotangents,
+                              is_leaf=lambda x: x is None)
+    found = jax.tree.leaves(cotangents)
+    used = jnp.any(jnp.stack([jnp.any(c != 0) for c in found])) if found else jnp.asarray(False)
+    grads = jax.lax.cond(used, lambda: pullback(cotangents)[0], lambda: _zeros_like_inexact(inputs))
+    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed, is_leaf=lambda x: x is None)
+
+
+def _zeros_like_inexact(tree):
+    """Zeros for each floating-point array of ``tree``, None for every other leaf."""
+    return jax.tree.map(lambda x: jnp.zeros_like(x) if eqx.is_inexact_array(x) else None, tree)

@@ -152,8 +152,9 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     run does not stop at one unless ``check_assembly=True``) has no q(T): called as it is,
     this raises :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``,
     ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run (but
-    reverse mode through a run the friction jams after it moved raises from inside diffrax's
-    event root find: ``adjoint="forward"`` there; docs/design-notes.md).
+    ``jax.vmap`` of reverse mode over runs of which one the friction jams after it moved
+    raises from inside diffrax's event root find: ``adjoint="forward"`` there;
+    docs/design-notes.md).
 
     With joint friction, a start from rest (``omega0`` = 0) is a kink in ``omega0``: the
     Coulomb signs follow the direction the mechanism starts in, so the derivative in
