@@ -511,11 +511,28 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     return lines
 
 
-def _consistent(along: _Along):
-    """Samples whose friction has a consistent solution (all of them without friction)."""
+def _no_statics_line(sol) -> str:
+    """What the summary says where no sample has statics (:func:`_consistent`)."""
+    said = "  reactions, driving effort and friction: none reported: "
+    if getattr(sol, "jammed", False):
+        return said + ("its only sample is the jam's state" if len(sol.t) == 1 else
+                       "no sample before the jam's state has a consistent friction solution") + \
+            ", where the motion has no dw/dt; the CSV has the values read there, as no statics"
+    return said + ("the joint friction has no consistent solution "
+                   + (f"at any of the {len(sol.t)} samples" if len(sol.t) > 1 else "at its only sample")
+                   + "; the CSV has their values, marked by its friction_ok column, as no statics")
+
+
+def _consistent(along: _Along, sol):
+    """Samples whose friction has a consistent solution (all of them without friction), the
+    state where the friction jammed the run left out: the motion has no dw/dt there (the
+    sample's is not that of a motion, and the statics read from it stand for none)."""
     import numpy as np
 
-    return np.broadcast_to(np.asarray(along.friction_ok, dtype=bool), np.shape(along.driving))
+    ok = np.broadcast_to(np.asarray(along.friction_ok, dtype=bool), np.shape(along.driving))
+    if getattr(sol, "jammed", False):
+        ok = ok & (np.asarray(sol.t) < float(sol.t_final))
+    return ok
 
 
 def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
@@ -527,7 +544,7 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     from ._peaks import magnitudes_of, peak_reactions
 
     # a sample with no consistent friction (a jam's end) has no statics: its values do not count
-    keep = _consistent(along)
+    keep = _consistent(along, sol)
     masked = lambda d: {k: np.where(keep.reshape(keep.shape + (1,) * (np.ndim(v) - keep.ndim)), v, 0.0)  # noqa: E731
                                for k, v in d.items()}
     grid = magnitudes_of(masked(along.forces), np.where(keep, along.driving, 0.0), masked(along.friction))
@@ -573,10 +590,11 @@ def _print_peaks(peaks: dict, units: dict, scene, sol=None, moves: bool = True, 
 
 def _constant_driving(driving) -> float | None:
     """The driving effort's value where the samples hold one value to round-off (1e-9 of it),
-    else None."""
+    else None; NaN samples (no statics there) are gaps."""
     import numpy as np
 
     values = np.asarray(driving, dtype=float)
+    values = values[~np.isnan(values)]
     if not values.size or not np.all(np.isfinite(values)) or np.ptp(values) > 1e-9 * np.max(np.abs(values)):
         return None
     return float(np.median(values))
@@ -668,10 +686,20 @@ def _history_figure(scene, sol, forces, units, failed: bool = False):
     else:
         axes[1, 1].text(0.5, 0.5, "no reactions requested ([outputs] reactions)", ha="center", transform=axes[1, 1].transAxes)
         axes[1, 1].axis("off")
+    _single_sample_marked(fig, len(sol.t))
     # a jam's or a failure's status is a paragraph: wrapped to the figure, not cut at its edges
     warning = " (FAILED: not to be trusted)" if failed else ""
     fig.suptitle("\n".join(textwrap.wrap(f"{scene.name}{warning}: {sol.status}", width=110)), fontsize="medium")
     return fig
+
+
+def _single_sample_marked(fig, samples: int) -> None:
+    """A run of one sample (it stopped at its start) draws each curve as a marker: a line of one
+    point is not drawn at all."""
+    if samples == 1:
+        for ax in fig.axes:
+            for line in ax.get_lines():
+                line.set_marker("o")
 
 
 def _one_period(scene):
@@ -946,10 +974,11 @@ def cmd_run(args) -> int:
         if joints:
             along = _reactions_along(scene, sol, joints)
             forces, driving, rx_time = along.forces, along.driving, along.seconds
-            peaks = _peaks(scene, sol, samples, joints, along) if _consistent(along).any() else None
+            peaks = _peaks(scene, sol, samples, joints, along) if _consistent(along, sol).any() else None
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
-        files.append(_savefig(_history_figure(scene, sol, forces, units, failed), out / "histories.png"))
+        statics = _statics_only(forces, _consistent(along, sol)) if along else forces  # no statics: gaps
+        files.append(_savefig(_history_figure(scene, sol, statics, units, failed), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene), out / "reduced.png"))
         points = list(scene.outputs["points"])
@@ -1005,12 +1034,9 @@ def cmd_run(args) -> int:
               f"{scene.simulation['dt']:.6g} s (the command saves on its own grid)")
     if peaks:
         _print_peaks(peaks, units, scene, sol, moves=_moves(sol),
-                     driving=along.driving[_consistent(along)] if along else None)
+                     driving=along.driving[_consistent(along, sol)] if along else None)
     elif along is not None:
-        print(f"  reactions, driving effort and friction: none reported: the joint friction has no consistent solution "
-              + (f"at any of the {len(sol.t)} samples" if len(sol.t) > 1 else "at its only sample")
-              + (" (the jam's state)" if getattr(sol, "jammed", False) else "")
-              + "; the CSV has their values, marked by its friction_ok column, as no statics")
+        print(_no_statics_line(sol))
     for line in (_friction_lines(scene, sol, along, peaks) if peaks else []) if along else _friction_total_line(scene, sol):
         print(line)
     if along and along.friction and (smooth := _smoothed_pairs(scene)):
@@ -1069,39 +1095,60 @@ def cmd_reactions(args) -> int:
         return _say_failed(scene, sol, wrote=False)
     along = _reactions_along(scene, sol, joints)
     forces, driving, elapsed = along.forces, along.driving, along.seconds
-    peaks = _peaks(scene, sol, samples, joints, along)
+    consistent = _consistent(along, sol)
+    peaks = _peaks(scene, sol, samples, joints, along) if consistent.any() else None
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}
                         | {k: v for k, v in columns.items() if k.startswith(("F", "driving", "friction"))})]
     import matplotlib.pyplot as plt
 
+    # the samples with no consistent friction are no statics: gaps in the curves
+    forces, driving = _statics_only(forces, consistent), np.where(consistent, driving, np.nan)
     panels = 3 if along.friction else 2
     fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), layout="constrained")
     viz.plot_reactions(sol.t, forces, ax=axes[0])
     viz.plot_time_histories(sol.t, {"driving effort": driving}, ylabel=f"driving effort ({units['driving']})", ax=axes[1], title="driving effort needed for this motion")
     _without_legend(axes[1])
-    if _driving_is_round_off(peaks, scene, units):  # as the summary says: not magnified into a curve of noise
+    if peaks and _driving_is_round_off(peaks, scene, units):  # as the summary says: not magnified into a curve of noise
         axes[1].set_ylim(-1.0, 1.0)
         axes[1].set_title("driving effort needed: none (round-off)")
     elif (value := _constant_driving(driving)) is not None:  # nor a constant's round-off (ticks of 1e-13 about 1.5)
         axes[1].set_ylim(value - 0.5 * abs(value), value + 0.5 * abs(value))
         axes[1].set_title(f"driving effort needed: constant {value:+.5g} {units['driving']}")
     if along.friction:
-        power = along.friction_power
+        power = _statics_only(along.friction_power, consistent)
         viz.plot_time_histories(sol.t, {f"at {k}": -power[k] for k in _in_scene_order(scene.outputs["reactions"], power)},
                                 ylabel="power lost (W)", ax=axes[2], title="power lost to friction")
+    _single_sample_marked(fig, len(sol.t))
+    if not consistent.any():
+        for ax in axes:
+            ax.text(0.5, 0.5, "none: no sample has statics\n(no consistent friction, or the jam's state)", transform=ax.transAxes,
+                    ha="center", va="center")
     files.append(_savefig(fig, out / "reactions.png"))
-    print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} samples in {elapsed:.2f} s")
+    print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} sample{'s' * (len(sol.t) != 1)} in {elapsed:.2f} s")
     for line in _failure_lines(scene, sol, units) if failed else ():
         print(line)
-    print(f"  at t = {float(sol.t[0]):.4g} s:")
-    _print_reaction_table({k: v[0] for k, v in forces.items()}, float(driving[0]), units,
-                          {k: float(v[0]) for k, v in along.friction.items()})
-    _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=driving)
+    if not peaks:
+        print(_no_statics_line(sol))
+        _print_files(files)
+        return _say_failed(scene, sol) if failed else 0
+    first = int(np.argmax(consistent))  # the first sample with statics
+    print(f"  at t = {float(sol.t[first]):.4g} s" + (" (the first sample with a consistent friction)" if first else "") + ":")
+    _print_reaction_table({k: v[first] for k, v in forces.items()}, float(driving[first]), units,
+                          {k: float(v[first]) for k, v in along.friction.items()})
+    _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=driving[consistent])
     for line in _friction_lines(scene, sol, along, peaks):
         print(line)
     _print_files(files)
     return _say_failed(scene, sol) if failed else 0
+
+
+def _statics_only(values: dict, consistent) -> dict:
+    """Per name, the values with NaN at the samples that have no consistent friction."""
+    import numpy as np
+
+    return {k: np.where(consistent.reshape(consistent.shape + (1,) * (np.ndim(v) - consistent.ndim)), v, np.nan)
+            for k, v in values.items()}
 
 
 def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -> str | None:

@@ -14,9 +14,10 @@ Cases, each in a fresh process (JAX's on-disk cache off), through the calls a us
 them (default: this one), so that two versions of the code compare in one run; ``--label``
 (as many): what each one is, saved with the results.
 
-    python benchmarks/bench_friction_gradients.py [--root DIR --label TEXT ...] [--quick] [--out FILE]
+    python benchmarks/bench_friction_gradients.py [--root DIR --label TEXT ...] [--quick] [--case S,L,M] [--out FILE]
 
-``--quick``: the slider-crank alone.
+``--quick``: the slider-crank alone; ``--case`` (repeatable): only these cases, each as
+scene,law,mode (e.g. ``slider_crank,exact,reverse``).
 
 Writes results/friction_gradients.json unless told otherwise.
 """
@@ -95,6 +96,7 @@ def main():
     parser.add_argument("--root", type=Path, action="append", help="a package checkout to measure (repeatable)")
     parser.add_argument("--label", action="append", help="what each --root is (as many)")
     parser.add_argument("--quick", action="store_true", help="the slider-crank alone")
+    parser.add_argument("--case", action="append", help="scene,law,mode: only these cases (repeatable)")
     parser.add_argument("--out", type=Path, default=HERE / "results" / "friction_gradients.json")
     options = parser.parse_args()
     roots = options.root or [ROOT]
@@ -102,7 +104,10 @@ def main():
     if len(labels) != len(roots):
         parser.error("give one --label per --root")
     runs = []
-    for case in [c for c in CASES if not options.quick or c[0] == "slider_crank"]:
+    chosen = [tuple(c.split(",")) for c in options.case or []]
+    if any(c not in CASES for c in chosen):
+        parser.error(f"--case: one of {', '.join(','.join(c) for c in CASES)}")
+    for case in [c for c in CASES if (not options.quick or c[0] == "slider_crank") and (not chosen or c in chosen)]:
         for k, root in enumerate(roots):
             r = dict(case=dict(zip(("scene", "law", "mode"), case)), code=k, **child(root, case))
             runs.append(r)

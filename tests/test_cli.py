@@ -648,6 +648,26 @@ def test_a_run_that_jams_by_friction_exits_0(write_scene, tmp_path, capsys):
     assert "FAILED" not in capsys.readouterr().out
 
 
+@pytest.mark.slow  # ~30 s: the steep slider's run and reactions programs (test_a_run_that_jams_by_friction_exits_0's)
+def test_reactions_report_no_statics_from_a_jams_state(write_scene, tmp_path, capsys):
+    """The steep slider started past the angle where it jams (sin q* = l / (r sqrt(1 + mu^2)),
+    q* = 1.2201; q0 = 1.25): the run stops at its start, and `reactions` reports no reactions,
+    driving effort or friction from that state, where the motion has no dw/dt (it printed the
+    statics of a made-up dw/dt as the values at t = 0 and as peaks); its plot says so. On the
+    run from q0 = 1 to the jam, the drive is its constant 1 N m (the jam's state had put a
+    peak of 1.0000048 at its time)."""
+    past = write_scene(STEEP_SLIDER.replace("q0 = 1.0", "q0 = 1.25"), "past.toml")
+    assert main(["reactions", str(past), "--out", str(tmp_path / "past"), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "1 sample in" in printed and "peak |F|" not in printed and "driving effort =" not in printed
+    assert ("reactions, driving effort and friction: none reported: its only sample is the jam's state, where the "
+            "motion has no dw/dt") in printed
+    assert read_csv(tmp_path / "past" / "reactions.csv")["t"].tolist() == [0.0]
+    assert main(["reactions", str(write_scene(STEEP_SLIDER)), "--out", str(tmp_path / "on"), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "driving effort: constant, +1 N m" in printed, printed
+
+
 def test_kinematics_leaves_empty_cells_and_names_the_gaps_where_it_does_not_assemble(tmp_path, capsys):
     """The tangent drive: x_J = h cot q (h = 0.2 m); its guides are parallel at q = 0 and pi
     (closed form), where it does not assemble: every value of those rows is an empty cell,
