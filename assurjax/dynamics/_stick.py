@@ -598,7 +598,8 @@ def _pullback_where_used(inputs, f, *rest):
     not 0. A segment that ended in a jam has outputs nothing reads (the run's value there is
     NaN, its derivative 0), and NaN partials at its rejected steps: its pullback sent 0 x NaN
     on to the earlier segments (lineax raised inside their event root finds). Exact: a zero
-    cotangent pulls back to zero."""
+    cotangent pulls back to zero. (A loss on the samples a jam's segment saved before the jam
+    reads its outputs: its pullback runs, as before.)"""
     return f(inputs, *rest)
 
 
