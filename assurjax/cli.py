@@ -1144,11 +1144,10 @@ def cmd_reactions(args) -> int:
 
 
 def _statics_only(values: dict, consistent) -> dict:
-    """Per name, the values with NaN at the samples that have no consistent friction."""
-    import numpy as np
+    """Per name, the values with NaN at the samples that have no statics (see :func:`_consistent`)."""
+    from .viz._frames import masked
 
-    return {k: np.where(consistent.reshape(consistent.shape + (1,) * (np.ndim(v) - consistent.ndim)), v, np.nan)
-            for k, v in values.items()}
+    return {k: masked(v, consistent) for k, v in values.items()}
 
 
 def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -> str | None:
