@@ -502,7 +502,10 @@ def _friction_lines(scene, sol, along: _Along, peaks: dict) -> list[str]:
     located = ", ".join(f"{k} {peaks[FRICTION + k].value:.5g} {_friction_unit(k)} at t = {_seconds(peaks[FRICTION + k].t)} s"
                         for k in _in_scene_order(scene.outputs["reactions"], along.friction))
     lines.append(f"  peak |friction| (located on the dense output): {located}")
-    locked = int(np.count_nonzero(~along.friction_ok))
+    from ._kinetostatics._api import at_jam_state
+
+    jam_state = at_jam_state(sol, np.shape(along.friction_ok))  # the status names the jam
+    locked = int(np.count_nonzero(~along.friction_ok & (True if jam_state is None else ~jam_state)))
     if locked:
         lines.append(f"  the joint friction self-locks the mechanism at {locked} of {along.friction_ok.size} samples (no consistent "
                      "friction for a motion that way, nor, held at rest, a friction within its static limits that carries "
@@ -523,16 +526,12 @@ def _no_statics_line(sol) -> str:
                    + "; the CSV has their values, marked by its friction_ok column, as no statics")
 
 
-def _consistent(along: _Along, sol):
-    """Samples whose friction has a consistent solution (all of them without friction), the
-    state where the friction jammed the run left out: the motion has no dw/dt there (the
-    sample's is not that of a motion, and the statics read from it stand for none)."""
+def _consistent(along: _Along):
+    """Samples with statics: a consistent friction solution (all of them without friction),
+    not the state where the friction jammed the run (see Reactions.friction_ok)."""
     import numpy as np
 
-    ok = np.broadcast_to(np.asarray(along.friction_ok, dtype=bool), np.shape(along.driving))
-    if getattr(sol, "jammed", False):
-        ok = ok & (np.asarray(sol.t) < float(sol.t_final))
-    return ok
+    return np.broadcast_to(np.asarray(along.friction_ok, dtype=bool), np.shape(along.driving))
 
 
 def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
@@ -544,7 +543,7 @@ def _peaks(scene, sol, samples: int, joints, along: _Along) -> dict:
     from ._peaks import magnitudes_of, peak_reactions
 
     # a sample with no consistent friction (a jam's end) has no statics: its values do not count
-    keep = _consistent(along, sol)
+    keep = _consistent(along)
     masked = lambda d: {k: np.where(keep.reshape(keep.shape + (1,) * (np.ndim(v) - keep.ndim)), v, 0.0)  # noqa: E731
                                for k, v in d.items()}
     grid = magnitudes_of(masked(along.forces), np.where(keep, along.driving, 0.0), masked(along.friction))
@@ -974,10 +973,10 @@ def cmd_run(args) -> int:
         if joints:
             along = _reactions_along(scene, sol, joints)
             forces, driving, rx_time = along.forces, along.driving, along.seconds
-            peaks = _peaks(scene, sol, samples, joints, along) if _consistent(along, sol).any() else None
+            peaks = _peaks(scene, sol, samples, joints, along) if _consistent(along).any() else None
         bar.update(1)
         files = [_write_csv(out / "solution.csv", _solution_columns(scene, sol, forces, driving, along))]
-        statics = _statics_only(forces, _consistent(along, sol)) if along else forces  # no statics: gaps
+        statics = _statics_only(forces, _consistent(along)) if along else forces  # no statics: gaps
         files.append(_savefig(_history_figure(scene, sol, statics, units, failed), out / "histories.png"))
         bar.update(1)
         files.append(_savefig(_reduced_figure(scene), out / "reduced.png"))
@@ -1034,7 +1033,7 @@ def cmd_run(args) -> int:
               f"{scene.simulation['dt']:.6g} s (the command saves on its own grid)")
     if peaks:
         _print_peaks(peaks, units, scene, sol, moves=_moves(sol),
-                     driving=along.driving[_consistent(along, sol)] if along else None)
+                     driving=along.driving[_consistent(along)] if along else None)
     elif along is not None:
         print(_no_statics_line(sol))
     for line in (_friction_lines(scene, sol, along, peaks) if peaks else []) if along else _friction_total_line(scene, sol):
@@ -1095,7 +1094,7 @@ def cmd_reactions(args) -> int:
         return _say_failed(scene, sol, wrote=False)
     along = _reactions_along(scene, sol, joints)
     forces, driving, elapsed = along.forces, along.driving, along.seconds
-    consistent = _consistent(along, sol)
+    consistent = _consistent(along)
     peaks = _peaks(scene, sol, samples, joints, along) if consistent.any() else None
     columns = _solution_columns(scene, sol, forces, driving, along)
     files = [_write_csv(out / "reactions.csv", {"t": sol.t, "q": sol.q, "omega": sol.omega, "domega": sol.domega, "ok": along.ok}

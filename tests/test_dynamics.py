@@ -614,10 +614,18 @@ def test_unassemblable_start_raises_naming_the_group(write_scene):
     group = roberts.mechanism.groups[int(np.argmin(ok[bad[0]]))].name
     with pytest.raises(aj.AssemblyError, match=f"group '{group}'"):
         aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05)
-    # with every step saved no row holds the start: the message named q0 = inf
+
+
+@pytest.mark.slow  # ~10 s: three programs of their own; test_unassemblable_start_raises_naming_the_group keeps the start's check
+def test_a_start_that_cannot_go_on_is_named_with_every_step_saved_or_a_nan_load(write_scene):
+    """With every step saved no row holds the start: the message named q0 = inf; nor where a
+    load is NaN from the start (no step accepted): it was a lock-up 'at t = inf s'."""
+    slider = aj.load_scene(write_scene(SLIDER_DRIVEN))
+    roberts = aj.load_scene("roberts")
+    qs = np.linspace(-np.pi, np.pi, 721)
+    bad = np.flatnonzero(~np.asarray(aj.kinematics(roberts.mechanism, qs, order=0, check=False).ok).all(-1))
     with pytest.raises(aj.AssemblyError, match=f"cannot assemble at the start q0 = {float(qs[bad[0]]):.6g}:"):
         aj.simulate(roberts, q0=float(qs[bad[0]]), t1=0.05, save_steps=True)
-    # nor where a load is NaN from the start (no step accepted): it was a lock-up "at t = inf s"
     nan_drive = aj.Drive(lambda q, w, t: jnp.nan * q, velocity_dependent=False)
     for save_steps in (False, True):
         stuck = aj.simulate(slider, loads=(nan_drive,), t1=0.05, stop=None, save_steps=save_steps)

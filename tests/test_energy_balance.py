@@ -23,8 +23,10 @@ def _closes(sol, rel=1e-6):
     return scale
 
 
-# the strandbeest, the triad and class IV (~18 s and ~11 s) in the slow suite: the default suite keeps to 10 min
-@pytest.mark.parametrize("name", marked_slow(assurjax.bundled_scenes(), ("strandbeest", "triad_mechanism", "class4_seed003")))
+# the strandbeest, the triad and class IV (~18 s and ~11 s), the quick-return and the Watt six-bar (~7 s each) in
+# the slow suite: the default suite keeps to 10 min; the slider-crank, the press with friction and others stay
+@pytest.mark.parametrize("name", marked_slow(assurjax.bundled_scenes(), ("strandbeest", "triad_mechanism", "class4_seed003",
+                                                                         "quick_return", "watt_sixbar")))
 def test_bundled_scene_energy_balance_closes(name):
     scene = assurjax.load_scene(name)
     t1 = min(1.0, scene.state["t1"])

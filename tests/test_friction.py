@@ -174,7 +174,14 @@ def test_a_rest_the_friction_neither_holds_nor_starts_is_a_jam():
             assert {"rest": moved == 0.0, "forward": moved > 0.0, "backward": moved < 0.0}[want], (q, push, tau, want, moved)
         found[want] = found.get(want, 0) + 1
     assert found == {"rest": 4, "jam": 2, "backward": 1, "forward": 1}, found
-    # a batch of the same starts counts the jam apart
+
+
+@pytest.mark.slow  # ~10 s: a batch's program; the single runs above stay in the default suite
+def test_a_batch_counts_a_jam_at_rest_apart():
+    """A batch of two starts of the steep slider above: the one the friction jams at rest is counted
+    apart from the one that runs to t1."""
+    scene = steep_slider_crank()
+    rough = aj.SlideFriction("slider/ground", STEEP_MU, 0.05)
     batch = aj.simulate(scene, loads=(aj.Drive(-0.2), aj.PointForce("B", [1.0, 0.0], link="slider"), rough),
                         q0=np.array([1.4, 1.0]), stop=None, t1=0.02, samples=5)
     assert batch.jammed.tolist() == [True, False] and "1 jammed" in batch.status and "1 reached t1" in batch.status
@@ -800,6 +807,26 @@ def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     assert np.max(np.abs(bare.driving)) > 1e-3  # without friction the same motion needs a drive
 
 
+def test_a_jammed_runs_last_state_has_no_statics(slider, rough):
+    """Along a Solution whose run the friction jammed, the jam's state (its last sample, at
+    t_final) has no dw/dt of a motion: reactions() marks it friction_ok False, there only
+    (the command printed the statics of its saved dw/dt as values and peaks). The rough
+    motion's held samples (the program of the test above), taken as a run jammed at its end;
+    as run, every one is consistent."""
+    import dataclasses
+
+    from assurjax.dynamics._solution import saved_rows
+
+    model = aj.Model(slider.mechanism, slider.gravity, frictions(slider.mechanism, MU, 1e-3))
+    held = (rough.omega == 0.0) & (rough.t > 0.5)
+    first = int(np.flatnonzero(held)[0])
+    assert held[first:].all()
+    tail = saved_rows(rough, slice(first, None))
+    assert np.asarray(aj.reactions(model, tail).friction_ok).all()
+    jammed = aj.reactions(model, dataclasses.replace(tail, jammed=True)).friction_ok
+    np.testing.assert_array_equal(jammed, np.arange(tail.t.size) < tail.t.size - 1)
+
+
 def _with_friction(scene, mu):
     return scene.with_loads(frictions(scene.mechanism, mu))
 
@@ -930,6 +957,7 @@ def test_iteration_stops_within_its_tolerance(slider):
     assert any(stopped_sooner)  # the looser tolerance is the one applied
 
 
+@pytest.mark.slow  # ~14 s (a program of its own); the samples of a stick-slip run stay checked by test_falls_oscillates_and_sticks
 def test_a_motor_stalling_at_the_band_edge_keeps_its_direction():
     """The press with mu = 1 (pins of 1 um, a 10 mm block) creeps to where its motor's stall
     torque is the band's upper edge: w dies away (1e-8 rad/s by 1.3 s) and the solution's

@@ -168,6 +168,7 @@ for name in assurjax.bundled_scenes():
 """
 
 
+@pytest.mark.slow  # ~6 s, a process of its own; test_stress.py's float32 test checks the same opt-in more closely
 def test_float32_opt_in():
     """ASSURJAX_FLOAT32=1 keeps JAX in float32; positions stay within 1e-6 m (~5e-6 of the
     0.18 m links) of the float64 closed form, as documented in assurjax/__init__.py."""

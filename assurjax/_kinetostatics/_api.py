@@ -89,7 +89,9 @@ class Reactions(eqx.Module):
     (no finite drive gives it: the statics' friction law has no root with det(I - S) > 0,
     S its slope), and the values reported there are not a drive that produces it. Held
     at rest, False where either break-away limit has none: the friction alone holds the
-    mechanism against any drive that way, and ``driving`` is not the band's edge.
+    mechanism against any drive that way, and ``driving`` is not the band's edge. Along a
+    Solution whose run the friction jammed (``sol.jammed``), False at the jam's state (its
+    last sample): the motion has no dw/dt there, so the values read there are no statics.
     True without friction.
     """
 
@@ -727,6 +729,9 @@ def _run(scene, state, joints, method, check, *, static, source=None):
         forces = {k: forces[k] for k in names}
         couples = {k: v for k, v in couples.items() if k in names}
     pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
+    jam_state = at_jam_state(source, shape)
+    if jam_state is not None:
+        friction_ok = friction_ok & ~jam_state
     result = Reactions(forces=forces, couples=couples, driving=driving, ok=ok, pairs=pairs, friction=friction,
                        friction_power=friction_power, friction_ok=friction_ok)
     if check:
@@ -737,6 +742,19 @@ def _run(scene, state, joints, method, check, *, static, source=None):
             ok = _batched(model, (q, omega, alpha, t), "modular", groups, static, may_rest(omega, alpha))[3]
         raise_if_singular(mechanism, ok, q)
     return result
+
+
+def at_jam_state(solution, shape) -> np.ndarray | None:
+    """Where ``solution``'s samples (broadcast to ``shape``) are the state where the joint
+    friction jammed its run (at its ``t_final``): the motion has no dw/dt there, and the
+    statics read from the saved one stand for none. None where no run jammed (or the
+    jam is not known: a bare state, or a Solution from jit/vmap)."""
+    jammed = getattr(solution, "jammed", None)
+    if jammed is None or isinstance(solution, (dict, tuple, list)) or not np.any(jammed):
+        return None
+    t, t_final, jammed = np.asarray(solution.t), np.asarray(solution.t_final), np.asarray(jammed, dtype=bool)
+    at_end = (t >= t_final[..., None]) & jammed[..., None] if t.ndim > t_final.ndim else (t >= t_final) & jammed
+    return np.broadcast_to(at_end, shape)
 
 
 def raise_if_singular(mechanism: Mechanism, ok, q) -> None:
