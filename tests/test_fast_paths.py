@@ -38,9 +38,10 @@ def _steps_error(watt, joint, steps, **kw):
     return sol, np.max(np.abs(sol.q - joint.q[::stride]))
 
 
-# the exact reduction's in the slow suite (~11 s; fixed steps on it stay checked by default in
-# test_dynamics.py's orders): the default suite keeps to 10 min
-@pytest.mark.parametrize("reduction", [pytest.param("exact", marks=pytest.mark.slow), "table"])
+# in the slow suite (~11 s each; fixed steps stay checked by default in test_dynamics.py's orders, the
+# table against the reference in test_table.py): the default suite keeps to 10 min
+@pytest.mark.slow
+@pytest.mark.parametrize("reduction", ["exact", "table"])
 def test_fixed_steps_converge_with_order_eight(watt, table, joint, reduction):
     """Dopri8 steps: errors against the joint reference fall by at least 2^6 per
     halving of the step (order 8) and 40 steps are within 1e-9 rad."""

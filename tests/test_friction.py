@@ -1304,13 +1304,15 @@ def _kinked_run_error(cuts: bool) -> float:
     return float(np.max(np.abs(sol.q - expected.q)))
 
 
+@pytest.mark.slow  # ~19 s (a program of its own); the cuts (on by default) stay checked against the reference by
+# test_agrees_with_the_joint_based_reference[slider_crank], whose slide has a block length
 def test_cuts_at_the_slides_kinks_keep_the_values_accurate():
     """simulate(kink_events=True) cuts at the slide's kinks, which the steps otherwise cross:
     q within 1e-6 rad of the joint-based reference (6.1e-7 measured)."""
     assert _kinked_run_error(True) < 1e-6
 
 
-@pytest.mark.slow  # ~12 s (a program of its own); the cut run against the reference stays in the default suite
+@pytest.mark.slow  # ~12 s (a program of its own)
 def test_steps_across_the_slides_kinks_lose_accuracy():
     """Without the cuts the steps across the kinks leave q 13x further off the reference
     (8.1e-6 rad against 6.1e-7)."""

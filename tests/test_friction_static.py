@@ -149,6 +149,7 @@ def test_agrees_with_the_joint_based_reference(case):
     assert np.max(np.abs(sol.balance)) < 1e-7 * np.max(np.abs(sol.total))
 
 
+@pytest.mark.slow  # ~12 s (programs of its own); the static coefficient against the reference stays in the default suite
 def test_a_traced_static_coefficient_below_the_kinetic_one_is_named_not_held():
     """A static coefficient below mu that the constructor cannot check (traced under the
     user's jit, an optimizer's step, put in by tree_at): the weaker rest law broke the
