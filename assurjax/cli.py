@@ -990,7 +990,7 @@ def cmd_run(args) -> int:
                                 failed)
             bar.update(1)
     summary = dict(
-        scene=scene.name, status=sol.status, solver_failed=failed, t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
+        scene=scene.name, status=sol.status, solver_failed=failed, jammed=bool(sol.jammed), t_stop=sol.t_stop, samples=int(len(sol.t)), steps=int(getattr(sol, "num_steps", len(sol.t) - 1)),
         t_final=float(sol.t[-1]), q_final=float(sol.q[-1]), timings_s=dict(load=load_time, simulate_first_call=first, simulate_compiled=second, reactions=rx_time),
         units=dict(t="s", **units, energies="J", positions="m", angles="rad", forces="N"),
     )
@@ -1157,7 +1157,7 @@ def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -
 
     if not any(drives(load) for load in scene.loads):
         return None
-    effort = float(driver_effort(scene.mechanism, scene.loads, q0, 0.0, scene.state.get("t0", 0.0)))
+    effort = float(driver_effort(scene.mechanism, scene.loads, q0, 0.0, scene.state.get("t0", 0.0))) + 0.0  # not -0
     unit = units["driving"]
     if lower <= effort <= upper:
         verdict = "within the band: it stays at rest" if lower < upper else "the drive that holds it: it stays at rest"
@@ -1171,6 +1171,7 @@ def _band_line(lower: float, upper: float, units: dict) -> str:
     """The break-away band (``assurjax.breakaway_band``) in words; an infinite edge: no drive
     starts the mechanism that way."""
     unit = units["driving"]
+    lower, upper = lower + 0.0, upper + 0.0  # -0.0 printed as -0
     if lower == upper:  # no friction at rest (a regularized law, or no Coulomb coefficient)
         return (f"  with its joint friction only {upper:+.6g} {unit} holds it (the friction holds nothing at rest): any "
                 "other drive starts it, forward above, backward below")

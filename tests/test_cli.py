@@ -111,7 +111,7 @@ def test_run_summary_standstill(watt_run, capsys):
 
     summary = json.loads((out / "summary.json").read_text())
     cols = read_csv(out / "solution.csv")
-    assert summary["t_stop"] == pytest.approx(cols["t"][-1])
+    assert summary["t_stop"] == pytest.approx(cols["t"][-1]) and summary["jammed"] is False
     assert abs(cols["omega"][-1]) < 1e-6 * np.max(np.abs(cols["omega"]))  # at rest again
     assert summary["energy_drift_J"] < 1e-5 * np.max(cols["T"])
     assert {"simulate_first_call", "simulate_compiled"} <= set(summary["timings_s"])
@@ -405,7 +405,7 @@ def test_run_with_joint_friction_to_a_standstill(write_scene, tmp_path, capsys):
     assert main(["run", str(write_scene(ROUGH_ARM_RUN)), "--out", str(out), "--frames", "2", "--quiet"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     cols = read_csv(out / "solution.csv")
-    assert summary["t_stop"] == pytest.approx(cols["t"][-1]) and cols["q"][-1] < -math.pi / 2  # past the bottom
+    assert summary["t_stop"] == pytest.approx(cols["t"][-1]) and summary["jammed"] is False and cols["q"][-1] < -math.pi / 2  # past the bottom
     assert summary["energy_drift_J"] < 1e-6 * np.max(cols["T"])
     assert np.min(cols["W"]) < -0.01  # the friction took energy
     np.testing.assert_allclose(cols["driving"], 0.0, atol=1e-9)
@@ -644,6 +644,7 @@ def test_a_run_that_jams_by_friction_exits_0(write_scene, tmp_path, capsys):
     assert main(["run", str(write_scene(STEEP_SLIDER)), "--out", str(out), "--no-animation", "--quiet"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"].startswith("the joint friction jams the mechanism") and summary["solver_failed"] is False
+    assert summary["jammed"] is True  # a script need not read the status's words
     assert summary["q_final"] == pytest.approx(math.asin(0.105 / (0.1 * math.sqrt(1.0 + 0.5**2))), abs=1e-6)
     assert "FAILED" not in capsys.readouterr().out
 

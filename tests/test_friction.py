@@ -250,6 +250,28 @@ def test_inverse_dynamics_flags_a_motion_the_friction_self_locks():
     assert bool(aj.reactions(aj.Model(scene.mechanism, scene.gravity, ()), (q, w, alpha)).friction_ok.all())
 
 
+def test_a_slider_held_inside_its_friction_angle_carries_its_drive():
+    """The steep slider at rest inside its self-locking zone (ex < mu |ey|) under a drive of
+    +-1 N m and no other load: the friction holds it, so the pairs carry the drive (hand
+    statics: the crank's torque balance gives the rod's force F along the rod, the guide's
+    friction takes its component along the guide, within mu |F_y|). Its limits at rest are the
+    zero root (no load but the drive): the reactions read 0 N everywhere and 0 N m of drive."""
+    scene = steep_slider_crank()
+    q = np.array([1.25, 1.5, 1.9])
+    for tau in (1.0, -1.0):
+        model = aj.Model(scene.mechanism, scene.gravity, (aj.Drive(tau), aj.SlideFriction("slider/ground", STEEP_MU, 0.05)))
+        r = aj.reactions(model, (q, np.zeros_like(q), np.zeros_like(q)))
+        a = STEEP_R * np.stack([np.cos(q), np.sin(q)], -1)
+        rod = np.stack([np.sqrt(STEEP_L**2 - a[:, 1] ** 2), -a[:, 1]], -1) / STEEP_L  # unit A -> B
+        force = tau / (a[:, 0] * rod[:, 1] - a[:, 1] * rod[:, 0])  # tau + (A x (-F rod)) = 0
+        on_slider = force[:, None] * rod
+        assert np.all(np.abs(on_slider[:, 0]) < STEEP_MU * np.abs(on_slider[:, 1]))  # inside the zone: held
+        np.testing.assert_allclose(r.driving, tau, rtol=1e-12)
+        np.testing.assert_allclose(r.forces["B"], on_slider, rtol=1e-9)
+        np.testing.assert_allclose(r.friction["slider/ground"], -on_slider[:, 0], rtol=1e-9)
+        assert np.asarray(r.friction_ok).all()
+
+
 def test_a_start_held_by_friction_is_a_standstill_at_t0(slider):
     """stop='standstill' from a start the friction holds: a standstill at t0, at rest (it
     used to run with the Coulomb signs of an assumed direction, against the motion they

@@ -128,6 +128,21 @@ def test_a_legend_outside_the_axes_stays_inside_a_users_figure(watt, watt_frames
     assert "at driver speed 1 rad/s" in viz.plot_angular_velocities(unit_speed).get_ylabel()
 
 
+def test_reactions_plot_takes_a_reactions_and_leaves_samples_without_statics_out():
+    """A Reactions whole (it was a raw AttributeError): its samples whose friction_ok is False
+    (no statics there, e.g. a jammed run's last state) are gaps, the others |F| = hypot(Fx, Fy)."""
+    import assurjax as aj
+
+    t, forces = np.linspace(0, 1, 4), np.array([[3.0, 4.0], [6.0, 8.0], [0.0, 1.0], [5.0, 12.0]])
+    r = aj.Reactions(forces={"A": forces}, couples={}, driving=np.zeros(4), ok=np.ones((4, 1), bool), pairs=(),
+                     friction_ok=np.array([True, True, True, False]))
+    drawn = viz.plot_reactions(t, r).lines[0].get_ydata()
+    np.testing.assert_array_equal(drawn[:3], [5.0, 10.0, 1.0])
+    assert np.isnan(drawn[3])
+    with pytest.raises(aj.AssurjaxError, match="pass an assurjax.Reactions or a mapping"):
+        viz.plot_reactions(t, forces)
+
+
 def test_line_plots_carry_units_and_legends(watt_frames):
     t = np.linspace(0, 1, 11)
     checks = [

@@ -309,18 +309,26 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     fits = pick_flag(consistent)
     if rests:
         locked = (direction == 0) & ~(consistent[0] & consistent[1])
-        args = (held_model, kin, t, method, groups, drive, us, signs, consistent, linear)
-        u, found, fits = _where_locked(locked, (u, found, fits), args)
+        # a limit at the zero root (its pairs carry no load at rest: a wedge driven by nothing but
+        # the drive) bounds no push: whether the friction holds one is the self-locking pattern's
+        # test (the steep slider held inside its friction angle read 0 N everywhere, not its drive)
+        trivial = jnp.all(us == 0, axis=-1)
+        wedged = (direction == 0) & (trivial[0] | trivial[1])
+        args = (held_model, kin, t, method, groups, drive, us, signs, consistent & ~trivial, linear)
+        u, found, fits = _where_locked(locked, wedged, (u, found, fits), args)
     return found + (u, rates, fits) if friction else found
 
 
-def _where_locked(locked, default, args):
-    """``default`` (u, reactions, friction ok), or :func:`_held_locked`'s where ``locked``;
-    computed only where some member of a batch is (a cond on the batch, as finish_friction's)."""
+def _where_locked(locked, wedged, default, args):
+    """``default`` (u, reactions, friction ok), or :func:`_held_locked`'s where ``locked``, and
+    where ``wedged`` if its friction holds the drive there; computed only where some member of a
+    batch is either (a cond on the batch, as finish_friction's)."""
     def both():
-        return jax.tree.map(lambda a, b: jnp.where(locked, a, b), _held_locked(*args), default)
+        held = _held_locked(*args)
+        take = locked | (wedged & held[2])
+        return jax.tree.map(lambda a, b: jnp.where(take, a, b), held, default)
 
-    return jax.lax.cond(eqxi.unvmap_any(locked), both, lambda: default)
+    return jax.lax.cond(eqxi.unvmap_any(locked | wedged), both, lambda: default)
 
 
 SELF_LOCK_STEPS = 60  # power iterations for the friction pattern a self-locked mechanism holds a push with

@@ -54,8 +54,9 @@ class Solution(eqx.Module):
     with a remedy when the solver stopped early. ``jammed``: True where the run stopped
     because the joint friction jams the mechanism (no consistent motion on: a physical end,
     see ``status``; its ``result`` is the solver's ``dt_min_reached``, so ``successful`` is
-    False), per member for a batch; None under jit/vmap (``simulate_core``), where it is not
-    tested. ``mechanism_points``: the simulated mechanism's point names (None under jit/vmap):
+    False; the last sample is the jam's state, where the motion has no dw/dt: its ``domega`` is
+    that of no motion, and :func:`assurjax.reactions` marks it ``friction_ok`` False), per
+    member for a batch; None under jit/vmap (``simulate_core``), where it is not tested. ``mechanism_points``: the simulated mechanism's point names (None under jit/vmap):
     :func:`assurjax.reactions` refuses a Solution of another mechanism by them.
     """
 

@@ -229,14 +229,28 @@ def plot_energy_drift(t, total, *, ax=None):
     return plot_time_histories(t, {"E(t) - E(0)": total - total[0]}, ylabel="energy drift (J)", ax=ax, title="energy drift")
 
 
-def plot_reactions(t, reactions: Mapping[str, np.ndarray], *, ax=None, components: bool = False):
-    """Joint reactions (N) against time: magnitudes (Durango et al. 2014, Fig. 6c), or x/y components."""
+def plot_reactions(t, reactions, *, ax=None, components: bool = False):
+    """Joint reactions (N) against time: magnitudes (Durango et al. 2014, Fig. 6c), or x/y components.
+
+    ``reactions``: joint -> (samples, 2) forces (``Reactions.forces``), or an
+    :class:`assurjax.Reactions` along the samples, whose samples without statics
+    (``friction_ok`` False: a motion the friction self-locks, a jammed run's last state)
+    are left out as gaps."""
+    statics = None
+    if hasattr(reactions, "forces") and hasattr(reactions, "friction_ok"):  # a Reactions
+        statics = None if reactions.friction_ok is None else np.asarray(reactions.friction_ok, dtype=bool)
+        reactions = reactions.forces
+    if not isinstance(reactions, Mapping):
+        raise AssurjaxError("joint reactions: pass an assurjax.Reactions or a mapping joint -> (samples, 2) forces, "
+                            f"got {type(reactions).__name__}")
     series = {}
     for joint, force in reactions.items():
         force = np.asarray(force, dtype=float)
         if force.ndim != 2 or force.shape[-1] != 2:
             raise AssurjaxError(f"joint reactions: the force at '{joint}' must be (samples, 2) (Fx, Fy per sample, N), "
                                 f"got shape {force.shape}")
+        if statics is not None and statics.shape == force.shape[:1]:
+            force = masked(force, statics)
         if components:
             series[f"{joint} Fx"], series[f"{joint} Fy"] = force[..., 0], force[..., 1]
         else:
