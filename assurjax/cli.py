@@ -1123,6 +1123,8 @@ def cmd_reactions(args) -> int:
         for ax in axes:
             ax.text(0.5, 0.5, "none: no sample has statics\n(no consistent friction, or the jam's state)", transform=ax.transAxes,
                     ha="center", va="center")
+            if len(sol.t) > 1:  # the run's time span, not matplotlib's default about 0 for curves of NaN only
+                ax.set_xlim(float(sol.t[0]), float(sol.t[-1]))
     files.append(_savefig(fig, out / "reactions.png"))
     print(f"{scene.name}: reactions along the motion ({sol.status}), {len(sol.t)} sample{'s' * (len(sol.t) != 1)} in {elapsed:.2f} s")
     for line in _failure_lines(scene, sol, units) if failed else ():
