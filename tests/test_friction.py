@@ -255,7 +255,8 @@ def test_a_slider_held_inside_its_friction_angle_carries_its_drive():
     +-1 N m and no other load: the friction holds it, so the pairs carry the drive (hand
     statics: the crank's torque balance gives the rod's force F along the rod, the guide's
     friction takes its component along the guide, within mu |F_y|). Its limits at rest are the
-    zero root (no load but the drive): the reactions read 0 N everywhere and 0 N m of drive."""
+    zero root (no load but the drive), which the reactions took for the band's edges: they read
+    0 N everywhere and 0 N m of drive."""
     scene = steep_slider_crank()
     q = np.array([1.25, 1.5, 1.9])
     for tau in (1.0, -1.0):

@@ -757,8 +757,8 @@ def at_jam_state(solution, shape) -> np.ndarray | None:
     friction jammed its run (at its ``t_final``): the motion has no dw/dt there, and the
     statics read from the saved one stand for none. None where no run jammed (or the
     jam is not known: a bare state, or a Solution from jit/vmap)."""
-    jammed = getattr(solution, "jammed", None)
-    if jammed is None or isinstance(solution, (dict, tuple, list)) or not np.any(jammed):
+    jammed = getattr(solution, "jammed", None)  # None for a bare state (a dict, a tuple)
+    if jammed is None or not np.any(jammed):
         return None
     t, t_final, jammed = np.asarray(solution.t), np.asarray(solution.t_final), np.asarray(jammed, dtype=bool)
     at_end = (t >= t_final[..., None]) & jammed[..., None] if t.ndim > t_final.ndim else (t >= t_final) & jammed
