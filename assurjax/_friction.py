@@ -70,6 +70,19 @@ class AbstractFriction(AbstractLoad):
     dissipative: ClassVar[bool] = True
     kind: ClassVar[str]
 
+    def in_range(self) -> jax.Array:
+        """Whether its values are in the ranges the constructor checks (a traced flag: a value
+        traced there, under a sweep or vmap, is checked by the run that reads it)."""
+        ok = [self.coefficient >= 0, self.viscous >= 0] + self._own_in_range()
+        if self.smoothing is not None:
+            ok.append(self.smoothing > 0)
+        if self.static_coefficient is not None:  # below the kinetic one: static_in_order
+            ok.append(self.static_coefficient >= 0)
+        return jnp.all(jnp.stack([jnp.all(v) for v in ok]))
+
+    def _own_in_range(self) -> list:
+        return []
+
     def _set_law(self, pair: str, coefficient, viscous, smoothing, static_coefficient) -> None:
         """The fields every element has: its pair, mu and the viscous coefficient (checked >= 0),
         the optional smoothing speed (checked > 0; None: the exact law) and the optional static
@@ -162,6 +175,9 @@ class JointFriction(AbstractFriction):
         check_value(MechanismError, f"JointFriction '{joint}': radius", radius, shape=(), nonnegative=True)
         self.radius = jnp.asarray(radius, dtype=float)
 
+    def _own_in_range(self) -> list:
+        return [self.radius >= 0]
+
     def rate_terms(self, mechanism, x, dx):
         p = pairs_by_name(mechanism)[self.pair]
         return _relative_turn(_angle(dx, p.on), _angle(dx, p.by))
@@ -204,6 +220,9 @@ class SlideFriction(AbstractFriction):
         self._set_law(pair, coefficient, viscous, smoothing, static_coefficient)
         check_value(MechanismError, f"SlideFriction '{pair}': length", length, shape=(), positive=True)
         self.length = jnp.asarray(length, dtype=float)
+
+    def _own_in_range(self) -> list:
+        return [self.length > 0]
 
     def _direction(self, kin, p):  # the slider's x axis lies along the guide
         return rotation(kin.angles[p.on]) if kin.rotations is None else kin.rotations[p.on]
@@ -377,6 +396,12 @@ def has_exact_law(loads) -> bool:
 def has_static(loads) -> bool:
     """Whether some friction element has a static coefficient of its own."""
     return any(getattr(load, "static_coefficient", None) is not None for load in loads)
+
+
+def in_range(loads) -> jax.Array:
+    """Whether every friction element's values are in range (:meth:`AbstractFriction.in_range`)."""
+    frictions = frictions_of(loads)
+    return jnp.all(jnp.stack([f.in_range() for f in frictions])) if frictions else jnp.asarray(True)
 
 
 def static_in_order(loads):

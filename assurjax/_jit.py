@@ -280,12 +280,18 @@ def any_mapped(tree) -> bool:
     apart from the vmap. A model mapped by a vmap (a sweep over its parameters) is not
     flattened (:func:`flattened_floats`): flat, per member, it made a sweep of 2000 Watt
     six-bars over a third of their parameters 0.36 -> 0.46 s (10 000 vmapped starts with
-    the whole FieldArgs flat, q0 in it: 2.7 -> 4.3 s)."""
+    the whole FieldArgs flat, q0 in it: 2.7 -> 4.3 s). A derivative taken inside the vmap
+    (``jax.vmap(jax.grad(f))``) wraps the mapped values in its own tracers: their primal
+    values are looked at (only they steer the loops; ``jax.jacfwd`` maps tangents alone)."""
     return any(_mapped(leaf) for leaf in jax.tree.leaves(tree))
 
 
 def _mapped(value) -> bool:
-    return _BatchTracer is None or (isinstance(value, _BatchTracer) and value.batch_dim is not None)
+    if _BatchTracer is None:
+        return True
+    while not isinstance(value, _BatchTracer) and isinstance(getattr(value, "primal", None), _jax_core.Tracer):
+        value = value.primal
+    return isinstance(value, _BatchTracer) and value.batch_dim is not None
 
 
 def compile_side_by_side(first, first_args: tuple, second, second_args) -> None:

@@ -450,6 +450,27 @@ def _kinematics_item(points, order):
 # --------------------------------------------------------------------------- batched simulation
 
 
+VARY_LOADS = ("to vary the loads (a friction coefficient, a drive) across a batch, sweep simulate_core with "
+              "assurjax.sweep over their values")
+
+
+def _check_one_scene(scene, mechanisms) -> None:
+    """batch_simulate takes one scene (its loads shared by every member) and a batch of
+    mechanisms: a stack of scenes in either place is named as such."""
+    from ._friction import frictions_of
+    from .scene._scene import Scene
+
+    if isinstance(mechanisms, Scene):
+        raise AssurjaxError("batch_simulate: mechanisms takes a batch of Mechanisms (from scene.mechanism, e.g. by "
+                            f"assurjax.perturb), got a Scene; every member runs under the scene's loads: {VARY_LOADS}")
+    stacked = [] if jnp.shape(scene.gravity) == (2,) else [f"gravity of shape {tuple(jnp.shape(scene.gravity))}"]
+    stacked += [f"the friction coefficient of '{f.pair}' of shape {tuple(jnp.shape(f.coefficient))}"
+                for f in frictions_of(scene.loads) if jnp.ndim(f.coefficient)]
+    if stacked:
+        raise AssurjaxError(f"batch_simulate: the scene is a stack of scenes ({stacked[0]}): it takes one scene and a "
+                            f"batch of its mechanisms; {VARY_LOADS}")
+
+
 def batch_simulate(
     scene,
     mechanisms: Mechanism,
@@ -490,6 +511,7 @@ def batch_simulate(
 
     refuse_traced("batch_simulate", mechanisms=jax.tree.leaves(mechanisms), q0=q0, omega0=omega0, t1=t1, saveat=saveat,
                   **settings)
+    _check_one_scene(scene, mechanisms)
     state = scene.state
     q0 = state.get("q0", 0.0) if q0 is None else q0
     omega0 = state.get("omega0", 0.0) if omega0 is None else omega0

@@ -17,7 +17,8 @@ them (default: this one), so that two versions of the code compare in one run; `
     python benchmarks/bench_friction_gradients.py [--root DIR --label TEXT ...] [--quick] [--case S,L,M] [--out FILE]
 
 ``--quick``: the slider-crank alone; ``--case`` (repeatable): only these cases, each as
-scene,law,mode (e.g. ``slider_crank,exact,reverse``).
+scene,law,mode (e.g. ``slider_crank,exact,reverse``); ``slider_crank,exact,batch-reverse``
+and ``batch-forward``: ``jax.vmap`` of the derivative over four coefficients (asked only).
 
 Writes results/friction_gradients.json unless told otherwise.
 """
@@ -61,16 +62,18 @@ def press(mu):
     return scene.with_loads(tuple(scaled(load) for load in scene.loads))
 
 build, t1, kw, mu0 = {"slider_crank": (slider_crank, 0.8, dict(q0=0.5), 0.2), "press": (press, 0.5, {}, 0.15)}[scene_name]
-adjoint = "recursive" if mode == "reverse" else "forward"
+adjoint = "recursive" if mode.endswith("reverse") else "forward"
 
 def q_at(mu):
     return aj.synthesis.final_state(build(mu), t1, rtol=1e-10, atol=1e-10, adjoint=adjoint, **kw)[0]
 
-derivative = jax.jit(jax.grad(q_at) if mode == "reverse" else jax.jacfwd(q_at))
-mu = jnp.asarray(mu0)
+derivative = jax.grad(q_at) if adjoint == "recursive" else jax.jacfwd(q_at)
+batch = mode.startswith("batch")  # four designs in one vmapped call
+derivative = jax.jit(jax.vmap(derivative) if batch else derivative)
+mu = mu0 * jnp.array([0.5, 1.0, 1.5, 2.0]) if batch else jnp.asarray(mu0)
 t = time.perf_counter(); lowered = derivative.lower(mu); traced = time.perf_counter() - t
 compiled = lowered.compile(); compiled_at = time.perf_counter() - t
-value = float(compiled(mu)); first = time.perf_counter() - t
+value = compiled(mu).tolist(); first = time.perf_counter() - t
 warm = []
 for _ in range(5):
     t = time.perf_counter(); compiled(mu).block_until_ready(); warm.append(time.perf_counter() - t)
@@ -80,6 +83,8 @@ print(json.dumps(dict(derivative=value, trace_s=traced, compile_s=compiled_at - 
 
 CASES = [(scene, law, mode) for scene in ("slider_crank", "press") for law in ("exact", "smoothed")
          for mode in ("reverse", "forward")]
+# jax.vmap of the derivative over four coefficients (mu0 x 0.5, 1, 1.5, 2): only when asked (--case)
+BATCH_CASES = [("slider_crank", "exact", "batch-reverse"), ("slider_crank", "exact", "batch-forward")]
 
 
 def child(root: Path, case) -> dict:
@@ -87,7 +92,9 @@ def child(root: Path, case) -> dict:
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     # run from the checkout: ``python -c`` puts the working directory first on the path
     out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(case)], capture_output=True, text=True, env=env,
-                         check=True, cwd=root)
+                         cwd=root)
+    if out.returncode != 0:  # a code that cannot take the derivative (raised): recorded as such
+        return dict(error=out.stderr.strip().splitlines()[-1][:300])
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -105,15 +112,19 @@ def main():
         parser.error("give one --label per --root")
     runs = []
     chosen = [tuple(c.split(",")) for c in options.case or []]
-    if any(c not in CASES for c in chosen):
-        parser.error(f"--case: one of {', '.join(','.join(c) for c in CASES)}")
-    for case in [c for c in CASES if (not options.quick or c[0] == "slider_crank") and (not chosen or c in chosen)]:
+    if any(c not in CASES + BATCH_CASES for c in chosen):
+        parser.error(f"--case: one of {', '.join(','.join(c) for c in CASES + BATCH_CASES)}")
+    for case in [c for c in CASES + BATCH_CASES
+                 if (not options.quick or c[0] == "slider_crank") and (c in chosen if chosen else c in CASES)]:
         for k, root in enumerate(roots):
             r = dict(case=dict(zip(("scene", "law", "mode"), case)), code=k, **child(root, case))
             runs.append(r)
-            print(f"{case[0]}, {case[1]} law, {case[2]} mode, code {k}: d q/d mu {r['derivative']:.12g}; first call "
-                  f"{r['first_s']:.1f} s (trace {r['trace_s']:.1f}, compile {r['compile_s']:.1f}), warm {r['warm_ms']:.1f} ms",
-                  flush=True)
+            head = f"{case[0]}, {case[1]} law, {case[2]} mode, code {k}:"
+            if "error" in r:
+                print(f"{head} raised: {r['error']}", flush=True)
+                continue
+            print(f"{head} d q/d mu {r['derivative']}; first call {r['first_s']:.1f} s (trace {r['trace_s']:.1f}, "
+                  f"compile {r['compile_s']:.1f}), warm {r['warm_ms']:.1f} ms", flush=True)
     options.out.write_text(json.dumps(dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count()),
                                            codes=labels, runs=runs), indent=1))
 

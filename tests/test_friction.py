@@ -1758,16 +1758,40 @@ def test_a_coulomb_switch_is_located_at_tight_tolerances_and_in_float32(tmp_path
     assert ok == "True" and abs(float(q32) - q64) < 1e-3  # float32 at 1e-5 against float64
 
 
+def test_traced_friction_values_out_of_range_are_flagged():
+    """A friction value traced past its constructor's checks (a sweep's, a vmap's): in_range()
+    is False where the constructor would refuse it (a negative coefficient, radius, damping
+    or static coefficient, a block length or smoothing speed not positive), True at its edges;
+    the runs read it (the test below, and a sweep of the press with mu = -0.2 had the friction
+    put 22 J into the press, its result "successful")."""
+    def joint(mu, r, c, v, mu_s):
+        return aj.JointFriction("O", mu, r, viscous=c, smoothing=v).in_range() & aj.JointFriction(
+            "O", mu, r, viscous=c, static_coefficient=mu_s).in_range()
+
+    def slide(mu, length, c):
+        return aj.SlideFriction("slider/ground", mu, length, viscous=c).in_range()
+
+    joint, slide = jax.jit(joint), jax.jit(slide)
+    assert bool(joint(0.0, 0.0, 0.0, 1e-3, 0.0)) and bool(slide(0.0, 1e-3, 0.0))
+    for bad in ((-0.1, 0.01, 0.0, 1e-3, 0.2), (0.1, -0.01, 0.0, 1e-3, 0.2), (0.1, 0.01, -1.0, 1e-3, 0.2),
+                (0.1, 0.01, 0.0, 0.0, 0.2), (0.1, 0.01, 0.0, 1e-3, -0.2)):
+        assert not bool(joint(*bad)), bad
+    for bad in ((-0.1, 0.05, 0.0), (0.1, 0.0, 0.0), (0.1, 0.05, -2.0)):
+        assert not bool(slide(*bad)), bad
+
+
 @pytest.mark.slow  # ~24 s: two friction programs of their own (no default test traces mu through a run to share one)
 def test_a_traced_friction_coefficient_that_is_not_finite_is_named_not_held(slider):
     """A friction coefficient traced under the user's jit (an optimizer's step gone NaN)
     cannot be checked before the run; it read as a mechanism held at rest (from rest, q(T) =
-    q0, a plausible answer) or as a jam. The run's result names it, and final_state is NaN."""
+    q0, a plausible answer) or as a jam. The run's result names it, and final_state is NaN.
+    A negative one ran as a successful motion driven by its friction: its result names it."""
     settings = aj.SimulationSettings(samples=2)
     run = jax.jit(lambda mu: aj.simulate_core(slider.mechanism, slider.gravity, frictions(slider.mechanism, mu), 0.5, 0.0, 0.0,
                                               0.3, settings=settings))
     for mu in (np.nan, np.inf):
         assert run(jnp.asarray(mu)).result == aj.RESULTS.nonfinite_friction
+    assert run(jnp.asarray(-MU)).result == aj.RESULTS.friction_out_of_range  # it ran, the friction driving it
     assert run(jnp.asarray(MU)).result == aj.RESULTS.successful
     q, w = jax.jit(lambda mu: aj.synthesis.final_state(_with_friction(slider, mu), 0.3))(jnp.asarray(np.nan))
     assert np.isnan(q) and np.isnan(w)

@@ -524,7 +524,7 @@ def test_link_values_scene_and_python_agree(field, value, words):
         (lambda d: d.update(loads=[{"type": "spring", "points": ["A", "O4"], "stiffness": float("inf")}]), ["'stiffness'", "finite"]),
         (lambda d: d.update(loads=[{"type": "couple", "link": "crank",
                                     "moment": {"x": [0.0, 1.0], "values": [0.0, 1.0], "period": float("nan")}}]), ["'moment'", "period", "finite"]),
-        (lambda d: d.update(simulation={"samples": 2_000_000}), ["[simulation]", "'samples'", "from 2 to 100000", "48 MB", "the limit needs 2.4 MB"]),
+        (lambda d: d.update(simulation={"samples": 2_000_000}), ["[simulation]", "'samples'", "from 2 to 100000", "48 MB", "the limit allows 2.4 MB"]),
         (lambda d: d.update(simulation={"table_nodes": "big"}), ["[simulation]", "'table_nodes'", "'big'"]),
         (lambda d: d.update(simulation={"steps": [10]}), ["[simulation]", "'steps'"]),
         (lambda d: d["outputs"].update(velocities="yes"), ["[outputs]", "'velocities'", "true or false"]),

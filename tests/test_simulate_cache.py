@@ -185,3 +185,17 @@ def test_a_simulation_not_jitted_as_a_whole_compiles_once():
     assert COMPILES.counts["jit(_core_program)"] == 1, COMPILES.counts
     assert float(first) != float(second)
     np.testing.assert_allclose([float(f) for f in finals], [float(first), float(second)], rtol=0, atol=1e-12)
+
+
+def test_simulate_core_takes_the_settings_settings_from_builds():
+    """SimulationSettings' docstring says to build them with settings_from, whose default
+    reduction is 'auto' (simulate's choice, made on the host); simulate_core refused it from
+    inside the user's trace. It takes the exact reduction there (traced only: no compile)."""
+    from assurjax.dynamics._settings import settings_from
+
+    scene = aj.load_scene("slider_crank")
+    settings = settings_from(scene)
+    assert settings.reduction == "auto"
+    out = jax.eval_shape(lambda q0: aj.simulate_core(scene.model, None, (), q0, 0.0, 0.0, 0.5, settings=settings).q_final,
+                         0.0)
+    assert out.shape == ()

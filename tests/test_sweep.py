@@ -332,6 +332,26 @@ def test_a_batch_of_mechanisms_is_checked_before_it_runs():
             assurjax.batch_simulate(scene, member, progress=False)
 
 
+def test_a_stack_of_scenes_is_named_where_batch_simulate_takes_one_scene():
+    """batch_simulate runs a batch of mechanisms under one scene's loads: a user who stacked
+    scenes to vary a friction coefficient read "not of the scene's structure" (in place of the
+    mechanisms) or "Model: gravity must be a 2-vector" (in place of the scene); both now say
+    what it takes and where loads are varied."""
+    import equinox as eqx
+
+    scene = assurjax.load_scene("slider_crank")
+    rough = [scene.with_loads(scene.loads + (assurjax.JointFriction("O", mu, 0.01),)) for mu in (0.1, 0.2)]
+    stack = jax.tree.map(lambda *v: jnp.stack(v) if eqx.is_array(v[0]) else v[0], *rough)
+    with pytest.raises(AssurjaxError, match="batch_simulate: mechanisms takes a batch of Mechanisms .* got a Scene; .*"
+                                            "sweep simulate_core with assurjax.sweep"):
+        assurjax.batch_simulate(rough[0], stack, progress=False)
+    with pytest.raises(AssurjaxError, match=r"batch_simulate: the scene is a stack of scenes \(gravity of shape \(2, 2\)\)"):
+        assurjax.batch_simulate(stack, stack.mechanism, progress=False)
+    stacked_mu = eqx.tree_at(lambda s: s.loads[-1].coefficient, rough[0], jnp.array([0.1, 0.2]))
+    with pytest.raises(AssurjaxError, match=r"the friction coefficient of 'O' of shape \(2,\)"):
+        assurjax.batch_simulate(stacked_mu, stack.mechanism, progress=False)
+
+
 def test_a_batch_of_starts_is_bounded_by_all_it_saves():
     # a million starts and 100 000 samples, each within its own bound: a raw MemoryError (745 GiB)
     scene = assurjax.load_scene("slider_crank")

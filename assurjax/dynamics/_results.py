@@ -34,6 +34,9 @@ with warnings.catch_warnings():  # equinox warns that ``successful`` gets a mess
                                 "(or, where no derivative is taken, set kink_events=False).")
         nonfinite_friction = ("A friction element's coefficient, radius, length or damping is not finite (a traced "
                               "value, which cannot be checked before the run): no motion is computed from it.")
+        friction_out_of_range = ("A friction element's coefficient, radius or damping is negative, or its block "
+                                 "length or smoothing speed is not positive (a traced value, which cannot be checked "
+                                 "before the run): no motion is computed from it.")
         static_below_kinetic = ("A friction element's static coefficient is below its kinetic coefficient (a traced "
                                 "value, which cannot be checked before the run): no motion is computed from it.")
 

@@ -94,7 +94,9 @@ class Settings(NamedTuple):
     domega: bool = True
     branch: str = "fixed"  # "tracked": carry the link angles in the state (branch continuity, see _tracking)
     adjoint: str = "recursive"  # how gradients go through diffrax: see ADJOINTS
-    reduction: str = "exact"  # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table)
+    # "table": the RHS interpolates a ReducedTable (crank, loads of q only; see _table); "auto": simulate() chooses,
+    # simulate_core takes the exact reduction
+    reduction: str = "exact"
     table_nodes: int = DEFAULT_TABLE_NODES  # grid size of the table when it is built inside simulate_core
     steps: int | None = None  # fixed steps over [t0, t1] by lax.scan over the solver's own step (see _steps_solve)
     bridge: float = 0.0  # tracked branch: half-width (rad or m of q) of the bridged singular windows (BRIDGE_WINDOW); 0: off
@@ -189,7 +191,7 @@ def setting_problem(key: str, value, schema: Mapping = SIMULATION_KEYS) -> str |
     if key in WORK_LIMITS and _positive_int(value) and value > WORK_LIMITS[key][0]:
         limit, unit = WORK_LIMITS[key]
         row = {"table_nodes": "node", "samples": "sample"}.get(key, "step")
-        problem += (f" (at {unit} bytes a {row} it would need at least {_size(value * unit)}, where the limit needs "
+        problem += (f" (at {unit} bytes a {row} it would need at least {_size(value * unit)}; the limit allows "
                     f"{_size(limit * unit)})")
     return problem
 

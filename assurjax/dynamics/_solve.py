@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssemblyError, AssurjaxError
-from .._friction import frictions_of, has_exact_law, smoothed_only, states_per_call
+from .._friction import frictions_of, has_exact_law, in_range, smoothed_only, states_per_call
 from .._jit import (Static, any_mapped, checks_without_callbacks, chunk_rows, combine, compile_side_by_side,
                     jit_arrays, split_arrays)
 from .._loads import VARIABLES, tables_in
@@ -113,10 +113,26 @@ def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, tab
     the EndChecks still to make or None): the motion and its stop. :func:`_finished` does the rest."""
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     sol, branch, checks = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
+    sol = _friction_checked(sol, model.loads)
     if settings.check_assembly and not _tabulated(settings):
         sol = _checked_starts(sol, model.mechanism, q0, assembly=checks is None)
     # no weakly typed values: the outputs' program is compiled ahead for these types (compile_side_by_side)
     return jax.tree.map(lambda x: jnp.asarray(x, dtype=x.dtype), (sol, branch, checks))
+
+
+def _friction_checked(sol: Solution, loads) -> Solution:
+    return replaced(sol, result=friction_result(loads, sol.result))
+
+
+def friction_result(loads, result):
+    """``result`` (a RESULTS item), failed where a friction element's value is not finite or
+    out of range: traced values (a sweep's, a vmap's), which no constructor saw; a negative
+    coefficient made the friction drive the mechanism."""
+    values = eqx.filter(frictions_of(loads), eqx.is_inexact_array)
+    if not jax.tree.leaves(values):
+        return result
+    result = RESULTS.where(in_range(loads), result, RESULTS.friction_out_of_range)
+    return RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)
 
 
 def _finished(model: Model, sol: Solution, branch, checks: EndChecks | None, settings: Settings) -> Solution:
@@ -369,8 +385,8 @@ def _tabulated(settings: Settings) -> bool:
     """True in table mode; clear errors for unknown modes and unsupported combinations."""
     if settings.reduction not in ("exact", "table", "auto"):
         raise AssurjaxError(f"reduction must be 'exact', 'table' or 'auto', got {settings.reduction!r}")
-    if settings.reduction == "auto":
-        raise AssurjaxError("reduction='auto' is resolved by simulate(); simulate_core takes 'exact' or 'table'")
+    # 'auto' (settings_from's default) is simulate's choice, made on the host with the table's
+    # checks; a traced run takes the exact reduction
     if settings.reduction == "table" and settings.branch == "tracked":
         raise AssurjaxError("reduction='table' needs branch='fixed' (the table is sampled on the scene's assembly modes)")
     return settings.reduction == "table"

@@ -235,7 +235,12 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         args = segment_args(y_start, direction, signs, block_ends, knots, pieces)
         inputs = (args, start, y_start, step, coeffs, ts, t1, dt)
         # reverse mode with friction: a jam's segment is not differentiated (see _pullback_where_used)
-        run = segment(inputs, stuck) if kind == "lax" or frictionless else _pullback_where_used(inputs, segment, stuck)
+        if kind == "lax" or frictionless:
+            run = segment(inputs, stuck)
+        elif chunk is not None:  # a batch: the pullback's cond is a select there (see _relinearized_where_used)
+            run = _relinearized_where_used(inputs, segment, _emptied, stuck)
+        else:
+            run = _pullback_where_used(inputs, segment, stuck)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
         last = jnp.sum(jnp.isfinite(sol.ts)) - 1
         end = sol.ts[last]
@@ -612,12 +617,49 @@ def _pullback_where_used_fwd(perturbed, inputs, f, *rest):
 @_pullback_where_used.def_bwd
 def _pullback_where_used_bwd(residuals, cotangents, perturbed, inputs, f, *rest):
     pullback, zeros = residuals
+    cotangents, used = _cotangents_and_use(zeros, cotangents)
+    grads = jax.lax.cond(used, lambda: pullback(cotangents)[0], lambda: _zeros_like_inexact(inputs))
+    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed, is_leaf=lambda x: x is None)
+
+
+@eqx.filter_custom_vjp
+def _relinearized_where_used(inputs, f, emptied, *rest):
+    """:func:`_pullback_where_used` for a batch (a vmap being traced): there its ``lax.cond``
+    is a select, which runs the pullback for every member, and the jammed member's NaN
+    partials reached lineax, which raised for the whole batch. Here nothing is linearized in
+    the forward pass; the pullback linearizes ``f`` again, at ``inputs`` where some cotangent
+    is not 0 and elsewhere at ``emptied(inputs)`` (a segment of no length), and returns 0 there.
+    Exact as the other; the price is one more forward solve of each segment in reverse mode."""
+    return f(inputs, *rest)
+
+
+@_relinearized_where_used.def_fwd
+def _relinearized_where_used_fwd(perturbed, inputs, f, emptied, *rest):
+    out = f(inputs, *rest)
+    return out, _zeros_like_inexact(out)
+
+
+@_relinearized_where_used.def_bwd
+def _relinearized_where_used_bwd(zeros, cotangents, perturbed, inputs, f, emptied, *rest):
+    cotangents, used = _cotangents_and_use(zeros, cotangents)
+    grads = eqx.filter_vjp(lambda x: f(x, *rest), emptied(inputs, unless=used))[1](cotangents)[0]
+    grads = jax.tree.map(lambda g: None if g is None else jnp.where(used, g, jnp.zeros_like(g)), grads)
+    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed, is_leaf=lambda x: x is None)
+
+
+def _cotangents_and_use(zeros, cotangents):
+    """The cotangents with 0 for those JAX passes as None, and whether any is not 0."""
     cotangents = jax.tree.map(lambda z, c: None if z is None else z if c is None else c, zeros, cotangents,
                               is_leaf=lambda x: x is None)
     found = jax.tree.leaves(cotangents)
-    used = jnp.any(jnp.stack([jnp.any(c != 0) for c in found])) if found else jnp.asarray(False)
-    grads = jax.lax.cond(used, lambda: pullback(cotangents)[0], lambda: _zeros_like_inexact(inputs))
-    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed, is_leaf=lambda x: x is None)
+    return cotangents, jnp.any(jnp.stack([jnp.any(c != 0) for c in found])) if found else jnp.asarray(False)
+
+
+def _emptied(inputs, unless):
+    """A segment's inputs (see ``segment`` in :func:`stick_slip`), ending where it starts
+    unless ``unless``."""
+    args, start, y, step, coeffs, ts, t1, dt = inputs
+    return args, start, y, step, coeffs, ts, jnp.where(unless, t1, start), dt
 
 
 def _zeros_like_inexact(tree):

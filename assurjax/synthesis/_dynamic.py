@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import AssurjaxError
-from .._jit import jit
+from .._jit import any_mapped, jit
 from .._mechanism import check_values_once
 from .._model import check_has_inertia
 from .._positions import assembled
@@ -61,7 +61,7 @@ from ..dynamics._field import arrival_acceleration
 from ..dynamics._results import FINISHED, STANDSTILL, finished, jam_text, result_code, result_text, status_text
 from ..dynamics._settings import (ADJOINTS, check_single_start, check_span_covered, check_step_within_span, fixed_step_from,
                                   settings_from)
-from ..dynamics._stick import jammed_members
+from ..dynamics._stick import BATCH_SEGMENT_STEPS, jammed_members
 from ..dynamics._table import build_table
 from ..dynamics._solve import simulate_core
 from ._sensitivity import final_state_sensitivity, standstill_state
@@ -151,10 +151,8 @@ def final_state(scene, t1, *, q0=None, omega0=None, adjoint: str = "recursive", 
     budget runs out) or ends where the mechanism does not assemble (it passed a lock-up: the
     run does not stop at one unless ``check_assembly=True``) has no q(T): called as it is,
     this raises :class:`assurjax.AssurjaxError` naming how it ended; under ``jax.jit``,
-    ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run (but
-    ``jax.vmap`` of reverse mode over runs of which one the friction jams after it moved
-    raises from inside diffrax's event root find: ``adjoint="forward"`` there;
-    docs/design-notes.md).
+    ``vmap``, ``grad`` or ``jacfwd`` it returns NaN (and derivative 0) for that run, also
+    as a member of a vmapped batch whose other members go on to ``t1``.
 
     With joint friction, a start from rest (``omega0`` = 0) is a kink in ``omega0``: the
     Coulomb signs follow the direction the mechanism starts in, so the derivative in
@@ -256,6 +254,9 @@ def _run(model, q0, omega0, t0, t1, dt, settings, *, final_pose: bool = False, t
     with ``final_pose``, (the Solution, whether the mechanism assembles at its final q).
     ``table``: a checked table for ``reduction="table"`` (None: built in the program)."""
     numbers = tuple(None if v is None else jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1, dt))
+    if settings.segment_steps is None and any_mapped((model, numbers)):
+        # a vmap is invisible inside the program's nested jit: its runs are a batch (see stick_slip)
+        settings = settings._replace(segment_steps=BATCH_SEGMENT_STEPS)
     return _core_program(model, *numbers, settings, final_pose, table)
 
 

@@ -55,8 +55,9 @@ from .._model import Model, as_model, check_has_inertia
 from .._positions import assembled
 from .._reduction import generalized_force
 from ..dynamics._field import State, field_args, vector_field
-from ..dynamics._results import FINISHED, result_value
+from ..dynamics._results import FINISHED, RESULTS, result_value
 from ..dynamics._settings import Settings, controller_for, settings_from, solver_for
+from ..dynamics._solve import friction_result
 
 _TINY = 1e-30
 
@@ -443,7 +444,7 @@ def final_state_sensitivity(scene, t1, *, q0=None, omega0=None, mechanism=None, 
     model = _routed(as_model(scene, mechanism=mechanism, gravity=gravity, loads=loads), options)
     t0 = jnp.asarray(scene.state.get("t0", 0.0), dtype=float)
     y, result = _final_state_program(model, _initial(scene, q0, omega0), t0, jnp.asarray(t1, dtype=float), options)
-    return y[0], y[1], result
+    return y[0], y[1], _friction_code(model, result)
 
 
 def standstill_time_sensitivity(scene, *, t1=None, q0=None, omega0=None, mechanism=None, gravity=None, loads=None, **settings):
@@ -474,7 +475,15 @@ def standstill_state(scene, *, t1=None, q0=None, omega0=None, mechanism=None, gr
     t1 = jnp.asarray(scene.state.get("t1", 1.0) if t1 is None else t1, dtype=float)
     force = generalized_force(model.mechanism, model.gravity, model.loads, y0[0], y0[1], t0)
     direction = jax.lax.stop_gradient(jnp.where(y0[1] != 0, jnp.sign(y0[1]), jnp.sign(force)))
-    return _standstill_program(model, y0, t0, t1, direction, options)
+    t, q, fired, result = _standstill_program(model, y0, t0, t1, direction, options)
+    return t, q, fired, _friction_code(model, result)
+
+
+def _friction_code(model: Model, result):
+    """The result code, failed where a friction value traced into the run is out of range
+    (:func:`~assurjax.dynamics._solve.friction_result`)."""
+    checked = friction_result(model.loads, RESULTS.successful)
+    return jnp.where(checked == RESULTS.successful, result, result_value(checked))
 
 
 # Each route as one program compiled once per model structure and options, the model's arrays
