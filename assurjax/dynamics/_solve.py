@@ -113,15 +113,11 @@ def _integrate(model: Model, q0, omega0, t0, t1, ts, dt, settings: Settings, tab
     the EndChecks still to make or None): the motion and its stop. :func:`_finished` does the rest."""
     q0, omega0, t0, t1 = (jnp.asarray(v, dtype=float) for v in (q0, omega0, t0, t1))
     sol, branch, checks = _motion(model, q0, omega0, t0, t1, ts, dt, settings, table)
-    sol = _friction_checked(sol, model.loads)
+    sol = replaced(sol, result=friction_result(model.loads, sol.result))
     if settings.check_assembly and not _tabulated(settings):
         sol = _checked_starts(sol, model.mechanism, q0, assembly=checks is None)
     # no weakly typed values: the outputs' program is compiled ahead for these types (compile_side_by_side)
     return jax.tree.map(lambda x: jnp.asarray(x, dtype=x.dtype), (sol, branch, checks))
-
-
-def _friction_checked(sol: Solution, loads) -> Solution:
-    return replaced(sol, result=friction_result(loads, sol.result))
 
 
 def friction_result(loads, result):
