@@ -1778,6 +1778,11 @@ def test_traced_friction_values_out_of_range_are_flagged():
         assert not bool(joint(*bad)), bad
     for bad in ((-0.1, 0.05, 0.0), (0.1, 0.0, 0.0), (0.1, 0.05, -2.0)):
         assert not bool(slide(*bad)), bad
+    # inverse dynamics reads it too: the driving torque's flag (it was ok, the friction aiding the drive)
+    crank = aj.load_scene("slider_crank").mechanism
+    torque = jax.jit(lambda mu: aj.synthesis.driving_torque(crank, jnp.array([0.5, 2.0]), 3.0,
+                                                            loads=(aj.JointFriction("O", mu, 0.01),)))
+    assert np.all(torque(0.2)[1]) and not np.any(torque(-0.2)[1])
 
 
 @pytest.mark.slow  # ~24 s: two friction programs of their own (no default test traces mu through a run to share one)
@@ -1792,6 +1797,8 @@ def test_a_traced_friction_coefficient_that_is_not_finite_is_named_not_held(slid
     for mu in (np.nan, np.inf):
         assert run(jnp.asarray(mu)).result == aj.RESULTS.nonfinite_friction
     assert run(jnp.asarray(-MU)).result == aj.RESULTS.friction_out_of_range  # it ran, the friction driving it
+    band = jax.jit(lambda mu: aj.breakaway_band(_with_friction(slider, mu), jnp.array([0.5, 2.0]), check=False))
+    assert np.all(np.isfinite(band(jnp.asarray(MU)))) and np.all(np.isnan(band(jnp.asarray(-MU))))
     assert run(jnp.asarray(MU)).result == aj.RESULTS.successful
     q, w = jax.jit(lambda mu: aj.synthesis.final_state(_with_friction(slider, mu), 0.3))(jnp.asarray(np.nan))
     assert np.isnan(q) and np.isnan(w)

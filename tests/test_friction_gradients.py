@@ -157,9 +157,8 @@ def test_vmapped_reverse_mode_over_designs_of_which_one_jams():
     forward = jax.jit(jax.vmap(jax.jacfwd(lambda mu: q_at(mu, "forward"))))(mus)
     assert np.isnan(values[2]) and float(slopes[2]) == 0.0 and float(forward[2]) == 0.0
     # a batch runs in chunks of steps: its own step sequence (the values agree with the single
-    # runs' to the tolerance, 1.5e-9 rad here), and in chunks the two modes agree to the
-    # tolerance's level (4.4e-8 here; a single run in chunks 3.9e-9), not to round-off as in
-    # whole segments
+    # runs' to the tolerance), and there the two modes agree to the tolerance's level, not to
+    # round-off as in whole segments
     np.testing.assert_allclose(values[:2], [float(q_at(mu)) for mu in mus[:2]], rtol=0, atol=1e-7)
     np.testing.assert_allclose(slopes[:2], forward[:2], rtol=5e-7)
 

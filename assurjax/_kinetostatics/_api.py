@@ -18,7 +18,7 @@ from .._values import check_state_count, check_values, concrete, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
-from .._friction import (SUMMED_TERMS, coulomb_limits, coulomb_signs, friction_wrenches, frictions_of,
+from .._friction import (SUMMED_TERMS, coulomb_limits, coulomb_signs, friction_wrenches, frictions_of, in_range,
                          linearize_reactions, rates_and_slopes, signs_ahead, solve_friction, static_model,
                          states_per_call)
 from .._loads import Drive, applied_wrenches, driver_effort, drives, unbindable
@@ -666,7 +666,8 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     lower, upper, ok = _batched(static_model(model), (q, t), program=_band)  # at rest: the static coefficients
     if check:
         raise_if_singular(model.mechanism, ok, q)
-    return lower, upper
+    valid = in_range(model.loads)  # a traced value out of range (a negative mu): no band, as for a NaN one
+    return jnp.where(valid, lower, jnp.nan), jnp.where(valid, upper, jnp.nan)
 
 
 BEYOND_EDGE = 1e-9  # a start is tested with the drive past a band's edge by this much (times 1 + the edges' sizes)
@@ -737,6 +738,7 @@ def _run(scene, state, joints, method, check, *, static, source=None):
         forces = {k: forces[k] for k in names}
         couples = {k: v for k, v in couples.items() if k in names}
     pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
+    friction_ok = friction_ok & in_range(model.loads)  # a traced value out of range (a negative mu): no statics
     jam_state = at_jam_state(source, shape)
     if jam_state is not None:
         friction_ok = friction_ok & ~jam_state
