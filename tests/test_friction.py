@@ -1785,7 +1785,7 @@ def test_traced_friction_values_out_of_range_are_flagged():
     assert np.all(torque(0.2)[1]) and not np.any(torque(-0.2)[1])
 
 
-@pytest.mark.slow  # ~24 s: two friction programs of their own (no default test traces mu through a run to share one)
+@pytest.mark.slow  # ~30 s: three friction programs of their own (no default test traces mu through a run to share one)
 def test_a_traced_friction_coefficient_that_is_not_finite_is_named_not_held(slider):
     """A friction coefficient traced under the user's jit (an optimizer's step gone NaN)
     cannot be checked before the run; it read as a mechanism held at rest (from rest, q(T) =
