@@ -407,7 +407,8 @@ def _batch(model, q, omega, alpha, t, method, groups, static, rests=True):
     shape = q.shape
     single = lambda q, w, a, t: _single(model, q, w, a, t, method, groups, static, rests)  # noqa: E731
     flat = jax.vmap(single)(*(v.reshape(-1) for v in (q, omega, alpha, t)))
-    return jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+    *found, friction_ok = jax.tree.map(lambda x: x.reshape(shape + x.shape[1:]), flat)
+    return (*found, friction_ok & in_range(model.loads))  # a traced value out of range (a negative mu): no statics
 
 
 def _batched(model, state: tuple, *options, program=None):
@@ -738,7 +739,6 @@ def _run(scene, state, joints, method, check, *, static, source=None):
         forces = {k: forces[k] for k in names}
         couples = {k: v for k, v in couples.items() if k in names}
     pairs = tuple(p for ps in group_pairs(mechanism) for p in ps)
-    friction_ok = friction_ok & in_range(model.loads)  # a traced value out of range (a negative mu): no statics
     jam_state = at_jam_state(source, shape)
     if jam_state is not None:
         friction_ok = friction_ok & ~jam_state

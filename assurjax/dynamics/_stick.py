@@ -240,7 +240,7 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
         if kind == "lax" or frictionless:
             run = segment(inputs, stuck)
         elif chunk is not None:  # a batch: the pullback's cond is a select there (see _relinearized_where_used)
-            run = _relinearized_where_used(inputs, segment, _emptied, stuck)
+            run = _relinearized_where_used(inputs, segment, stuck)
         else:
             run = _pullback_where_used(inputs, segment, stuck)
         sol = _Saved(run.ts[0], run.ys[0], run.event_mask, run.result, run.stats)
@@ -328,12 +328,9 @@ def stick_slip(model: Model, q0, omega0, t0, t1, ts, dt, y0: State, settings: Se
     end, y_end, _, held, _, saved, filled, steps, result, event, failed, _, _, _, _, done = eqxi.while_loop(
         cond, body, carry, max_steps=calls, kind=kind)
     result = RESULTS.where(done | ~finished(result), result, RESULTS.max_segments_reached)
-    # a traced coefficient that is NaN or inf (checked on the host where it is concrete) read as a
-    # mechanism held at rest, or a jam: say what it is instead
-    values = eqx.filter(frictions_of(model.loads), eqx.is_inexact_array)
-    if jax.tree.leaves(values):
-        result = RESULTS.where(static_in_order(model.loads), result, RESULTS.static_below_kinetic)
-        result = RESULTS.where(all_finite(values), result, RESULTS.nonfinite_friction)  # a NaN compares as out of order
+    # a traced static coefficient below the kinetic one (checked on the host where it is concrete):
+    # say so (values out of range or not finite: _solve.friction_result, on every path)
+    result = RESULTS.where(static_in_order(model.loads), result, RESULTS.static_below_kinetic)
     if not holds and not first_rest:  # held at rest from the last standstill (or the start) to t1
         held = held & (event != LOCKUP) & finished(result)
         rest = held & (ts >= end)
@@ -625,26 +622,26 @@ def _pullback_where_used_bwd(residuals, cotangents, perturbed, inputs, f, *rest)
 
 
 @eqx.filter_custom_vjp
-def _relinearized_where_used(inputs, f, emptied, *rest):
+def _relinearized_where_used(inputs, f, *rest):
     """:func:`_pullback_where_used` for a batch (a vmap being traced): there its ``lax.cond``
     is a select, which runs the pullback for every member, and the jammed member's NaN
     partials reached lineax, which raised for the whole batch. Here nothing is linearized in
     the forward pass; the pullback linearizes ``f`` again, at ``inputs`` where some cotangent
-    is not 0 and elsewhere at ``emptied(inputs)`` (a segment of no length), and returns 0 there.
+    is not 0 and elsewhere at :func:`_emptied` inputs (a segment of no length), and returns 0 there.
     Exact as the other; the price is one more forward solve of each segment in reverse mode."""
     return f(inputs, *rest)
 
 
 @_relinearized_where_used.def_fwd
-def _relinearized_where_used_fwd(perturbed, inputs, f, emptied, *rest):
+def _relinearized_where_used_fwd(perturbed, inputs, f, *rest):
     out = f(inputs, *rest)
     return out, _zeros_like_inexact(out)
 
 
 @_relinearized_where_used.def_bwd
-def _relinearized_where_used_bwd(zeros, cotangents, perturbed, inputs, f, emptied, *rest):
+def _relinearized_where_used_bwd(zeros, cotangents, perturbed, inputs, f, *rest):
     cotangents, used = _cotangents_and_use(zeros, cotangents)
-    grads = eqx.filter_vjp(lambda x: f(x, *rest), emptied(inputs, unless=used))[1](cotangents)[0]
+    grads = eqx.filter_vjp(lambda x: f(x, *rest), _emptied(inputs, unless=used))[1](cotangents)[0]
     grads = jax.tree.map(lambda g: None if g is None else jnp.where(used, g, jnp.zeros_like(g)), grads)
     return jax.tree.map(lambda g, p: g if p else None, grads, perturbed, is_leaf=lambda x: x is None)
 

@@ -20,7 +20,7 @@ from jaxtyping import Array
 from .._errors import AssurjaxError
 from .._values import check_value
 from .._geometry import cross, dot
-from .._friction import frictions_of, in_range
+from .._friction import frictions_of
 from .._mechanism import Mechanism, positions
 from .._model import Model
 from ..groups import RRR
@@ -366,7 +366,7 @@ def _frictional_torque(model: Model, q, omega) -> tuple[Array, Array]:
     zeros = jnp.zeros(q.shape)
     _, _, tau, ok, _, _, consistent = _batched(model, (q, omega, zeros, zeros), "modular", None, False,
                                                may_rest(omega, zeros))
-    return tau, jnp.all(ok, axis=-1) & consistent & in_range(model.loads)  # a traced mu < 0: not ok
+    return tau, jnp.all(ok, axis=-1) & consistent
 
 
 def smooth_max(x, sharpness: float) -> Array:
