@@ -394,6 +394,13 @@ SCENE_SETTINGS = {
     "a typo in simulation": (dict(simulation={"rtoll": 1e-6}), "simulation: unknown field 'rtoll'"),
     "a typo in outputs": (dict(outputs={"point": ["C"]}), "outputs: unknown field 'point'"),
     "a word for a flag": (dict(outputs={"energies": "no"}), "outputs, field 'energies': expected true or false"),
+    # the loads are checked against the drawn mechanism as with_loads checks them (they were taken unchecked)
+    "a load that is a word": (dict(loads=["A", 3.0]), "load #1: expected an assurjax load"),
+    "loads a number": (dict(loads=3.0), "Sketch.scene: loads must be a sequence of loads or one load"),
+    "friction at a joint not drawn": (dict(loads=[assurjax.JointFriction("Z", 0.1, 0.01)]),
+                                      "JointFriction: 'Z' is not a revolute joint of the mechanism"),
+    "slide friction without a slide": (dict(loads=[assurjax.SlideFriction("coupler/crank", 0.1, 0.01)]),
+                                       "SlideFriction: 'coupler/crank' is not a prismatic pair"),
 }
 
 
@@ -402,6 +409,11 @@ def test_sketch_scene_settings_are_checked_by_name(case):
     settings, message = SCENE_SETTINGS[case]
     with pytest.raises(assurjax.AssurjaxError, match=message):
         Sketch(**FOUR).scene(**settings)
+
+
+def test_one_load_alone_is_the_sketch_scenes_only_load():
+    pin = assurjax.JointFriction("B", 0.1, 0.01)
+    assert Sketch(**FOUR).scene(loads=pin).loads == (pin,)
 
 
 def test_a_massless_drawing_has_kinematics_and_no_dynamics():

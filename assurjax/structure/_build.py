@@ -308,6 +308,7 @@ def to_scene(sk: Sketch, *, gravity=(0.0, 0.0), q0: float | None = None, omega0:
     ``angles``, ``reactions``, ``energies``); ``simulation`` solver settings. Every value
     is checked as a scene file's would be."""
     from .._errors import AssurjaxError
+    from .._model import load_tuple
     from .._values import check_value
     from ..dynamics._settings import OUTPUT_KEYS, check_simulation_table, check_single_start
     from ..scene._scene import Scene, Settings
@@ -320,6 +321,7 @@ def to_scene(sk: Sketch, *, gravity=(0.0, 0.0), q0: float | None = None, omega0:
     state = dict(q0=float(q0), omega0=float(omega0), t0=float(t0), t1=float(t1))
     out = dict(points=(), angles=(), reactions=(), energies=True) | check_simulation_table(outputs or {}, "outputs", OUTPUT_KEYS)
     out = {k: tuple(v) if isinstance(v, list) else v for k, v in out.items()}
-    return Scene(mechanism=built.mechanism, gravity=jnp.asarray(gravity, dtype=float), loads=tuple(loads), state=Settings(state),
-                 simulation=Settings(simulation), outputs=Settings(out), name=sk.name, description=description,
-                 notes=built.notes)
+    scene = Scene(mechanism=built.mechanism, gravity=jnp.asarray(gravity, dtype=float), loads=(), state=Settings(state),
+                  simulation=Settings(simulation), outputs=Settings(out), name=sk.name, description=description,
+                  notes=built.notes)
+    return scene.with_loads(load_tuple(loads, "Sketch.scene"))  # checked against the mechanism
