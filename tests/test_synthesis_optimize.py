@@ -5,6 +5,7 @@ problem, evaluated with numpy geometry only; gradients against central differenc
 once" by counting traces (a Python side effect runs only while JAX traces).
 """
 
+import functools
 import math
 
 import jax
@@ -315,6 +316,37 @@ def test_compile_modes_agree_and_auto_compiles_one_line_search_start_quickly(mon
     np.testing.assert_array_equal(auto.history.evaluations, optimized.history.evaluations)
     with pytest.raises(AssurjaxError, match="compile_mode"):
         syn.optimize(design, _path_objective, optax.lbfgs, 30, has_aux=True, compile_mode="fast")
+
+
+@jax.custom_vjp
+def _reverse_only(x):
+    return x
+
+
+_reverse_only.defvjp(lambda x: (x, None), lambda _, g: (g,))
+
+
+def test_gradient_modes_agree_and_auto_takes_reverse_mode_where_the_objective_needs_it():
+    """The gradient by forward mode (one tangent per design variable: "auto" takes it up to
+    FORWARD_MOST of them) and by reverse mode: the same run to round-off. An objective that
+    takes no forward mode (a jax.custom_vjp) runs by reverse mode under "auto", and is a clear
+    error where forward mode was asked for."""
+    design = _four_bar_design()  # 4 variables
+    run = functools.partial(syn.optimize, design, optimizer=optax.adam, steps=5, options={"learning_rate": 0.01}, has_aux=True)
+    forward, reverse = run(_path_objective), run(_path_objective, gradient="reverse")
+    np.testing.assert_allclose(forward.history.loss, reverse.history.loss, rtol=1e-12)
+    for f, r in zip(jax.tree.leaves(forward.history.grad), jax.tree.leaves(reverse.history.grad)):
+        np.testing.assert_allclose(f, r, rtol=1e-9, atol=1e-14)
+
+    def reverse_only(m):
+        loss, aux = _path_objective(m)
+        return _reverse_only(loss), aux
+
+    np.testing.assert_array_equal(run(reverse_only).history.loss, reverse.history.loss)
+    with pytest.raises(AssurjaxError, match="gradient='forward', but the objective takes reverse-mode derivatives only"):
+        run(reverse_only, gradient="forward")
+    with pytest.raises(AssurjaxError, match="gradient must be 'auto', 'forward' or 'reverse'"):
+        run(_path_objective, gradient="backward")
 
 
 def test_tolerance_stops_and_multistart_keeps_every_start():

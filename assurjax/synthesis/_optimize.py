@@ -9,12 +9,14 @@ objective, design structure and method runs without recompiling.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -138,6 +140,7 @@ class _Problem(eqx.Module):
     has_aux: bool = eqx.field(static=True)
     takes_params: bool = eqx.field(static=True)
     capacity: int = eqx.field(static=True)  # history entries per stage
+    forward: bool = eqx.field(static=True, default=False)  # the gradient by forward mode (see optimize's gradient)
 
     def optimizer(self, numeric: dict) -> optax.GradientTransformationExtraArgs:
         if isinstance(self.method, optax.GradientTransformation):
@@ -146,7 +149,7 @@ class _Problem(eqx.Module):
 
     def loss_and_aux(self, z, params):
         """(loss, (acceptable, aux)): the loss is +inf where the design is not acceptable."""
-        return _traced_once(self, z, params)
+        return _by_forward_mode(z, self, params) if self.forward else _traced_once(self, z, params)
 
     def _loss_and_aux(self, z, params):
         tree = self.design.build(z)
@@ -178,6 +181,40 @@ def _traced_once(problem: _Problem, z, params):
     """The objective as one jitted function: its trace (and its derivatives' traces) are reused by
     every place that evaluates it (the shape probe, the accepted steps, a line search's trials)."""
     return problem._loss_and_aux(z, params)
+
+
+@eqx.filter_custom_vjp
+def _by_forward_mode(z, problem: _Problem, params):
+    """The objective, whose reverse-mode derivative in ``z`` (what ``evaluate`` and a line search
+    take) is computed by forward mode: one tangent per variable, side by side."""
+    return _traced_once(problem, z, params)
+
+
+@_by_forward_mode.def_fwd
+def _by_forward_mode_fwd(perturbed, z, problem: _Problem, params):
+    return _value_and_slopes(problem, z, params)
+
+
+@eqx.filter_jit
+def _value_and_slopes(problem: _Problem, z, params):
+    """((loss, rest), d loss / d z flattened), the derivative by forward mode, traced once for
+    every place that takes it (as :func:`_traced_once`); the jvp is taken inside this jit, where
+    the objective's own functions see it (``synthesis.final_state`` then integrates forward)."""
+    flat, unravel = jax.flatten_util.ravel_pytree(z)
+
+    def along(tangent):
+        return jax.jvp(lambda x: problem._loss_and_aux(unravel(x), params), (flat,), (tangent,), has_aux=True)
+
+    loss, slopes, rest = jax.vmap(along)(jnp.eye(flat.size, dtype=flat.dtype))
+    return (loss[0], jax.tree.map(lambda x: x[0], rest)), slopes
+
+
+@_by_forward_mode.def_bwd
+def _by_forward_mode_bwd(slopes, cotangents, perturbed, z, problem: _Problem, params):
+    loss_cotangent = cotangents[0]
+    unravel = jax.flatten_util.ravel_pytree(z)[1]
+    grads = unravel(slopes * (0.0 if loss_cotangent is None else loss_cotangent))
+    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed)
 
 
 @jax.custom_vjp
@@ -346,6 +383,9 @@ def _run(problem: _Problem, options: dict, schedule, initial, batch: str):
 
 _RUN = {"optimized": jit(_run), "quick": jit(_run, compiler_options=QUICK_OPTIONS)}
 COMPILE_MODES = ("auto", "quick", "optimized")
+GRADIENT_MODES = ("auto", "forward", "reverse")
+# "auto" takes the gradient by forward mode up to this many design variables (see optimize)
+FORWARD_MOST = 4
 
 
 # --------------------------------------------------------------------------- the public entry point
@@ -373,6 +413,7 @@ def optimize(
     progress: bool | None = None,
     callback: Callable[[int, float, Any], None] | None = None,
     compile_mode: str = "auto",
+    gradient: str = "auto",
 ) -> SynthesisResult:
     """Minimize ``objective(design.build(z))`` over the unconstrained variables ``z``.
 
@@ -438,6 +479,15 @@ def optimize(
       runs 5x slower. Calling one problem many times (new starts, bounds,
       options): pass ``"optimized"``. Each mode is compiled once per problem
       structure; results agree to round-off, which a run can amplify.
+    - ``gradient``: how the gradient is taken: ``"reverse"`` (``jax.grad``),
+      ``"forward"`` (``jax.jvp`` along each design variable, side by side) or
+      ``"auto"``: forward for up to ``FORWARD_MOST`` (4) variables, reverse above.
+      Through a simulation forward mode is the cheaper one for a few variables
+      (``synthesis.final_state`` and ``standstill_time`` then integrate forward
+      sensitivities): the slider-crank with joint friction, one coefficient, Adam: first
+      call 128 -> 34 s, 59 -> 8.8 ms per evaluation (benchmarks/bench_optimize_gradient.py).
+      An objective that takes reverse mode only (a ``jax.custom_vjp``, an explicit
+      ``adjoint="backsolve"``) runs by reverse mode under ``"auto"``.
 
     Raises :class:`AssemblyError` if no starting design can assemble.
 
@@ -459,6 +509,8 @@ def optimize(
         raise AssurjaxError(f"optimize: batch must be 'auto', 'vmap' or 'sequential', got {batch!r}")
     if compile_mode not in COMPILE_MODES:
         raise AssurjaxError(f"optimize: compile_mode must be 'auto', 'quick' or 'optimized', got {compile_mode!r}")
+    if gradient not in GRADIENT_MODES:
+        raise AssurjaxError(f"optimize: gradient must be 'auto', 'forward' or 'reverse', got {gradient!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:  # NumPy's seeds
         raise AssurjaxError(f"optimize: seed must be a non-negative integer, got {seed!r}")
     started = time.perf_counter()
@@ -479,7 +531,18 @@ def optimize(
     if compile_mode == "auto":
         compile_mode = "quick" if line_search and _count(initial) == 1 else "optimized"
     run = _RUN[compile_mode]
-    per_stage, final_values = jax.device_get(run(problem, run_options, stages, initial, batch if _count(initial) > 1 else "single"))
+    forward = gradient == "forward" or (gradient == "auto" and _variables(initial) <= FORWARD_MOST)
+    batch = batch if _count(initial) > 1 else "single"
+    try:
+        out = run(dataclasses.replace(problem, forward=forward), run_options, stages, initial, batch)
+    except (AssurjaxError, TypeError) as e:
+        if not forward or not _forward_refused(e):
+            raise
+        if gradient == "forward":
+            raise AssurjaxError(f"optimize: gradient='forward', but the objective takes reverse-mode derivatives only "
+                                f"({e}); pass gradient='reverse'") from None
+        out = run(problem, run_options, stages, initial, batch)  # auto: an objective that takes reverse mode only
+    per_stage, final_values = jax.device_get(out)
     best_z, best_loss, status, evaluations, counts, history = per_stage
     elapsed = time.perf_counter() - started
     return _result(design, initial, best_z, final_values, best_loss, status, evaluations.sum(axis=1), counts, history, elapsed,
@@ -509,6 +572,18 @@ def _has_line_search(problem: _Problem, numeric: dict, initial) -> bool:
 
 def _count(batched) -> int:
     return jax.tree.leaves(batched)[0].shape[0]
+
+
+def _variables(batched) -> int:
+    """The number of scalar design variables of one start."""
+    return sum(int(np.prod(np.shape(x)[1:])) for x in jax.tree.leaves(batched))
+
+
+def _forward_refused(error: Exception) -> bool:
+    """Whether ``error`` is an objective's refusal of forward-mode derivatives: a reverse-mode
+    adjoint asked of ``synthesis.final_state``/``standstill_time``, or a ``jax.custom_vjp``."""
+    return (("forward" in str(error) and "reverse mode only" in str(error)) if isinstance(error, AssurjaxError)
+            else "can't apply forward-mode autodiff (jvp) to a custom_vjp function" in str(error))
 
 
 def _split_options(optimizer, options):
