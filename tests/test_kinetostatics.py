@@ -177,15 +177,15 @@ def _by_moments(scene, kin, t):
         _class4.NORMALS_BY_FORCES = saved
 
 
-def evaluate(scene, state, methods=("modular",)):
-    """Kinematics, the reactions by each method and the reduction at a batch of states,
-    in one compiled function (one compile per scene keeps the suite fast)."""
+def evaluate(scene, state, methods=("modular",), reduction=True):
+    """Kinematics, the reactions by each method and the reduction (unless not asked) at a
+    batch of states, in one compiled function (one compile per scene keeps the suite fast)."""
     pairs = tuple(p for ps in group_pairs(scene.mechanism) for p in ps)
 
     def one(q, w, a, t):
         kin = _kinematics_single(scene.mechanism, q, w, a, None, 2)
         found = {m: _by_moments(scene, kin, t) if m == "by_moments" else from_kinematics(scene, kin, t, method=m) for m in methods}
-        return kin, found, reduce_single(scene.mechanism, scene.gravity, scene.loads, q, w, t)
+        return kin, found, reduce_single(scene.mechanism, scene.gravity, scene.loads, q, w, t) if reduction else None
 
     kin, found, red = jax.jit(jax.vmap(one))(*(jnp.asarray(v, dtype=float) for v in state))
     return kin, {m: Solved(*found[m], pairs) for m in methods}, red
@@ -597,7 +597,7 @@ def seed003():
     scene = dataclasses.replace(scene, loads=loads)
     rng = np.random.default_rng(3)
     state = (q0 + np.r_[0.0, rng.uniform(-0.2, 0.2, 2)], np.r_[0.0, rng.normal(size=2)], np.r_[0.0, rng.normal(size=2)], np.zeros(3))
-    _, found, _ = evaluate(scene, state, ("modular", "dense", "by_moments"))
+    _, found, _ = evaluate(scene, state, ("modular", "dense", "by_moments"), reduction=False)
     return scene, ref, at, found
 
 

@@ -77,7 +77,7 @@ def test_printing_changes_nothing_else():
 
 
 def test_result_prints_under_its_public_name_with_a_message():
-    sol = aj.simulate(aj.load_scene("watt_sixbar"), t1=0.1, stop=None, samples=3)
+    sol = aj.simulate(aj.load_scene("watt_sixbar"), t1=0.2, stop=None)  # the programs of the test above
     assert bool(sol.result == aj.RESULTS.successful)
     assert repr(sol.result) == "assurjax.RESULTS<The run finished as asked (at t1 or at a stop event).>"
     assert repr(aj.RESULTS.max_steps_reached).startswith("assurjax.RESULTS<The maximum number of solver steps")

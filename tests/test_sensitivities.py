@@ -183,6 +183,9 @@ def test_driving_torque_matches_energy_balance(watt):
     np.testing.assert_allclose(tau, de_dq, rtol=1e-7, atol=1e-8)
 
 
+# ~10 s; test_synthesis_optimize's test_straight_line_gradients_match_differences[best line by x] checks
+# the same objective's gradient (reverse and forward mode) against central differences by default
+@pytest.mark.slow
 def test_straight_line_objective_gradient():
     """The smooth straight-line objective (root finds on x(q) = target, least-squares line,
     soft maxima) of a perturbed Roberts linkage: its gradient over the six lengths and the

@@ -266,6 +266,9 @@ def test_a_design_free_in_its_masses_stays_physical():
 # ----------------------------------------------------------------------------- problem 3: dynamic objective
 
 
+# ~8 s; by default test_sensitivities' test_driving_torque_matches_energy_balance checks the Watt six-bar's
+# driving torque against its energy balance, and test_a_design_free_in_its_masses_stays_physical optimizes one
+@pytest.mark.slow
 def test_counterweight_lowers_peak_driving_torque():
     """Watt six-bar driven at a constant 1 rad/s over a full turn: move the crank's centre of mass
     (a counterweight) and its mass to minimize the peak driving torque (inverse dynamics via the
