@@ -1073,12 +1073,11 @@ def cmd_reactions(args) -> int:
         r = assurjax.static_reactions(scene, q0, joints=joints)
         without = " (reactions and drive without its joint friction)" if rough else ""
         print(f"{scene.name}: held at rest at q0 = {q0:.6g} {units['q']}{without}")
-        _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units)
+        _print_reaction_table({k: np.asarray(v) for k, v in r.forces.items()}, float(r.driving), units, scene)
         band = tuple(float(edge) for edge in assurjax.breakaway_band(scene, q0)) if rough else (float(r.driving),) * 2
         if rough:
             print(_band_line(*band, units))
-        if (line := _own_drive_line(scene, q0, *band, units)) is not None:
-            print(line)
+        print(_own_drive_line(scene, q0, *band, units))
         return 0
     scene = _as_run(scene)
     samples = _samples(args, scene)
@@ -1135,7 +1134,7 @@ def cmd_reactions(args) -> int:
         return _say_failed(scene, sol) if failed else 0
     first = int(np.argmax(consistent))  # the first sample with statics
     print(f"  at t = {float(sol.t[first]):.4g} s" + (" (the first sample with a consistent friction)" if first else "") + ":")
-    _print_reaction_table({k: v[first] for k, v in forces.items()}, float(driving[first]), units,
+    _print_reaction_table({k: v[first] for k, v in forces.items()}, float(driving[first]), units, scene,
                           {k: float(v[first]) for k, v in along.friction.items()})
     _print_peaks(peaks, units, scene, sol, moves=_moves(sol), driving=driving[consistent])
     for line in _friction_lines(scene, sol, along, peaks):
@@ -1151,22 +1150,24 @@ def _statics_only(values: dict, consistent) -> dict:
     return {k: masked(v, consistent) for k, v in values.items()}
 
 
-def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -> str | None:
-    """Whether the scene's own drive (its loads on the driver, at q0, w = 0 and t0) holds the
-    mechanism there: the held drive and the band above stand for a drive in its place. None
-    without a driving load."""
+def _own_drive_line(scene, q0: float, lower: float, upper: float, units: dict) -> str:
+    """Whether the scene's own drive (its loads on the driver, at q0, w = 0 and t0; none: 0)
+    holds the mechanism there: the held drive and the band above stand for a drive in its place."""
     from ._loads import driver_effort, drives
 
-    if not any(drives(load) for load in scene.loads):
-        return None
-    effort = float(driver_effort(scene.mechanism, scene.loads, q0, 0.0, scene.state.get("t0", 0.0))) + 0.0  # not -0
     unit = units["driving"]
+    if not any(drives(load) for load in scene.loads):
+        return f"  it has no drive of its own: 0 {unit} is {_holds_verdict(0.0, lower, upper)}"
+    effort = float(driver_effort(scene.mechanism, scene.loads, q0, 0.0, scene.state.get("t0", 0.0))) + 0.0  # not -0
+    return f"  its own drive at q0 (w = 0, t = t0) is {effort:+.6g} {unit}, {_holds_verdict(effort, lower, upper)}"
+
+
+def _holds_verdict(effort: float, lower: float, upper: float) -> str:
+    """Whether a drive ``effort`` at rest holds the mechanism, by the band [lower, upper]."""
     if lower <= effort <= upper:
-        verdict = "within the band: it stays at rest" if lower < upper else "the drive that holds it: it stays at rest"
-    else:
-        verdict = f"{'above' if effort > upper else 'below'} {'the band' if lower < upper else 'it'}: it starts " \
-                  f"{'forward' if effort > upper else 'backward'}"
-    return f"  its own drive at q0 (w = 0, t = t0) is {effort:+.6g} {unit}, {verdict}"
+        return "within the band: it stays at rest" if lower < upper else "the drive that holds it: it stays at rest"
+    return (f"{'above' if effort > upper else 'below'} {'the band' if lower < upper else 'it'}: it starts "
+            f"{'forward' if effort > upper else 'backward'}")
 
 
 def _band_line(lower: float, upper: float, units: dict) -> str:
@@ -1189,14 +1190,17 @@ def _band_line(lower: float, upper: float, units: dict) -> str:
             f"break-away band); no drive starts it {locked}: the friction self-locks it")
 
 
-def _print_reaction_table(forces: dict, driving: float, units: dict, friction: dict | None = None):
+def _print_reaction_table(forces: dict, driving: float, units: dict, scene, friction: dict | None = None):
     import numpy as np
 
     for k, f in forces.items():  # + 0.0 turns -0.0 into 0.0: no "-0 N" printed
         print(f"    {k:12s} Fx = {f[0] + 0.0:+.6g} N, Fy = {f[1] + 0.0:+.6g} N, |F| = {np.hypot(*f):.6g} N")
     for k, u in (friction or {}).items():
         print(f"    friction at {k}: {u + 0.0:+.6g} {_friction_unit(k)}")
-    print(f"    driving effort = {driving + 0.0:+.6g} {units['driving']}")
+    if driving != 0 and _round_off(abs(driving), max((float(np.hypot(*f)) for f in forces.values()), default=0.0), scene, units):
+        print(f"    driving effort = 0 {units['driving']} (none needed: {driving:+.3g} {units['driving']} is round-off of the reactions)")
+    else:
+        print(f"    driving effort = {driving + 0.0:+.6g} {units['driving']}")
 
 
 def _print_files(files):

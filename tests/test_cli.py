@@ -336,7 +336,7 @@ def test_reactions_static_with_joint_friction_gives_the_breakaway_band(write_sce
     upper, lower = (float(v) for v in re.search(r"starts forward above ([-+0-9.e]+) N m and backward below ([-+0-9.e]+) N m",
                                                   text).groups())
     assert upper == pytest.approx(holding + limit, rel=1e-6) and lower == pytest.approx(holding - limit, rel=1e-6)
-    assert "its own drive" not in text  # it has none
+    assert "it has no drive of its own: 0 N m is below the band: it starts backward" in text  # it falls
     # its own drive against the band (they stand for a drive in its place): within it holds, past it starts
     for torque, verdict in ((holding, "within the band: it stays at rest"), (holding + 1.2 * limit, "above the band: it "
                                                                                                    "starts forward")):
