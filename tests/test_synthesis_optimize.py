@@ -326,22 +326,30 @@ def _reverse_only(x):
 _reverse_only.defvjp(lambda x: (x, None), lambda _, g: (g,))
 
 
-def test_gradient_modes_agree_and_auto_takes_reverse_mode_where_the_objective_needs_it():
-    """The gradient by forward mode (one tangent per design variable: "auto" takes it up to
-    FORWARD_MOST of them) and by reverse mode: the same run to round-off. An objective that
-    takes no forward mode (a jax.custom_vjp) runs by reverse mode under "auto", and is a clear
-    error where forward mode was asked for."""
-    design = _four_bar_design()  # 4 variables
+def test_gradient_modes_agree_and_auto_takes_reverse_mode_where_the_objective_needs_it(monkeypatch):
+    """The gradient by forward mode (one tangent per design variable) and by reverse mode: the
+    same run to round-off. "auto" takes forward mode for a few variables of a design with joint
+    friction, reverse mode otherwise; an objective that takes no forward mode (a jax.custom_vjp)
+    runs by reverse mode under "auto", and is a clear error where forward mode was asked for."""
+    from assurjax.synthesis import _optimize
+
+    design = _four_bar_design()  # 4 variables, no friction
     run = functools.partial(syn.optimize, design, optimizer=optax.adam, steps=5, options={"learning_rate": 0.01}, has_aux=True)
-    forward, reverse = run(_path_objective), run(_path_objective, gradient="reverse")
+    forward, reverse = run(_path_objective, gradient="forward"), run(_path_objective, gradient="reverse")
     np.testing.assert_allclose(forward.history.loss, reverse.history.loss, rtol=1e-12)
     for f, r in zip(jax.tree.leaves(forward.history.grad), jax.tree.leaves(reverse.history.grad)):
         np.testing.assert_allclose(f, r, rtol=1e-9, atol=1e-14)
+    np.testing.assert_array_equal(run(_path_objective).history.loss, reverse.history.loss)  # auto, no friction: reverse
+    assert _optimize._holds_friction(assurjax.load_scene("press_with_friction"))
+    assert not _optimize._holds_friction(assurjax.load_scene("watt_sixbar"))
 
     def reverse_only(m):
         loss, aux = _path_objective(m)
         return _reverse_only(loss), aux
 
+    monkeypatch.setattr(_optimize, "_holds_friction", lambda *trees: True)  # "auto" as for a design with friction
+    for f, r in zip(jax.tree.leaves(run(_path_objective).history.grad), jax.tree.leaves(forward.history.grad)):
+        np.testing.assert_array_equal(f, r)
     np.testing.assert_array_equal(run(reverse_only).history.loss, reverse.history.loss)
     with pytest.raises(AssurjaxError, match="gradient='forward', but the objective takes reverse-mode derivatives only"):
         run(reverse_only, gradient="forward")

@@ -384,7 +384,7 @@ def _run(problem: _Problem, options: dict, schedule, initial, batch: str):
 _RUN = {"optimized": jit(_run), "quick": jit(_run, compiler_options=QUICK_OPTIONS)}
 COMPILE_MODES = ("auto", "quick", "optimized")
 GRADIENT_MODES = ("auto", "forward", "reverse")
-# "auto" takes the gradient by forward mode up to this many design variables (see optimize)
+# "auto" takes the gradient by forward mode up to this many design variables with friction (see optimize)
 FORWARD_MOST = 4
 
 
@@ -481,13 +481,15 @@ def optimize(
       structure; results agree to round-off, which a run can amplify.
     - ``gradient``: how the gradient is taken: ``"reverse"`` (``jax.grad``),
       ``"forward"`` (``jax.jvp`` along each design variable, side by side) or
-      ``"auto"``: forward for up to ``FORWARD_MOST`` (4) variables, reverse above.
-      Through a simulation forward mode is the cheaper one for a few variables
+      ``"auto"``: forward for up to ``FORWARD_MOST`` (4) variables of a design with joint
+      friction (in the design's base or an objective Module's fields), reverse otherwise.
+      Through a run with friction forward mode is the cheaper one for a few variables
       (``synthesis.final_state`` and ``standstill_time`` then integrate forward
       sensitivities): the slider-crank with joint friction, one coefficient, Adam: first
-      call 128 -> 34 s, 59 -> 8.8 ms per evaluation (benchmarks/bench_optimize_gradient.py).
-      An objective that takes reverse mode only (a ``jax.custom_vjp``, an explicit
-      ``adjoint="backsolve"``) runs by reverse mode under ``"auto"``.
+      call 140 -> 35 s, 70 -> 7.3 ms per evaluation (benchmarks/bench_optimize_gradient.py);
+      without friction reverse mode is as fast or faster. An objective that takes reverse
+      mode only (a ``jax.custom_vjp``, an explicit ``adjoint="backsolve"``) runs by
+      reverse mode under ``"auto"``.
 
     Raises :class:`AssemblyError` if no starting design can assemble.
 
@@ -531,7 +533,8 @@ def optimize(
     if compile_mode == "auto":
         compile_mode = "quick" if line_search and _count(initial) == 1 else "optimized"
     run = _RUN[compile_mode]
-    forward = gradient == "forward" or (gradient == "auto" and _variables(initial) <= FORWARD_MOST)
+    forward = gradient == "forward" or (gradient == "auto" and _variables(initial) <= FORWARD_MOST
+                                        and _holds_friction(design, objective))
     batch = batch if _count(initial) > 1 else "single"
     try:
         out = run(dataclasses.replace(problem, forward=forward), run_options, stages, initial, batch)
@@ -577,6 +580,15 @@ def _count(batched) -> int:
 def _variables(batched) -> int:
     """The number of scalar design variables of one start."""
     return sum(int(np.prod(np.shape(x)[1:])) for x in jax.tree.leaves(batched))
+
+
+def _holds_friction(*trees) -> bool:
+    """Whether joint friction is among the leaves of ``trees`` (a design's base, an objective
+    that is a Module): its runs are where reverse mode costs most (see optimize's gradient)."""
+    from .._friction import AbstractFriction
+
+    return any(isinstance(leaf, AbstractFriction)
+               for leaf in jax.tree.leaves(trees, is_leaf=lambda x: isinstance(x, AbstractFriction)))
 
 
 def _forward_refused(error: Exception) -> bool:
