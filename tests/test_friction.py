@@ -802,6 +802,48 @@ def test_breakaway_band_against_closed_forms_and_the_joint_based_reference(write
     lower, upper = aj.breakaway_band(model, q)
     np.testing.assert_array_equal(lower, np.where(wedged, -np.inf, 0.0))
     np.testing.assert_array_equal(upper, np.where(wedged, np.inf, 0.0))
+    # drawn without masses: no dw/dt to test a start by; the statics' own test wedges it alike
+    links = {k: eqx.tree_at(lambda l: (l.mass, l.inertia), v, (0.0 * v.mass, 0.0 * v.inertia))
+             for k, v in steep.mechanism.links.items()}
+    massless = eqx.tree_at(lambda m: m.mechanism.links, model, links)
+    for edge, expected in zip(aj.breakaway_band(massless, q), (lower, upper)):
+        np.testing.assert_array_equal(edge, expected)
+
+
+# the rough arm drawn without masses (kinematics and statics only), a force at its tip A
+ARM_FORCE = np.array([2.0, -10.0])
+MASSLESS_ARM = f"""
+[scene]
+name = "massless_arm"
+gravity = [0.0, -9.81]
+[state]
+q0 = 0.3
+[[loads]]
+type = "force"
+point = "A"
+force = [{ARM_FORCE[0]}, {ARM_FORCE[1]}]
+""" + ROUGH_ARM.replace("mass = 2.0", "mass = 0.0").replace("inertia = 0.015", "inertia = 0.0")
+
+
+def test_the_band_of_a_drawing_without_masses_is_its_statics(write_scene, capsys):
+    """Without masses the band's edges have no dw/dt to be tested by (J_red = 0: each came out
+    infinite, and ``reactions --static`` said the friction self-locks it): the massless arm
+    with a force F at its tip A, its pivot carrying F alone, holds between -(r_A x F) -+ mu r
+    |F| (closed form); the command line prints that band."""
+    from assurjax.cli import main
+
+    path = write_scene(MASSLESS_ARM)
+    q = np.array([0.3, 2.0, -2.5])
+    tip = 0.3 * np.stack([np.cos(q), np.sin(q)], axis=-1)
+    holding = -(tip[:, 0] * ARM_FORCE[1] - tip[:, 1] * ARM_FORCE[0])
+    limit = 0.3 * 0.04 * np.hypot(*ARM_FORCE)
+    scene = aj.load_scene(path)
+    band = np.array([aj.breakaway_band(scene, qi) for qi in q])  # one q at a time: the program the CLI calls
+    np.testing.assert_allclose(band, np.stack([holding - limit, holding + limit], axis=-1), rtol=0, atol=1e-12)
+    assert main(["reactions", str(path), "--static"]) == 0
+    text = capsys.readouterr().out
+    assert (f"starts forward above {holding[0] + limit:+.6g} N m and backward below {holding[0] - limit:+.6g} N m"
+            in text) and "self-locks" not in text
 
 
 def test_a_mechanism_held_by_friction_needs_no_drive(slider, rough):

@@ -354,21 +354,33 @@ def _held_locked(model, kin, t, method, groups, drive, us, both_signs, consisten
     push = drive - free
     signs = jnp.where(push >= 0, both_signs[0], both_signs[1])  # those of a motion the way the drive pushes
     reactions0, basis = linear
+    pattern = _self_locking_pattern(mechanism, kin, frictions, linear, signs.astype(free.dtype))[0]
+    limit_ok = jnp.where(push >= 0, consistent[0], consistent[1])
+    v = jnp.where(limit_ok, jnp.where(push >= 0, us[0], us[1]), pattern)
+    per_unit = solve(v)[2] - free  # the driving effort is affine in u
+    scale = push / jnp.where(per_unit != 0, per_unit, 1.0)
+    u = jnp.where(limit_ok, jnp.clip(scale, 0.0, 1.0), scale) * v
+    within = _within_limits(u, coulomb_limits(mechanism, kin, frictions, reactions0, basis)(u)) & (per_unit != 0)
+    return u, solve(u), within
+
+
+def _self_locking_pattern(mechanism, kin, frictions, linear, signs):
+    """(v, own): the friction's self-locking pattern v ~ law(v) of the reactions the friction
+    itself makes (gravity and the loads left out; max |v| = 1), by power iteration from the
+    Coulomb ``signs``, and ``own``, u -> the Coulomb limits of those reactions."""
+    reactions0, basis = linear
     own = coulomb_limits(mechanism, kin, frictions, jax.tree.map(jnp.zeros_like, reactions0), basis)
 
     def step(_, v):  # v <- law(v) of the friction's own reactions: the pattern self-locking grows
         w = signs * own(v)
         return w / jnp.maximum(jnp.max(jnp.abs(w)), 1e-300)
 
-    pattern = jax.lax.fori_loop(0, SELF_LOCK_STEPS, step, signs.astype(free.dtype))
-    limit_ok = jnp.where(push >= 0, consistent[0], consistent[1])
-    v = jnp.where(limit_ok, jnp.where(push >= 0, us[0], us[1]), pattern)
-    per_unit = solve(v)[2] - free  # the driving effort is affine in u
-    scale = push / jnp.where(per_unit != 0, per_unit, 1.0)
-    u = jnp.where(limit_ok, jnp.clip(scale, 0.0, 1.0), scale) * v
-    bound = coulomb_limits(mechanism, kin, frictions, reactions0, basis)(u)
-    within = jnp.all(jnp.abs(u) <= bound * (1.0 + 1e-6) + 1e-12 * jnp.max(bound)) & (per_unit != 0)
-    return u, solve(u), within
+    return jax.lax.fori_loop(0, SELF_LOCK_STEPS, step, signs), own
+
+
+def _within_limits(u, bound):
+    """Whether the friction values u lie within their Coulomb limits ``bound`` (to round-off)."""
+    return jnp.all(jnp.abs(u) <= bound * (1.0 + 1e-6) + 1e-12 * jnp.max(bound))
 
 
 def from_kinematics(model, kin: Kinematics, t, *, method: str = "modular", groups=None, extra=None, batched: bool = True,
@@ -643,7 +655,9 @@ def breakaway_band(scene, q, *, t=0.0, check: bool = True) -> tuple[Array, Array
     friction both are :func:`static_torque`. Where no drive starts the mechanism one way
     (the friction self-locks that start: driven just past the edge, the forward dynamics
     has no consistent friction, or does not move that way), that edge is infinite:
-    ``upper`` +inf, ``lower`` -inf. Just past an edge the mechanism starts; where a pair
+    ``upper`` +inf, ``lower`` -inf. Without inertia at ``q`` (a drawing without masses) there
+    is no dw/dt to test: the statics decide, as ``reactions`` at rest reads them (an edge
+    whose friction is consistent bounds the band). Just past an edge the mechanism starts; where a pair
     self-locks harder the harder it is pushed, a much larger drive can hold it again (the
     drives that hold need not be one interval: the band is the one about the frictionless
     holding drive).
@@ -693,7 +707,8 @@ def _band(model: Model, q, t):
     def one(q, t):
         coeffs = coefficients(model.mechanism, q, order=2)  # the forward dynamics read its d2x too
         kin, at_rest = coeffs.kinematics(jnp.zeros(()), jnp.zeros(())), jnp.zeros(())
-        _, _, _, _, (_, _, driving, ok), _ = _both_ways(model, coeffs, kin, at_rest, t, "modular", None)
+        us, rates, signs, consistent, (_, _, driving, ok), linear = _both_ways(model, coeffs, kin, at_rest, t,
+                                                                               "modular", None)
         # in float32 1e-9 is below the float spacing: the test ran at the edge, where the sign of
         # dw/dt is rounding (10 of 13 edges of the slider-crank's band came out infinite)
         beyond = max(BEYOND_EDGE, EDGE_SPACINGS * float(jnp.finfo(driving.dtype).eps))
@@ -702,17 +717,43 @@ def _band(model: Model, q, t):
         # is then far past its band, which tests the same: whether a push beyond the edge starts it)
         past = beyond * (1.0 + jnp.abs(driving[0]) + jnp.abs(driving[1]))
 
-        def starts(edge, way):  # the forward dynamics at rest, driven just past the edge
+        def starts(edge, way):  # the forward dynamics at rest, driven just past the edge; and J_red
             driven = Model(model.mechanism, model.gravity, undriven + (Drive(edge + way * past),))
             f = frictional(driven, t, State(q, at_rest), way, iterate=iterate, coeffs=coeffs)
-            return f.consistent & (way * f.alpha > 0)
+            return f.consistent & (way * f.alpha > 0), f.red.inertia
 
+        (forward, inertia), (backward, _) = starts(driving[0], 1.0), starts(driving[1], -1.0)
+        # no inertia at q (a drawing without masses): no dw/dt to test (it was 0/0, every edge
+        # infinite); a quasi-static band needs none: the statics' own test, as reactions at rest reads it
+        massless = inertia == 0
+        statics = _bounds_by_statics(model, kin, us, rates, signs, consistent, linear, massless)
+        forward, backward = jnp.where(massless, statics, jnp.stack([forward, backward]))
         # an edge NaN (a NaN coefficient, traced) stays NaN, not an infinite edge
-        return (jnp.where(starts(driving[1], -1.0) | jnp.isnan(driving[1]), driving[1], -jnp.inf),
-                jnp.where(starts(driving[0], 1.0) | jnp.isnan(driving[0]), driving[0], jnp.inf), ok[0])
+        return (jnp.where(backward | jnp.isnan(driving[1]), driving[1], -jnp.inf),
+                jnp.where(forward | jnp.isnan(driving[0]), driving[0], jnp.inf), ok[0])
 
     flat = jax.vmap(one)(q.reshape(-1), t.reshape(-1))
     return jax.tree.map(lambda x: x.reshape(q.shape + x.shape[1:]), flat)
+
+
+def _bounds_by_statics(model, kin, us, rates, signs, consistent, linear, wanted):
+    """(2,): whether each limit of :func:`_both_ways` (forward, backward) bounds the drives that
+    hold the mechanism at rest, by statics alone (for a mechanism without inertia, ``wanted``):
+    a limit with consistent friction does (not self-locked that way); one at the zero root (a
+    wedge: its pairs carry no load but the friction's own) does where the friction's
+    self-locking pattern cannot hold a push, whatever its size (the test of ``reactions`` at
+    rest, :func:`_held_locked`, whose scaled pattern's limits scale with it)."""
+    mechanism, frictions = model.mechanism, frictions_of(model.loads)
+    trivial = jnp.all(us == 0, axis=-1)
+
+    def holds(signs):  # the pattern, its drive by virtual work at rest (-rates . v)
+        v, own = _self_locking_pattern(mechanism, kin, frictions, linear, signs.astype(rates.dtype))
+        return _within_limits(v, own(v)) & (jnp.sum(rates * v) != 0)
+
+    # computed only where some member of a batch needs it (a cond, as _where_locked's)
+    wedged = jax.lax.cond(eqxi.unvmap_any(wanted & jnp.any(trivial)), lambda: jax.vmap(holds)(signs),
+                          lambda: jnp.zeros(2, dtype=bool))
+    return (consistent & ~trivial) | (trivial & ~wedged)
 
 
 def static_reactions(scene, q, *, t=0.0, joints=None, check: bool = True) -> Reactions:
