@@ -11,7 +11,8 @@ Cases, each in a fresh process (JAX's on-disk cache off):
 - ``watt``: the bundled Watt six-bar's counterweight (mass and position on the crank) for a
   standstill at 1.2 s (``synthesis.standstill_time_problem``, its quadrature route), Adam;
 - ``slider``: the slider-crank with friction in its four pairs, q(0.5 s) to a target over
-  n = 1, 2, 4, 8 of its friction coefficients (``synthesis.final_state``), Adam: where the
+  n = 1, 2, 4 of its friction coefficients and, for 8, its pins' radii and block length
+  (``synthesis.final_state``), Adam: where the
   forward mode's cost per variable overtakes reverse mode's (``FORWARD_MOST``).
 
     python benchmarks/bench_optimize_gradient.py [--case NAME ...] [--out FILE]
@@ -68,8 +69,9 @@ def problem():
     pins = tuple(aj.JointFriction(j, 0.1, r) for j, r in (("O", 0.01), ("A", 0.008), ("B", 0.008)))
     scene = base.with_loads(tuple(base.loads) + pins + (aj.SlideFriction("slider/ground", 0.1, 0.04),))
     friction = [k for k, load in enumerate(scene.loads) if load.needs_reactions]
-    # n coefficients: the four pairs' mu, then their static coefficients' ... as many as asked
-    picks = [(k, "coefficient") for k in friction] + [(k, "viscous") for k in friction]
+    # n values: the four pairs' mu, then their friction circles' radii and the block's length
+    picks = [(k, "coefficient") for k in friction] + [(k, "radius" if hasattr(scene.loads[k], "radius") else "length")
+                                                      for k in friction]
     picks = picks[:n]
     design = syn.Design(scene, lambda s: tuple(getattr(s.loads[k], f) for k, f in picks), lower=0.0, upper=1.0)
     def objective(s):

@@ -385,7 +385,7 @@ _RUN = {"optimized": jit(_run), "quick": jit(_run, compiler_options=QUICK_OPTION
 COMPILE_MODES = ("auto", "quick", "optimized")
 GRADIENT_MODES = ("auto", "forward", "reverse")
 # "auto" takes the gradient by forward mode up to this many design variables with friction (see optimize)
-FORWARD_MOST = 4
+FORWARD_MOST = 8
 
 
 # --------------------------------------------------------------------------- the public entry point
@@ -481,7 +481,7 @@ def optimize(
       structure; results agree to round-off, which a run can amplify.
     - ``gradient``: how the gradient is taken: ``"reverse"`` (``jax.grad``),
       ``"forward"`` (``jax.jvp`` along each design variable, side by side) or
-      ``"auto"``: forward for up to ``FORWARD_MOST`` (4) variables of a design with joint
+      ``"auto"``: forward for up to ``FORWARD_MOST`` (8) variables of a design with joint
       friction (in the design's base or an objective Module's fields), reverse otherwise.
       Through a run with friction forward mode is the cheaper one for a few variables
       (``synthesis.final_state`` and ``standstill_time`` then integrate forward
