@@ -336,3 +336,41 @@ def test_gradient_without_friction_past_the_process_force_knots():
         reference = (4 * d2 - d1) / 3
         for program in (forward, reverse):
             np.testing.assert_allclose(float(program(jnp.asarray(stall), jnp.asarray(t1))), reference, rtol=1e-8)
+
+
+def _incline(mu):
+    """A 2 kg block sliding up a 30 degree incline from 2 m/s, Coulomb friction on its guide (mu_s 1.5)."""
+    a = np.deg2rad(30.0)
+    return aj.scene_from_dict({
+        "scene": {"name": "incline", "gravity": [0.0, -9.81]}, "ground": {"O": [0.0, 0.0]},
+        "links": {"block": {"points": {"P": [0.0, 0.0]}, "com": [0.0, 0.0], "mass": 2.0, "inertia": 0.01}},
+        "formation": [{"group": "slider", "name": "drv", "link": "block", "point": "P", "guide_point": "O",
+                       "direction": [float(np.cos(a)), float(np.sin(a))]}],
+        "loads": [{"type": "slide_friction", "pair": "block/ground", "coefficient": mu, "length": 0.05,
+                   "static_coefficient": 1.5}],
+        "state": {"q0": 0.0, "omega0": 2.0, "t1": 1.0}})
+
+
+@pytest.mark.slow  # ~40-70 s (L-BFGS's program with the friction's standstill); forward against reverse mode
+# through optimize stays in the default suite (test_synthesis_optimize.py), on a kinematic objective
+def test_optimize_by_forward_mode_finds_the_friction_coefficient_of_a_standstill_time():
+    """optimize's "auto" gradient on a design with friction (forward mode, one variable): the
+    coefficient that stops the block at t* = 0.25 s, and the gradient at the start, against the
+    closed form t* = v0 / (g (sin a + mu cos a))."""
+    import optax
+
+    g, a, v0, target = 9.81, np.deg2rad(30.0), 2.0, 0.25
+    design = aj.synthesis.Design(_incline(0.1), lambda s: s.loads[0].coefficient, lower=0.0, upper=1.0)
+
+    def objective(scene):
+        return (aj.synthesis.standstill_time(scene)[0] - target) ** 2 * 1e3
+
+    result = aj.synthesis.optimize(design, objective, optax.lbfgs, 40, target=1e-14)
+    assert result.status == "target", result.message
+    np.testing.assert_allclose(float(result.values), (v0 / (g * target) - np.sin(a)) / np.cos(a), rtol=1e-9)
+    # d loss / d z at the start: z -> mu = sigmoid(z) (bounds 0, 1), mu -> t*, t* -> loss
+    mu = 0.1
+    t_star = v0 / (g * (np.sin(a) + mu * np.cos(a)))
+    dt_dmu = -v0 * g * np.cos(a) / (g * (np.sin(a) + mu * np.cos(a))) ** 2
+    expected = 2e3 * (t_star - target) * dt_dmu * mu * (1.0 - mu)
+    np.testing.assert_allclose(float(jax.tree.leaves(result.history.grad)[0][0]), expected, rtol=1e-6)
