@@ -195,6 +195,14 @@ def _by_forward_mode_fwd(perturbed, z, problem: _Problem, params):
     return _value_and_slopes(problem, z, params)
 
 
+@_by_forward_mode.def_bwd
+def _by_forward_mode_bwd(slopes, cotangents, perturbed, z, problem: _Problem, params):
+    loss_cotangent = cotangents[0]
+    unravel = jax.flatten_util.ravel_pytree(z)[1]
+    grads = unravel(slopes * (0.0 if loss_cotangent is None else loss_cotangent))
+    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed)
+
+
 @eqx.filter_jit
 def _value_and_slopes(problem: _Problem, z, params):
     """((loss, rest), d loss / d z flattened), the derivative by forward mode, traced once for
@@ -207,14 +215,6 @@ def _value_and_slopes(problem: _Problem, z, params):
 
     loss, slopes, rest = jax.vmap(along)(jnp.eye(flat.size, dtype=flat.dtype))
     return (loss[0], jax.tree.map(lambda x: x[0], rest)), slopes
-
-
-@_by_forward_mode.def_bwd
-def _by_forward_mode_bwd(slopes, cotangents, perturbed, z, problem: _Problem, params):
-    loss_cotangent = cotangents[0]
-    unravel = jax.flatten_util.ravel_pytree(z)[1]
-    grads = unravel(slopes * (0.0 if loss_cotangent is None else loss_cotangent))
-    return jax.tree.map(lambda g, p: g if p else None, grads, perturbed)
 
 
 @jax.custom_vjp
