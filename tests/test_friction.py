@@ -859,6 +859,33 @@ def test_a_mechanism_held_by_friction_needs_no_drive(slider, rough):
     assert np.min(np.abs(bare.driving)) > 1e-3  # without friction it would take a drive to stay there
 
 
+def test_held_on_a_pins_dead_point_its_friction_stays_within_its_limit(slider, rough):
+    """The rough slider-crank held at rest with its crank upright or hanging (q = +-pi/2): the
+    rod's angle is at its extreme, so pin B's relative rate is 0 (a dead point) and both
+    break-away limits load B the same way. The held friction, the two limits' in proportion,
+    put 113 % of mu r |F_B| on B (|F| is convex: their F_B point apart), with friction_ok True.
+    Every element's value now lies within its Coulomb limit at the reported reactions (computed
+    here from them), and the drive is the least one: 0, as gravity has no moment there (each
+    centre of mass at the top or bottom of its circle: d y_G/dq = (R/2) cos q = 0). Beside
+    them (the run's held states; q = 0.4, held at the band's edge) all stays within the limits."""
+    scene = slider.model
+    model = aj.Model(scene.mechanism, scene.gravity, frictions(scene.mechanism, MU, 1e-3))
+    q = np.array(rough.q[(rough.omega == 0.0) & (rough.t > 0.5)])  # the test above's shape: its compiled program
+    q[:3] = [math.pi / 2, -math.pi / 2, 0.4]
+    r = aj.reactions(model, (q, np.zeros_like(q), np.zeros_like(q)))
+    ratio = {j: np.abs(r.friction[j]) / (MU * RADIUS * np.linalg.norm(r[j], axis=-1)) for j in ("O", "A", "B")}
+    normal, couple = np.asarray(r["slider/ground"])[:, 1], np.asarray(r.couples["slider/ground"])  # the guide along x
+    ratio["slider/ground"] = np.abs(r.friction["slider/ground"]) / (
+        MU * (np.abs(normal / 2 - couple / BLOCK) + np.abs(normal / 2 + couple / BLOCK)))
+    for name, value in ratio.items():
+        assert np.all(value <= 1.0 + 1e-12), (name, value)
+    np.testing.assert_allclose(ratio["B"][:2], 1.0, rtol=0, atol=1e-12)  # clipped to its limit
+    assert np.all(np.asarray(r.friction_ok))
+    np.testing.assert_allclose(np.delete(r.driving, 2), 0.0, rtol=0, atol=1e-12)
+    for value in ratio.values():  # q = 0.4: gravity outweighs the band; its edge, every element at its limit
+        assert abs(value[2] - 1.0) < 1e-9 and r.driving[2] > 0.4
+
+
 def test_inverse_dynamics_with_friction_balances_the_power(slider, rough):
     """Along the rough motion the driving effort needed is zero (there is no drive), and
     the reactions put friction on every pair: the frictionless reactions differ."""

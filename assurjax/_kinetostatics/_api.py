@@ -18,9 +18,9 @@ from .._values import check_state_count, check_values, concrete, found_words
 from .._geometry import rotation
 from .._jit import at_top_level, chunk_rows, jit
 from .._kinematics import Coefficients, Kinematics, coefficients, first_failure, raise_if_not_assembled
-from .._friction import (SUMMED_TERMS, coulomb_limits, coulomb_signs, friction_wrenches, frictions_of, in_range,
-                         linearize_reactions, rates_and_slopes, signs_ahead, solve_friction, static_model,
-                         states_per_call)
+from .._friction import (FIXED_POINT_STEPS, SUMMED_TERMS, coulomb_limits, coulomb_signs, friction_wrenches,
+                         frictions_of, in_range, linearize_reactions, rates_and_slopes, signs_ahead, solve_friction,
+                         static_model, states_per_call)
 from .._loads import Drive, applied_wrenches, driver_effort, drives, unbindable
 from .._mechanism import Mechanism, positions
 from .._model import Model, as_model
@@ -89,7 +89,8 @@ class Reactions(eqx.Module):
     (no finite drive gives it: the statics' friction law has no root with det(I - S) > 0,
     S its slope), and the values reported there are not a drive that produces it. Held
     at rest, False where either break-away limit has none: the friction alone holds the
-    mechanism against any drive that way, and ``driving`` is not the band's edge. Along a
+    mechanism against any drive that way, and ``driving`` is not the band's edge; and False
+    where the friction values reported exceed some element's static limit. Along a
     Solution whose run the friction jammed (``sol.jammed``), False at the jam's state (its
     last sample): the motion has no dw/dt there, so the values read there are no statics.
     True without friction.
@@ -274,12 +275,13 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     driving loads (:func:`assurjax.driver_effort`, 0 without them) is reported, or the limit
     nearest it where it is outside them, with the friction values between those of the two
     limits in proportion
-    (how static friction shares out between the pairs is not determined by statics); the
+    (how static friction shares out between the pairs is not determined by statics), an
+    element on its dead point clipped to its limit (:func:`_clipped_dead`); the
     limits of the static coefficients, where elements have them.
     ``friction=True`` (a model with friction): also the friction values u, the
     elements' relative rates per unit driving velocity (K,) and whether the friction has a
-    consistent solution (held: both limits). ``rests`` False: no state is held at rest, and
-    the program leaves out the analysis of a held self-locked mechanism (1.6 s of the press's
+    consistent solution (held: both limits, and the values within their limits). ``rests``
+    False: no state is held at rest, and the program leaves out the analysis of a held self-locked mechanism (1.6 s of the press's
     first call)."""
     kin = coeffs.kinematics(omega, alpha)
     if not frictions_of(model.loads):
@@ -308,6 +310,11 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
     # above reads a limit that is none; there the friction carries the drive (_held_locked)
     fits = pick_flag(consistent)
     if rests:
+        # held on an element's dead point (the same Coulomb sign both ways): see _clipped_dead
+        bound = coulomb_limits(held_model.mechanism, kin, frictions_of(model.loads), *linear)
+        clipped = _clipped_dead((direction == 0) & (signs[0] * signs[1] > 0), u, bound)
+        # held: the set reported lies within every element's limit, or friction ok says not
+        fits = fits & ((direction != 0) | _within_limits(clipped, bound(clipped)))
         locked = (direction == 0) & ~(consistent[0] & consistent[1])
         # a limit at the zero root (its pairs carry no load at rest: a wedge driven by nothing but
         # the drive) bounds no push: whether the friction holds one is the self-locking pattern's
@@ -315,27 +322,50 @@ def reactions_at(model: Model, coeffs: Coefficients, omega, alpha, t, *, method:
         trivial = jnp.all(us == 0, axis=-1)
         wedged = (direction == 0) & (trivial[0] | trivial[1])
         args = (held_model, kin, t, method, groups, drive, us, signs, consistent & ~trivial, linear)
-        u, found, fits = _where_locked(locked, wedged, (u, found, fits), args)
+        u, found, fits = _where_locked(locked, wedged, jnp.any(clipped != u), (clipped, found, fits), args)
     return found + (u, rates, fits) if friction else found
 
 
-def _where_locked(locked, wedged, default, args):
+def _where_locked(locked, wedged, clipped, default, args):
     """``default`` (u, reactions, friction ok), or :func:`_held_locked`'s where ``locked``, and
-    where ``wedged`` if its friction holds the drive there; computed only where some member of a
-    batch is either (a cond on the batch, as finish_friction's)."""
-    def both():
-        held = _held_locked(*args)
-        take = locked | (wedged & held[2])
-        return jax.tree.map(lambda a, b: jnp.where(take, a, b), held, default)
+    where ``wedged`` if its friction holds the drive there; the reactions solved afresh there and
+    where ``clipped`` (``default``'s u is not that of its reactions: _clipped_dead). Computed only
+    where some member of a batch is any (a cond on the batch, as finish_friction's)."""
+    model, kin, t, method, groups = args[:5]
 
-    return jax.lax.cond(eqxi.unvmap_any(locked | wedged), both, lambda: default)
+    def both():
+        u, within = _held_locked(*args)
+        take = locked | (wedged & within)
+        u = jnp.where(take, u, default[0])
+        found = from_kinematics(model, kin, t, method=method, groups=groups,
+                                extra=friction_wrenches(model.mechanism, kin, frictions_of(model.loads), u))
+        found = jax.tree.map(lambda a, b: jnp.where(take | clipped, a, b), found, default[1])
+        return u, found, jnp.where(take, within, default[2])
+
+    return jax.lax.cond(eqxi.unvmap_any(locked | wedged | clipped), both, lambda: default)
+
+
+def _clipped_dead(dead, u, bound):
+    """Held friction values ``u`` with those of the ``dead`` elements (on their dead point: the
+    same Coulomb sign at both limits) clipped to their limits (``bound``: u -> limits). Between
+    limits of opposite signs the mix of two values at their limits stays within the limit of
+    the mix of their reactions (|a u1 - b u2| <= mu r |a F1 + b F2|); of one sign it need not
+    (|F| is convex: pin B of an offset slider-crank held at its dead point read 113 % of its
+    limit). Such an element's relative rate is 0: its friction does no work, so the drive
+    stays. Its limit moves with its value (the reactions are affine in u): a fixed point,
+    contracting by mu r |dF/du|; the other elements' values stay (friction ok tests the set)."""
+    def clip():
+        step = lambda _, v: jnp.where(dead, jnp.clip(u, -bound(v), bound(v)), u)  # noqa: E731
+        return jax.lax.fori_loop(0, FIXED_POINT_STEPS, step, u)
+
+    return jax.lax.cond(eqxi.unvmap_any(jnp.any(dead)), clip, lambda: u)
 
 
 SELF_LOCK_STEPS = 60  # power iterations for the friction pattern a self-locked mechanism holds a push with
 
 
 def _held_locked(model, kin, t, method, groups, drive, us, both_signs, consistent, linear):
-    """(u, reactions, friction ok) held at rest under ``drive`` where a break-away limit has no
+    """(u, friction ok) held at rest under ``drive`` where a break-away limit has no
     consistent friction. On the drive's side (of the frictionless holding drive): where that
     limit is consistent, its friction scaled to the drive (the limit itself beyond it: the
     band's edge); where it is not (the friction alone holds any push that way), the friction's
@@ -360,8 +390,7 @@ def _held_locked(model, kin, t, method, groups, drive, us, both_signs, consisten
     per_unit = solve(v)[2] - free  # the driving effort is affine in u
     scale = push / jnp.where(per_unit != 0, per_unit, 1.0)
     u = jnp.where(limit_ok, jnp.clip(scale, 0.0, 1.0), scale) * v
-    within = _within_limits(u, coulomb_limits(mechanism, kin, frictions, reactions0, basis)(u)) & (per_unit != 0)
-    return u, solve(u), within
+    return u, _within_limits(u, coulomb_limits(mechanism, kin, frictions, reactions0, basis)(u)) & (per_unit != 0)
 
 
 def _self_locking_pattern(mechanism, kin, frictions, linear, signs):
