@@ -204,6 +204,23 @@ def test_a_wide_drawing_keeps_its_labels_and_legend_inside_the_figure(tmp_path):
     assert drawing.ax.get_legend() is not None
 
 
+def test_an_animation_keeps_its_labels_and_legend_inside_its_frames():
+    # the command's animation of a fast offset slider-crank (a coupler point's path, its velocity
+    # scale's legend entry): in the fixed 8 x 5 in figure the y label was gone and the legend cut off
+    mech = assurjax.Sketch(joints={"O": (0.0, 0.0), "A": (0.0, 0.1), "B": (0.2891, 0.02), "P": (0.1, 0.25)},
+                           links={"crank": ["O", "A"], "rod": ["A", "B", "P"], "ram": ["B"]}, ground=["O"],
+                           slides=[assurjax.Slide("ram", "ground", (1.0, 0.0))], driver="crank").mechanism()
+    q = np.linspace(1.6, 61.7, 60)
+    anim = viz.animate(mech, q, 88.0 * (q - 1.6) / 60.1, t=np.linspace(0.0, 2.0, 60), trace=["A", "B", "P"],
+                       trace_q=np.linspace(0.0, 2 * np.pi, 91), velocities=["A", "B"])
+    frames = viz.render_frames(anim)
+    ink = np.asarray(frames[20]).min(axis=-1) < 128
+    assert not ink[:, :2].any() and not ink[:, -2:].any()
+    label = anim.drawing.ax.yaxis.label
+    assert label.get_text() == "y (m)" and label.get_window_extent().x0 >= 0
+    plt.close(anim._fig)
+
+
 def test_a_point_at_rest_is_drawn_as_a_point(watt):
     frames = viz.mechanism_frames(watt, np.full(5, 0.3))  # the same configuration throughout
     ax = viz.plot_coupler_curves(frames, ["E"])

@@ -25,7 +25,7 @@ from .._errors import AssurjaxError
 from .._kinematics import point_names
 from .._mechanism import Mechanism, check_mechanism
 from .._values import check_value, check_values
-from ._draw import VELOCITY_COLOR, MechanismDrawing, place_legend, posed_frames
+from ._draw import VELOCITY_COLOR, MechanismDrawing, place_legend, posed_frames, widen_for_drawing
 from ._frames import check_coordinates, length_scale, mechanism_frames
 
 MAX_FRAMES = 10_000  # ~8 min of animation at 20 frames per second; each frame is drawn and rendered
@@ -72,7 +72,8 @@ def animate(
     velocities, trace = point_names(mechanism, velocities, "animate: velocities"), point_names(mechanism, trace, "animate: trace")
     frames = posed_frames("animate", mechanism, q, omega, velocities=bool(velocities), check=check,
                           hint="every frame must be a pose (check=False draws such frames marked)")
-    if ax is None:
+    own_figure = ax is None
+    if own_figure:
         _, ax = plt.subplots(figsize=(8, 5), layout="constrained")
     trace_frames = None if trace_q is None or not tuple(trace) else mechanism_frames(mechanism, trace_q)
     q_unit = "m" if mechanism.driver.kind == "slider" else "rad"
@@ -82,6 +83,8 @@ def animate(
     times = None if t is None else np.asarray(t, dtype=float)
     head = title or mechanism.name
     place_legend(ax)
+    if own_figure:
+        widen_for_drawing(ax)
 
     def show(i):
         artists = drawing.update(i)

@@ -408,8 +408,22 @@ def draw_mechanism(
     unassembled = "" if frames.ok[0] else " (it does not assemble there: the drawing means nothing)"
     ax.set_title(f"{mechanism.name} at q = {float(q):.4g} {q_unit}{unassembled}")
     place_legend(ax)
-    if own_figure:  # wide enough for an equal-aspect drawing beside its labels and legend (a wide one was clipped)
-        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-        beside = 0.9 + (1.6 if ax.get_legend() is not None else 0.0)  # inches: the y label, the legend
-        ax.figure.set_size_inches(min(max(8.0, 4.0 * (x1 - x0) / (y1 - y0) + beside), 16.0), 5.0)
+    if own_figure:
+        widen_for_drawing(ax)
     return drawing
+
+
+def widen_for_drawing(ax) -> None:
+    """The axes' own 5 in high figure made wide enough for its equal-aspect drawing beside its
+    y label and legend: in a fixed 8 in the layout could not fit a wide one (the strandbeest) or a
+    long legend (a velocity scale's), and cut the label and the legend off."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    legend, fig = ax.get_legend(), ax.figure
+    width = 0.0
+    if legend is not None:
+        try:  # measured: its labels' length varies (1.6 in was too little for a velocity scale's)
+            width = legend.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
+        except (AttributeError, RuntimeError):  # a canvas without a renderer to measure with
+            width = 1.6
+    beside = 0.9 + width + (0.2 if legend is not None else 0.0)  # inches: the y label and ticks, the legend
+    fig.set_size_inches(min(max(8.0, 4.2 * (x1 - x0) / (y1 - y0) + beside), 16.0), 5.0)
